@@ -1,0 +1,37 @@
+# The verbs users and CI call. Every target sets up its own virtual environment on first use.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+CONFIG ?= configs/quickstart.yaml
+PYTEST_ARGS ?=
+
+.PHONY: install install-test run test plot clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.installed-test: pyproject.toml $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $@
+
+install: $(VENV)/.installed            ## create .venv and install simrun into it
+
+install-test: $(VENV)/.installed-test  ## the same, with the test extras
+
+run: install                           ## run the default experiment (CONFIG=... for another)
+	$(BIN)/simrun $(CONFIG)
+
+test: install-test                     ## run the whole test suite on both cores
+	$(BIN)/python -m pytest -n auto $(PYTEST_ARGS)
+
+plot: install                          ## redraw the default experiment's figures from its results file
+	$(BIN)/simrun plot results/quickstart/results.h5
+
+clean:                                 ## remove results and caches (keeps .venv)
+	rm -rf results/*/ .pytest_cache .hypothesis
+	find . -name __pycache__ -type d -prune -not -path './$(VENV)/*' -exec rm -rf {} +

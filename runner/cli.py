@@ -1,0 +1,158 @@
+"""The `simrun` command: thin argument handling around the pipeline.
+
+config -> validated experiment -> runs -> simulate -> HDF5 -> figures
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+from simrun import __version__
+
+SUBCOMMANDS = ("run", "plot", "list")
+EXIT_CONFIG_ERROR = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="simrun",
+        description="Batch experiments with the time integrators of physics-based animation. "
+                    "`simrun CONFIG.yaml` is short for `simrun run CONFIG.yaml`.",
+    )
+    parser.add_argument("--version", action="version", version=f"simrun {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    run = commands.add_parser("run", help="run an experiment: every run of its sweep, then its figures",
+                              description="Run every run of CONFIG's sweep, write OUTPUT/results.h5 and draw OUTPUT/figures/.")
+    run.add_argument("config", help="the experiment's YAML file, e.g. configs/quickstart.yaml")
+    run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a config key, value in YAML (repeatable), e.g. --set system.stiffness=1000 --set sweep.dt=[0.01,0.02]")
+    run.add_argument("--output", help="output folder (default: the config's `output`, else results/<name>)")
+    run.add_argument("--no-plots", action="store_true", help="write the results file only")
+    run.add_argument("-q", "--quiet", action="store_true", help="print only errors and the final paths")
+
+    plot = commands.add_parser("plot", help="redraw the figures from a results file alone",
+                               description="Draw every figure that RESULTS supports into its folder's figures/ (PNG and SVG).")
+    plot.add_argument("results", help="a results file, e.g. results/quickstart/results.h5")
+    plot.add_argument("--output", help="figure folder (default: figures/ beside the results file)")
+
+    commands.add_parser("list", help="print the systems, integrators and solvers with their parameters",
+                        description="Print every system, integrator and solver that a config may name, with parameters and defaults.")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] not in SUBCOMMANDS and not argv[0].startswith("-"):
+        argv.insert(0, "run")  # `simrun CONFIG.yaml`
+    args = build_parser().parse_args(argv)
+    if args.command is None:
+        build_parser().print_help()
+        return 0
+    from simrun.config import ConfigError
+
+    try:
+        if args.command == "run":
+            return command_run(args)
+        if args.command == "plot":
+            return command_plot(args)
+        return command_list()
+    except ConfigError as error:
+        print(f"simrun: error: {error}", file=sys.stderr)
+        return EXIT_CONFIG_ERROR
+
+
+def command_run(args) -> int:
+    from simrun.config import config_hash, expand_runs, load_experiment
+    from simrun.simulate import simulate
+    from simrun.store import RESULTS_NAME, ResultsWriter
+
+    experiment, config_text = load_experiment(args.config, args.overrides)
+    runs = expand_runs(experiment)
+    output = Path(args.output) if args.output else experiment.output_dir
+    _check_writable(output)
+    say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
+    say(f"simrun {__version__}: {experiment.name}: {len(runs)} runs -> {output}")
+
+    output.mkdir(parents=True, exist_ok=True)
+    results_path = output / RESULTS_NAME
+    counts: dict[str, int] = {}
+    with ResultsWriter(results_path, config_text, config_hash(experiment), experiment.name) as writer:
+        for number, run in enumerate(runs, 1):
+            result = simulate(run)
+            writer.write_run(run, result)
+            counts[result.status] = counts.get(result.status, 0) + 1
+            detail = f" ({result.message})" if result.status != "ok" and result.message else ""
+            say(f"[{number}/{len(runs)}] {run.run_id}: {result.status}, {result.steps} steps in {result.wall_time:.3g} s{detail}")
+    print(f"results: {results_path}  ({', '.join(f'{n} {s}' for s, n in sorted(counts.items()))})")
+    if not args.no_plots:
+        from simrun.plots import draw_figures
+
+        figures = draw_figures(results_path, output / "figures")
+        print(f"figures: {output / 'figures'}  ({len(figures)} files)")
+    return 0
+
+
+def command_plot(args) -> int:
+    from simrun.config import ConfigError
+    from simrun.plots import draw_figures
+
+    path = Path(args.results)
+    if not path.is_file():
+        raise ConfigError(f"results: {str(path)!r} is not a results file (expected e.g. results/quickstart/results.h5)")
+    out = Path(args.output) if args.output else path.parent / "figures"
+    figures = draw_figures(path, out)
+    print(f"figures: {out}  ({len(figures)} files)")
+    return 0
+
+
+def command_list() -> int:
+    from simrun.integrators import INTEGRATORS
+    from simrun.solvers import LINEAR_SOLVERS, SOLVERS, SolverParams
+    from simrun.systems import SYSTEMS
+
+    def fields(model) -> list[str]:
+        lines = []
+        for key, info in model.model_fields.items():
+            if key == "type":
+                continue
+            default = "" if info.is_required() else f" = {info.default!r}"
+            note = f"  # {info.description}" if info.description else ""
+            lines.append(f"      {key}{default}{note}")
+        return lines
+
+    print("systems (system.type):")
+    for name, model in SYSTEMS.items():
+        print(f"  {name}: {(model.__doc__ or '').strip().splitlines()[0]}")
+        print("\n".join(fields(model)))
+    print("\nintegrators (integrators: [name] or [{type: name, param: value}]):")
+    for name, cls in INTEGRATORS.items():
+        kind = "explicit" if cls.explicit else "implicit"
+        print(f"  {name}  (order {cls.order}, {kind}): {cls.summary}")
+        print("\n".join(fields(cls)))
+    print("\nsolvers (solver.type): " + ", ".join(SOLVERS) + "; linear solvers (solver.linear_solver): " + ", ".join(LINEAR_SOLVERS))
+    print("\n".join(fields(SolverParams)))
+    return 0
+
+
+def _check_writable(output: Path) -> None:
+    """Refuse an output folder we cannot write before any run starts (and before creating anything)."""
+    from simrun.config import ConfigError
+
+    existing = output
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ConfigError(f"output: {str(existing)!r} is a file, not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError:
+        raise ConfigError(f"output: cannot write in {str(existing)!r}; choose another --output") from None
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,337 @@
+"""The experiment config: YAML in, validated models out, every error one line that names its field.
+
+Loading never builds Python objects from YAML tags (safe loading only). Validation is pydantic's;
+this module turns its errors into ``ConfigError`` messages of the form ``field.path: what is allowed``.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any, Union
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator
+
+from simrun.integrators import INTEGRATORS, Integrator
+from simrun.solvers import SolverParams
+from simrun.systems import SYSTEMS
+
+# A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
+MAX_RUNS = 100_000
+
+
+class ConfigError(Exception):
+    """A config that cannot be run; the message is one line naming the field and what is allowed."""
+
+
+# -- integrators: a name, or a mapping with `type` and the method's parameters --------------------
+def _build_integrator(value: Any) -> Integrator:
+    if isinstance(value, Integrator):
+        return value
+    if isinstance(value, str):
+        value = {"type": value}
+    if not isinstance(value, dict):
+        raise ValueError("expected an integrator name or a mapping with 'type' and its parameters")
+    params = dict(value)
+    name = params.pop("type", None)
+    if name is None:
+        raise ValueError("a mapping needs 'type': one of " + ", ".join(INTEGRATORS))
+    if name not in INTEGRATORS:
+        raise ValueError(f"unknown integrator {name!r}{_did_you_mean(name, INTEGRATORS)}; valid: " + ", ".join(INTEGRATORS))
+    try:
+        return INTEGRATORS[name].model_validate(params)
+    except ValidationError as error:
+        raise ValueError(f"{name}: " + _describe(error.errors()[0], INTEGRATORS[name].model_fields)) from None
+
+
+IntegratorField = Annotated[Integrator, BeforeValidator(_build_integrator)]
+SystemField = Annotated[Union[tuple(SYSTEMS.values())], Field(discriminator="type")]
+
+
+# -- sweep values: a list, or {logspace: [start_exp, stop_exp, count]}, or {linspace: [a, b, n]} --
+def _expand_values(value: Any) -> list:
+    if isinstance(value, dict):
+        if len(value) != 1 or next(iter(value)) not in ("logspace", "linspace"):
+            raise ValueError("expected a list, {logspace: [start_exp, stop_exp, count]} or {linspace: [start, stop, count]}")
+        (kind, spec), = value.items()
+        if (not isinstance(spec, list) or len(spec) != 3
+                or not all(isinstance(item, (int, float)) and not isinstance(item, bool) for item in spec)
+                or not all(math.isfinite(item) for item in spec)):
+            raise ValueError(f"{kind} takes three finite numbers [start, stop, count]")
+        if not float(spec[2]).is_integer() or spec[2] < 1:
+            raise ValueError(f"{kind} count must be a whole number >= 1, got {spec[2]}")
+        make = np.logspace if kind == "logspace" else np.linspace
+        return [float(item) for item in make(spec[0], spec[1], int(spec[2]))]
+    if not isinstance(value, list):
+        value = [value]
+    if not value:
+        raise ValueError("an empty sweep runs nothing: give at least one value")
+    return value
+
+
+SweepValues = Annotated[list[Any], BeforeValidator(_expand_values)]
+
+
+class RecordParams(BaseModel):
+    """What is kept of each run: every k-th step, or at most max_samples evenly spaced samples."""
+
+    model_config = ConfigDict(extra="forbid")
+    every: int | None = Field(None, ge=1, description="record every k-th step (the last step is always recorded)")
+    max_samples: int = Field(10_000, ge=2, description="used when `every` is not given: record at most this many samples per run")
+
+    def stride(self, step_count: int) -> int:
+        if self.every is not None:
+            return self.every
+        return max(1, math.ceil(step_count / (self.max_samples - 1)))
+
+
+class DivergenceParams(BaseModel):
+    """When a run counts as diverged."""
+
+    model_config = ConfigDict(extra="forbid")
+    energy_factor: float = Field(1e6, gt=1, allow_inf_nan=False, description="diverged when |E - E0| exceeds this factor times the initial energy scale |KE0| + |PE0|, or E is not finite")
+    check_every: int = Field(1, ge=1, description="test the energy every k-th step")
+
+
+class Experiment(BaseModel):
+    """A whole experiment as written in the YAML file (sweep values expanded, not yet multiplied out)."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$", max_length=100, description="names the output folder")
+    system: SystemField
+    integrators: list[IntegratorField] = Field(min_length=1, description="names, or mappings with 'type' and parameters")
+    solver: SolverParams = SolverParams()
+    duration: float = Field(10.0, gt=0, allow_inf_nan=False, description="simulated time per run (s)")
+    sweep: dict[str, SweepValues] = Field(description="dt (s) and any other dotted key, each a list of values")
+    record: RecordParams = RecordParams()
+    divergence: DivergenceParams = DivergenceParams()
+    output: str | None = Field(None, description="output folder; default results/<name>")
+
+    @field_validator("sweep")
+    @classmethod
+    def _sweep_has_valid_dt(cls, sweep: dict[str, list]) -> dict[str, list]:
+        if "dt" not in sweep:
+            raise ValueError("needs 'dt': a list of time steps (s)")
+        for dt in sweep["dt"]:
+            if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt) or dt <= 0:
+                raise ValueError(f"dt must be finite numbers > 0, got {dt!r}")
+        return sweep
+
+    @property
+    def output_dir(self) -> Path:
+        return Path(self.output) if self.output else Path("results") / self.name
+
+
+class Run(BaseModel):
+    """One run: a fully resolved experiment with one integrator and one dt."""
+
+    model_config = ConfigDict(frozen=True)
+    run_id: str
+    index: int
+    system: SystemField
+    integrator: IntegratorField
+    solver: SolverParams
+    dt: float
+    duration: float
+    record: RecordParams
+    divergence: DivergenceParams
+    swept: dict[str, Any]  # the swept keys other than dt, with this run's values
+
+    @property
+    def step_count(self) -> int:
+        return max(1, math.ceil(self.duration / self.dt - 1e-9))
+
+    @property
+    def params(self) -> dict[str, Any]:
+        """Every swept and method parameter of this run (stored as JSON in the results file)."""
+        return {"dt": self.dt, **self.swept, **{f"integrator.{key}": value for key, value in self.integrator.model_dump().items()}}
+
+
+# -- loading ---------------------------------------------------------------------------------------
+def load_yaml(path: str | Path) -> tuple[dict, str]:
+    """Read a config file safely; returns (raw mapping, text)."""
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"config: file {str(path)!r} does not exist")
+    if path.is_dir():
+        raise ConfigError(f"config: {str(path)!r} is a folder; give a YAML file such as configs/quickstart.yaml")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConfigError(f"config: cannot read {str(path)!r}: {error}") from None
+    return parse_yaml(text, str(path)), text
+
+
+def parse_yaml(text: str, source: str = "config") -> dict:
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.constructor.ConstructorError as error:
+        mark = error.problem_mark
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        raise ConfigError(f"{source}{where}: YAML tags that build objects are not allowed; write plain values") from None
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise ConfigError(f"{source}:{where}: malformed YAML: {problem}") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: expected a mapping with name, system, integrators and sweep at the top level")
+    return raw
+
+
+def apply_override(raw: dict, assignment: str) -> None:
+    """Apply one ``--set key.path=value`` (value parsed as YAML) to the raw config, in place."""
+    key, sep, text = assignment.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"--set {assignment}: expected key.path=value, e.g. system.stiffness=1000")
+    value = parse_yaml(f"value: {text}", f"--set {key}")["value"]
+    set_path(raw, key.split("."), value, f"--set {key}")
+
+
+def set_path(raw: dict, parts: list[str], value: Any, source: str) -> None:
+    node = raw
+    for part in parts[:-1]:
+        child = node.get(part)
+        if child is None:
+            child = node[part] = {}
+        if not isinstance(child, dict):
+            raise ConfigError(f"{source}: {part!r} is not a mapping, so it has no key {parts[-1]!r}")
+        node = child
+    node[parts[-1]] = value
+
+
+def validate_experiment(raw: dict) -> Experiment:
+    try:
+        return Experiment.model_validate(raw)
+    except ValidationError as error:
+        raise ConfigError(_describe_error(error, raw)) from None
+
+
+def load_experiment(path: str | Path, overrides: list[str] = ()) -> tuple[Experiment, str]:
+    """Load, override and validate a config; returns the experiment and its resolved YAML text."""
+    raw, text = load_yaml(path)
+    if overrides:
+        for assignment in overrides:
+            apply_override(raw, assignment)
+        text = yaml.safe_dump(raw, sort_keys=False)
+    return validate_experiment(raw), text
+
+
+def expand_runs(experiment: Experiment) -> list[Run]:
+    """The cartesian product of the sweep x integrators, every run validated before any starts."""
+    swept = {key: values for key, values in experiment.sweep.items() if key != "dt"}
+    combinations = [dict(zip(swept, values)) for values in _product(list(swept.values()))]
+    total = len(combinations) * len(experiment.integrators) * len(experiment.sweep["dt"])
+    if total > MAX_RUNS:
+        raise ConfigError(f"sweep: {total} runs exceed the limit of {MAX_RUNS}; shorten the sweep")
+    base = experiment.model_dump(exclude={"sweep", "output", "name"}, mode="python")
+    base["integrators"] = list(experiment.integrators)
+    runs = []
+    for assignment in combinations:
+        resolved = _resolve(base, assignment)
+        for integrator in resolved.integrators:
+            for dt in experiment.sweep["dt"]:
+                if dt > resolved.duration:
+                    raise ConfigError(f"sweep.dt: {dt:g} is longer than duration {resolved.duration:g}; a step must fit in the run")
+                index = len(runs)
+                runs.append(Run(
+                    run_id=_run_id(index, integrator, dt, assignment), index=index, system=resolved.system,
+                    integrator=integrator, solver=resolved.solver, dt=float(dt), duration=resolved.duration,
+                    record=resolved.record, divergence=resolved.divergence, swept=assignment,
+                ))
+    return runs
+
+
+def config_hash(experiment: Experiment) -> str:
+    """sha256 of the validated experiment (defaults filled in), so equal configs hash equally."""
+    document = experiment.model_dump(mode="json", exclude={"output"})
+    document["integrators"] = [{"type": item.name, **item.model_dump()} for item in experiment.integrators]
+    return hashlib.sha256(json.dumps(document, sort_keys=True).encode()).hexdigest()
+
+
+# -- internals -------------------------------------------------------------------------------------
+def _resolve(base: dict, assignment: dict[str, Any]) -> Experiment:
+    raw = copy.deepcopy({key: value for key, value in base.items() if key != "integrators"})
+    raw["integrators"] = base["integrators"]
+    for key, value in assignment.items():
+        parts = key.split(".")
+        if parts[0] not in Experiment.model_fields or parts[0] in ("sweep", "name", "output", "integrators"):
+            allowed = ", ".join(k for k in Experiment.model_fields if k not in ("sweep", "name", "output", "integrators"))
+            raise ConfigError(f"sweep.{key}: cannot sweep {parts[0]!r}; sweepable sections: dt, {allowed}")
+        set_path(raw, parts, value, f"sweep.{key}")
+    raw.update(name="run", sweep={"dt": [1.0]})
+    try:
+        return Experiment.model_validate(raw)
+    except ValidationError as error:
+        raise ConfigError("sweep: " + _describe_error(error, raw)) from None
+
+
+def _product(lists: list[list]) -> list[tuple]:
+    result: list[tuple] = [()]
+    for values in lists:
+        result = [prefix + (value,) for prefix in result for value in values]
+    return result
+
+
+def _run_id(index: int, integrator: Integrator, dt: float, assignment: dict[str, Any]) -> str:
+    parts = [f"{index:04d}", integrator.label, f"dt={dt:.6g}"]
+    parts += [f"{key}={value:.6g}" if isinstance(value, float) else f"{key}={value}" for key, value in assignment.items()]
+    return "-".join(parts).replace("/", "_")
+
+
+def _did_you_mean(word: str, choices) -> str:
+    close = difflib.get_close_matches(str(word), list(choices), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _describe(error: dict, fields: dict | None = None) -> str:
+    """One pydantic error as 'path: message'."""
+    location = ".".join(str(part) for part in error["loc"])
+    kind, message = error["type"], error["msg"]
+    if kind == "extra_forbidden":
+        name = str(error["loc"][-1])
+        message = f"unknown key{_did_you_mean(name, fields or {})}"
+        if fields:
+            message += "; allowed: " + ", ".join(fields)
+    elif kind == "value_error":
+        message = message.removeprefix("Value error, ")
+    elif "input" in error and kind not in ("missing",) and not isinstance(error["input"], (dict, list)):
+        message = f"{message} (got {error['input']!r})"
+    return f"{location}: {message}" if location else message
+
+
+def _describe_error(error: ValidationError, raw: dict) -> str:
+    first = error.errors()[0]
+    location = [part for part in first["loc"]]
+    # pydantic puts the discriminator's tag into the path (system.spring_mass.mass); drop it
+    if len(location) >= 2 and location[0] == "system" and location[1] in SYSTEMS:
+        location.pop(1)
+    first = {**first, "loc": tuple(location)}
+    if first["type"] == "union_tag_invalid":
+        return f"system.type: unknown system {first['input'] if 'input' in first else ''!r}; valid: " + ", ".join(SYSTEMS)
+    if first["type"] == "union_tag_not_found":
+        return "system.type: missing; valid: " + ", ".join(SYSTEMS)
+    return _describe(first, _fields_at(location[:-1], raw))
+
+
+def _fields_at(location: list, raw: dict) -> dict:
+    """The model fields allowed at a config path (to suggest names for an unknown key)."""
+    model: type[BaseModel] | None = Experiment
+    for part in location:
+        if model is None:
+            return {}
+        if part == "system":
+            system_type = raw.get("system", {}).get("type") if isinstance(raw.get("system"), dict) else None
+            model = SYSTEMS.get(system_type)
+            continue
+        field = model.model_fields.get(str(part))
+        annotation = getattr(field, "annotation", None)
+        model = annotation if isinstance(annotation, type) and issubclass(annotation, BaseModel) else None
+    return model.model_fields if model is not None else {}

@@ -1,0 +1,127 @@
+"""Simulate one run: step the integrator, record samples, decide the outcome. No I/O here."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from simrun.config import Run
+from simrun.integrators import State
+
+OK, DIVERGED, NOT_CONVERGED, FAILED = "ok", "diverged", "not_converged", "failed"
+STATUSES = (OK, DIVERGED, NOT_CONVERGED, FAILED)
+
+
+@dataclass
+class RunResult:
+    """Everything one run produced: outcome, recorded samples and per-step solver statistics."""
+
+    run_id: str
+    status: str
+    steps: int  # steps taken (fewer than planned when the run stopped early)
+    wall_time: float  # s, the stepping loop alone
+    samples: dict[str, np.ndarray]  # one row per recorded sample: t, energies, positions, ...
+    per_step: dict[str, np.ndarray]  # one row per step: newton_iterations, linear_iterations, ...
+    t_diverged: float | None = None
+    message: str = ""
+    attrs: dict = field(default_factory=dict)
+
+
+class Recorder:
+    """Preallocated arrays for the samples of a run; the observables' shapes are read off the first call."""
+
+    def __init__(self, system, sample_count: int):
+        self.system = system
+        self.count = 0
+        self.arrays: dict[str, np.ndarray] = {}
+        self.capacity = sample_count
+
+    def record(self, state: State) -> None:
+        values = {"t": state.t, **self.system.observables(state.x, state.v), "positions": state.x, "velocities": state.v}
+        if not self.arrays:
+            self.arrays = {key: np.empty((self.capacity,) + np.shape(value)) for key, value in values.items()}
+        for key, value in values.items():
+            self.arrays[key][self.count] = value
+        self.count += 1
+
+    def result(self) -> dict[str, np.ndarray]:
+        return {key: array[: self.count] for key, array in self.arrays.items()}
+
+
+def simulate(run: Run) -> RunResult:
+    """Run the integrator for run.step_count steps of run.dt on run.system; never raises for a bad run."""
+    system = run.system.build()
+    integrator = run.integrator
+    solver = run.solver.build()
+    step_count, dt = run.step_count, run.dt
+    stride = run.record.stride(step_count)
+    check_every = run.divergence.check_every
+    recorder = Recorder(system, step_count // stride + 2)
+    per_step = {
+        "newton_iterations": np.zeros(step_count, dtype=np.int32),
+        "linear_iterations": np.zeros(step_count, dtype=np.int32),
+        "line_search_steps": np.zeros(step_count, dtype=np.int32),
+        "residual": np.zeros(step_count),
+    }
+    stop_on_not_converged = run.solver.on_not_converged == "stop"
+
+    state = State(0.0, system.x0.copy(), system.v0.copy())
+    energy0 = system.total_energy(state.x, state.v)
+    energy_bound = run.divergence.energy_factor * system.energy_scale()
+    recorder.record(state)
+    status, message, t_diverged, not_converged_steps = OK, "", None, 0
+    steps = 0
+    start = time.perf_counter()
+    try:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            state = integrator.start(system, state)
+            for n in range(step_count):
+                state, stats = integrator.step(system, state, dt, solver)
+                state = State(dt * (n + 1), state.x, state.v, state.aux)  # no accumulated round-off in t
+                steps = n + 1
+                per_step["newton_iterations"][n] = stats.iterations
+                per_step["linear_iterations"][n] = stats.linear_iterations
+                per_step["line_search_steps"][n] = stats.line_search_steps
+                per_step["residual"][n] = stats.residual
+                last = steps == step_count
+                if steps % check_every == 0 or last:
+                    energy = system.total_energy(state.x, state.v)
+                    if not np.isfinite(energy) or abs(energy - energy0) > energy_bound:
+                        status, t_diverged = DIVERGED, state.t
+                        message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {state.t:.6g} s"
+                        recorder.record(state)
+                        break
+                if not stats.converged:
+                    not_converged_steps += 1
+                    if stop_on_not_converged:
+                        message = f"step {steps} (t = {state.t:.6g} s) did not converge: residual {stats.residual:.3g}"
+                        recorder.record(state)
+                        break
+                if steps % stride == 0 or last:
+                    recorder.record(state)
+    except Exception as error:  # a failing run is a result, never the end of the sweep
+        status, message = FAILED, f"{type(error).__name__}: {error}"
+    wall_time = time.perf_counter() - start
+    if status == OK and not_converged_steps:
+        status = NOT_CONVERGED
+        if not message:
+            message = f"{not_converged_steps} of {steps} steps did not converge within max_iterations"
+    samples = recorder.result()
+    attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps}
+    return RunResult(
+        run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
+        per_step={key: value[:steps] for key, value in per_step.items()},
+        t_diverged=t_diverged, message=message, attrs=attrs,
+    )
+
+
+def _final_error(system, samples: dict[str, np.ndarray]) -> float:
+    """max |x - x_exact| at the last recorded sample (m), NaN where no exact solution is known."""
+    if not samples.get("t", np.empty(0)).size:
+        return float("nan")
+    exact = system.exact_solution(samples["t"][-1:])
+    if exact is None:
+        return float("nan")
+    return float(np.max(np.abs(samples["positions"][-1] - exact[0][0])))

@@ -1,0 +1,78 @@
+"""A particle held on a circle by a central force: linear (f = -m w^2 x) or gravity (f = -GMm x/|x|^3)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from .base import System
+
+
+class CircularMotionParams(BaseModel):
+    """Config of `circular_motion`: starts at (radius, 0), velocity (0, radius w): the exact motion is the circle."""
+
+    model_config = ConfigDict(extra="forbid")
+    type: Literal["circular_motion"] = "circular_motion"
+    force: Literal["linear", "gravity"] = Field("linear", description="linear: f = -m w^2 x; gravity: f = -GMm x/|x|^3, GM = w^2 r^3")
+    mass: float = Field(1.0, gt=0, allow_inf_nan=False, description="m (kg)")
+    radius: float = Field(1.0, gt=0, allow_inf_nan=False, description="r (m)")
+    angular_velocity: float = Field(1.0, gt=0, allow_inf_nan=False, description="w (rad/s)")
+    dimension: Literal[2, 3] = Field(2, description="2-D plane, or 3-D space with the orbit in the x-y plane")
+
+    def build(self) -> "CircularMotion":
+        return CircularMotion(self)
+
+
+class CircularMotion(System):
+    """Uniform circular motion x(t) = r (cos wt, sin wt), for both force laws (GM = w^2 r^3)."""
+
+    def __init__(self, params: CircularMotionParams):
+        self.params = params
+        self.dim = params.dimension
+        self.dof_count = params.dimension
+        m, r, w = params.mass, params.radius, params.angular_velocity
+        self.mass = np.full(self.dof_count, m)
+        self.x0 = np.zeros(self.dof_count)
+        self.x0[0] = r
+        self.v0 = np.zeros(self.dof_count)
+        self.v0[1] = r * w
+        self.linear = params.force == "linear"
+        self.stiffness = m * w * w  # linear law: P = m w^2 |x|^2 / 2
+        self.gm_m = w * w * r ** 3 * m  # gravity: P = -GMm / |x|
+        self._linear_hessian = np.eye(self.dof_count) * self.stiffness
+
+    def potential_energy(self, x):
+        if self.linear:
+            return 0.5 * self.stiffness * float(np.dot(x, x))
+        return -self.gm_m / float(np.sqrt(np.dot(x, x)))
+
+    def gradient(self, x):
+        if self.linear:
+            return self.stiffness * x
+        r = float(np.sqrt(np.dot(x, x)))
+        return self.gm_m * x / r ** 3
+
+    def hessian(self, x, project_spd=False):
+        if self.linear:
+            return self._linear_hessian
+        r = float(np.sqrt(np.dot(x, x)))
+        # d/dx (GMm x / r^3) = GMm (I / r^3 - 3 x x^T / r^5): one negative (radial) eigenvalue
+        hessian = self.gm_m * (np.eye(self.dof_count) / r ** 3 - 3.0 * np.outer(x, x) / r ** 5)
+        if project_spd:
+            eigenvalues, eigenvectors = np.linalg.eigh(hessian)
+            hessian = (eigenvectors * np.maximum(eigenvalues, 0.0)) @ eigenvectors.T
+        return hessian
+
+    def exact_solution(self, t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        r, w = self.params.radius, self.params.angular_velocity
+        x = np.zeros((t.size, self.dof_count))
+        v = np.zeros((t.size, self.dof_count))
+        x[:, 0], x[:, 1] = r * np.cos(w * t), r * np.sin(w * t)
+        v[:, 0], v[:, 1] = -r * w * np.sin(w * t), r * w * np.cos(w * t)
+        return x, v
+
+    def extra_observables(self, x, v):
+        return {"radius": float(np.sqrt(np.dot(x, x)))}

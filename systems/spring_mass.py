@@ -1,0 +1,68 @@
+"""The mass on a spring of the lectures: m q'' + d q' + k q = 0, the test equation of all stability analysis."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import scipy.linalg
+from pydantic import BaseModel, ConfigDict, Field
+
+from .base import System
+
+
+class SpringMassParams(BaseModel):
+    """Config of `spring_mass`: a 1-D mass on a linear spring with optional viscous damping."""
+
+    model_config = ConfigDict(extra="forbid")
+    type: Literal["spring_mass"] = "spring_mass"
+    mass: float = Field(1.0, gt=0, allow_inf_nan=False, description="m (kg)")
+    stiffness: float = Field(100.0, gt=0, allow_inf_nan=False, description="k (N/m)")
+    damping: float = Field(0.0, ge=0, allow_inf_nan=False, description="d (N s/m): q'' + (d/m) q' + (k/m) q = 0")
+    x0: float = Field(1.0, allow_inf_nan=False, description="initial position (m)")
+    v0: float = Field(0.0, allow_inf_nan=False, description="initial velocity (m/s)")
+
+    def build(self) -> "SpringMass":
+        return SpringMass(self)
+
+
+class SpringMass(System):
+    """P(q) = k q^2 / 2, f_d = -d q'; exact solution exp(t A) (q0, v0) with A = [[0, 1], [-k/m, -d/m]]."""
+
+    dof_count = 1
+    dim = 1
+
+    def __init__(self, params: SpringMassParams):
+        self.params = params
+        self.stiffness = params.stiffness
+        self.damping = params.damping
+        self.mass = np.array([params.mass])
+        self.x0 = np.array([params.x0])
+        self.v0 = np.array([params.v0])
+        self._hessian = np.array([[params.stiffness]])
+        self._damping = np.array([[params.damping]]) if params.damping > 0 else None
+
+    @property
+    def angular_frequency(self) -> float:
+        """w = sqrt(k/m) (rad/s), the undamped natural frequency."""
+        return float(np.sqrt(self.stiffness / self.mass[0]))
+
+    def potential_energy(self, x):
+        return 0.5 * self.stiffness * float(x[0] * x[0])
+
+    def gradient(self, x):
+        return self.stiffness * x
+
+    def hessian(self, x, project_spd=False):
+        return self._hessian  # constant and SPD (k > 0)
+
+    def damping_matrix(self, x):
+        return self._damping
+
+    def exact_solution(self, t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        m = self.mass[0]
+        generator = np.array([[0.0, 1.0], [-self.stiffness / m, -self.damping / m]])
+        propagators = scipy.linalg.expm(t[:, None, None] * generator)  # batched over t
+        states = propagators @ np.array([self.x0[0], self.v0[0]])
+        return states[:, :1], states[:, 1:]
