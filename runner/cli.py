@@ -98,11 +98,14 @@ def command_run(args) -> int:
 
 def command_plot(args) -> int:
     from simrun.config import ConfigError
-    from simrun.plots import draw_figures
 
     path = Path(args.results)
-    if not path.is_file():
+    import h5py
+
+    if not path.is_file() or not h5py.is_hdf5(path):
         raise ConfigError(f"results: {str(path)!r} is not a results file (expected e.g. results/quickstart/results.h5)")
+    from simrun.plots import draw_figures
+
     out = Path(args.output) if args.output else path.parent / "figures"
     figures = draw_figures(path, out)
     print(f"figures: {out}  ({len(figures)} files)")

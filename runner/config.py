@@ -315,7 +315,8 @@ def _describe_error(error: ValidationError, raw: dict) -> str:
         location.pop(1)
     first = {**first, "loc": tuple(location)}
     if first["type"] == "union_tag_invalid":
-        return f"system.type: unknown system {first['input'] if 'input' in first else ''!r}; valid: " + ", ".join(SYSTEMS)
+        tag = first.get("ctx", {}).get("tag")
+        return f"system.type: unknown system {tag!r}{_did_you_mean(tag, SYSTEMS)}; valid: " + ", ".join(SYSTEMS)
     if first["type"] == "union_tag_not_found":
         return "system.type: missing; valid: " + ", ".join(SYSTEMS)
     return _describe(first, _fields_at(location[:-1], raw))
