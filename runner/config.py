@@ -85,10 +85,18 @@ class RecordParams(BaseModel):
     every: int | None = Field(None, ge=1, description="record every k-th step (the last step is always recorded)")
     max_samples: int = Field(10_000, ge=2, description="used when `every` is not given: record at most this many samples per run")
 
+    frames_every: int | None = Field(None, ge=1, description="cloth: keep the vertex positions every k-th step")
+    max_frames: int = Field(200, ge=2, description="cloth, when `frames_every` is not given: at most this many frames per run")
+
     def stride(self, step_count: int) -> int:
         if self.every is not None:
             return self.every
         return max(1, math.ceil(step_count / (self.max_samples - 1)))
+
+    def frame_stride(self, step_count: int) -> int:
+        if self.frames_every is not None:
+            return self.frames_every
+        return max(1, math.ceil(step_count / (self.max_frames - 1)))
 
 
 class DivergenceParams(BaseModel):

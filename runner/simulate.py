@@ -30,24 +30,43 @@ class RunResult:
 
 
 class Recorder:
-    """Preallocated arrays for the samples of a run; the observables' shapes are read off the first call."""
+    """Preallocated arrays for the samples of a run; the observables' shapes are read off the first call.
 
-    def __init__(self, system, sample_count: int):
+    Small systems keep x and v in every sample; large ones (cloth) keep the vertex positions as
+    ``frames`` (frames x vertices x 3) at their own, sparser cadence.
+    """
+
+    def __init__(self, system, sample_count: int, frame_count: int):
         self.system = system
+        self.with_state = system.records_state_per_sample
         self.count = 0
+        self.frame_count = 0
         self.arrays: dict[str, np.ndarray] = {}
         self.capacity = sample_count
+        self.frames = None if self.with_state else np.empty((frame_count, system.dof_count // 3, 3))
+        self.frame_t = None if self.with_state else np.empty(frame_count)
 
     def record(self, state: State) -> None:
-        values = {"t": state.t, **self.system.observables(state.x, state.v), "positions": state.x, "velocities": state.v}
+        values = {"t": state.t, **self.system.observables(state.x, state.v)}
+        if self.with_state:
+            values["positions"], values["velocities"] = state.x, state.v
         if not self.arrays:
             self.arrays = {key: np.empty((self.capacity,) + np.shape(value)) for key, value in values.items()}
         for key, value in values.items():
             self.arrays[key][self.count] = value
         self.count += 1
 
+    def record_frame(self, state: State) -> None:
+        self.frames[self.frame_count] = state.x.reshape(-1, 3)
+        self.frame_t[self.frame_count] = state.t
+        self.frame_count += 1
+
     def result(self) -> dict[str, np.ndarray]:
-        return {key: array[: self.count] for key, array in self.arrays.items()}
+        arrays = {key: array[: self.count] for key, array in self.arrays.items()}
+        if self.frames is not None:
+            arrays["frames"] = self.frames[: self.frame_count]
+            arrays["frame_t"] = self.frame_t[: self.frame_count]
+        return arrays
 
 
 def simulate(run: Run) -> RunResult:
@@ -58,7 +77,9 @@ def simulate(run: Run) -> RunResult:
     step_count, dt = run.step_count, run.dt
     stride = run.record.stride(step_count)
     check_every = run.divergence.check_every
-    recorder = Recorder(system, step_count // stride + 2)
+    frame_stride = run.record.frame_stride(step_count)
+    recorder = Recorder(system, step_count // stride + 2, step_count // frame_stride + 2)
+    with_frames = not system.records_state_per_sample
     per_step = {
         "newton_iterations": np.zeros(step_count, dtype=np.int32),
         "linear_iterations": np.zeros(step_count, dtype=np.int32),
@@ -71,6 +92,8 @@ def simulate(run: Run) -> RunResult:
     energy0 = system.total_energy(state.x, state.v)
     energy_bound = run.divergence.energy_factor * system.energy_scale()
     recorder.record(state)
+    if with_frames:
+        recorder.record_frame(state)
     status, message, t_diverged, not_converged_steps = OK, "", None, 0
     steps = 0
     start = time.perf_counter()
@@ -92,15 +115,21 @@ def simulate(run: Run) -> RunResult:
                         status, t_diverged = DIVERGED, state.t
                         message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {state.t:.6g} s"
                         recorder.record(state)
+                        if with_frames:
+                            recorder.record_frame(state)
                         break
                 if not stats.converged:
                     not_converged_steps += 1
                     if stop_on_not_converged:
                         message = f"step {steps} (t = {state.t:.6g} s) did not converge: residual {stats.residual:.3g}"
                         recorder.record(state)
+                        if with_frames:
+                            recorder.record_frame(state)
                         break
                 if steps % stride == 0 or last:
                     recorder.record(state)
+                if with_frames and (steps % frame_stride == 0 or last):
+                    recorder.record_frame(state)
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start
@@ -119,7 +148,7 @@ def simulate(run: Run) -> RunResult:
 
 def _final_error(system, samples: dict[str, np.ndarray]) -> float:
     """max |x - x_exact| at the last recorded sample (m), NaN where no exact solution is known."""
-    if not samples.get("t", np.empty(0)).size:
+    if not samples.get("t", np.empty(0)).size or "positions" not in samples:
         return float("nan")
     exact = system.exact_solution(samples["t"][-1:])
     if exact is None:

@@ -29,6 +29,8 @@ class System(ABC):
     x0: np.ndarray
     v0: np.ndarray
     fixed_dofs: np.ndarray = np.zeros(0, dtype=np.intp)
+    # small systems keep x and v in every sample; large ones (cloth) keep them as `frames` instead
+    records_state_per_sample: bool = True
 
     # -- primitives every system provides ------------------------------------------------------
     @abstractmethod

@@ -1,0 +1,278 @@
+"""A mass-spring cloth on a grid: stretch, shear and bend springs, gravity, pins, damping, penalty contact.
+
+Every quantity is computed for all springs (or vertices) at once; the sparse Hessian's pattern is
+built once per system, so an evaluation only refills the values of a fixed CSR matrix with one
+``np.bincount`` over a precomputed scatter map.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Union
+
+import numpy as np
+import scipy.sparse
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from .base import System
+
+PIN_NAMES = ("top_left", "top_right", "bottom_left", "bottom_right", "top", "bottom", "left", "right")
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+class GroundContact(BaseModel):
+    """Penalty contact with the plane z = height: P = k/2 max(0, height - z)^2 per vertex."""
+
+    model_config = ConfigDict(extra="forbid")
+    height: Finite = Field(-1.0, description="z of the ground plane (m)")
+    stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
+
+
+class SphereContact(BaseModel):
+    """Penalty contact with a sphere: P = k/2 max(0, radius - |x - center|)^2 per vertex."""
+
+    model_config = ConfigDict(extra="forbid")
+    center: tuple[Finite, Finite, Finite] = Field((0.5, 0.5, -0.6), description="centre (m)")
+    radius: Positive = Field(0.3, description="radius (m)")
+    stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
+
+
+class ContactParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    ground: GroundContact | None = None
+    sphere: SphereContact | None = None
+
+
+class ClothParams(BaseModel):
+    """Config of `cloth`: an N x M grid of vertices, flat in the plane z = height at the start."""
+
+    model_config = ConfigDict(extra="forbid")
+    type: Literal["cloth"] = "cloth"
+    resolution: tuple[Annotated[int, Field(ge=2, le=1024)], Annotated[int, Field(ge=2, le=1024)]] = Field(
+        (32, 32), description="vertices along x and y")
+    size: tuple[Positive, Positive] = Field((1.0, 1.0), description="side lengths along x and y (m)")
+    mass: Positive = Field(1.0, description="total mass (kg), lumped equally to the vertices")
+    stretch_stiffness: Annotated[float, Field(ge=0, allow_inf_nan=False)] = Field(1.0e4, description="structural springs along grid edges (N/m)")
+    shear_stiffness: Annotated[float, Field(ge=0, allow_inf_nan=False)] = Field(1.0e3, description="diagonal springs (N/m)")
+    bend_stiffness: Annotated[float, Field(ge=0, allow_inf_nan=False)] = Field(1.0e1, description="springs that skip one vertex (N/m)")
+    damping: Annotated[float, Field(ge=0, allow_inf_nan=False)] = Field(0.0, description="spring damping k_d (N s/m): f = -k_d ((v_i - v_j) . u) u")
+    gravity: tuple[Finite, Finite, Finite] = Field((0.0, 0.0, -9.81), description="gravitational acceleration (m/s^2)")
+    pinned: list[Union[Literal[PIN_NAMES], Annotated[int, Field(ge=0)]]] = Field(  # type: ignore[valid-type]
+        ["top_left", "top_right"], description="pinned vertices: names (" + ", ".join(PIN_NAMES) + ") or indices j * nx + i")
+    height: Finite = Field(0.0, description="z of the flat cloth at the start (m)")
+    initial_velocity: tuple[Finite, Finite, Finite] = Field((0.0, 0.0, 0.0), description="uniform velocity at the start (m/s)")
+    initial_spin: tuple[Finite, Finite, Finite] = Field((0.0, 0.0, 0.0), description="angular velocity about the cloth's centre at the start (rad/s)")
+    contact: ContactParams = ContactParams()
+
+    @model_validator(mode="after")
+    def _pins_exist(self) -> "ClothParams":
+        count = self.resolution[0] * self.resolution[1]
+        for pin in self.pinned:
+            if isinstance(pin, int) and pin >= count:
+                raise ValueError(f"pinned: vertex {pin} does not exist; a {self.resolution[0]}x{self.resolution[1]} cloth has vertices 0..{count - 1}")
+        return self
+
+    def build(self) -> "Cloth":
+        return Cloth(self)
+
+
+def grid_springs(nx: int, ny: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Vertex pairs (i, j) of the stretch, shear and bend springs of an nx x ny grid (vertex = row * nx + col)."""
+    index = np.arange(nx * ny).reshape(ny, nx)
+    pairs = {
+        "stretch": [(index[:, :-1], index[:, 1:]), (index[:-1, :], index[1:, :])],
+        "shear": [(index[:-1, :-1], index[1:, 1:]), (index[:-1, 1:], index[1:, :-1])],
+        "bend": [(index[:, :-2], index[:, 2:]), (index[:-2, :], index[2:, :])],
+    }
+    return {kind: (np.concatenate([a.ravel() for a, _ in items]), np.concatenate([b.ravel() for _, b in items]))
+            for kind, items in pairs.items()}
+
+
+class Cloth(System):
+    """P(x) = sum_springs k/2 (|x_i - x_j| - l0)^2 - sum_i m_i g . x_i + contact penalties.
+
+    Spring Hessian block (lectures): H_e = k [u u^T + (1 - l0/L)(I - u u^T)], u = (x_i - x_j)/L;
+    the SPD projection clamps 1 - l0/L at 0 (the only eigenvalue that can turn negative, when the
+    spring is compressed). Spring damping -k_d ((v_i - v_j) . u) u is f_d = -D(x) v with
+    D = sum_e k_d u u^T in the same block pattern.
+    """
+
+    dim = 3
+    records_state_per_sample = False  # positions go to `frames`, at their own cadence
+
+    def __init__(self, params: ClothParams):
+        self.params = params
+        nx, ny = params.resolution
+        self.shape = (nx, ny)
+        self.vertex_count = nx * ny
+        self.dof_count = 3 * self.vertex_count
+        xs = np.linspace(0.0, params.size[0], nx)
+        ys = np.linspace(0.0, params.size[1], ny)
+        grid_x, grid_y = np.meshgrid(xs, ys)  # (ny, nx): vertex = row * nx + col
+        rest = np.stack([grid_x.ravel(), grid_y.ravel(), np.full(self.vertex_count, params.height)], axis=1)
+        self.x0 = rest.ravel()
+        spin = np.cross(np.array(params.initial_spin), rest - rest.mean(axis=0))
+        self.v0 = (spin + np.array(params.initial_velocity)).ravel()
+        self.vertex_mass = params.mass / self.vertex_count
+        self.mass = np.full(self.dof_count, self.vertex_mass)
+        self.gravity = np.array(params.gravity, dtype=float)
+
+        springs = grid_springs(nx, ny)
+        stiffness = {"stretch": params.stretch_stiffness, "shear": params.shear_stiffness, "bend": params.bend_stiffness}
+        kinds = [kind for kind in springs if stiffness[kind] > 0 or params.damping > 0]
+        self.first = np.concatenate([springs[kind][0] for kind in kinds])
+        self.second = np.concatenate([springs[kind][1] for kind in kinds])
+        self.stiffness = np.concatenate([np.full(springs[kind][0].size, stiffness[kind]) for kind in kinds])
+        self.rest_length = np.linalg.norm(rest[self.first] - rest[self.second], axis=1)
+        self.spring_count = self.first.size
+
+        self.pinned_vertices = self._pinned_vertices(params.pinned)
+        self.fixed_dofs = (3 * self.pinned_vertices[:, None] + np.arange(3)).ravel()
+        self.v0[self.fixed_dofs] = 0.0  # pinned vertices never move
+        self._gravity_force = np.tile(self.vertex_mass * self.gravity, self.vertex_count)
+        self._build_pattern()
+
+    # -- setup ----------------------------------------------------------------------------------
+    def _pinned_vertices(self, pinned) -> np.ndarray:
+        nx, ny = self.shape
+        index = np.arange(self.vertex_count).reshape(ny, nx)
+        named = {
+            "top_left": index[-1, :1], "top_right": index[-1, -1:], "bottom_left": index[0, :1],
+            "bottom_right": index[0, -1:], "top": index[-1, :], "bottom": index[0, :],
+            "left": index[:, 0], "right": index[:, -1],
+        }
+        chosen = [named[pin] if isinstance(pin, str) else np.array([pin]) for pin in pinned]
+        return np.unique(np.concatenate(chosen)).astype(np.intp) if chosen else np.zeros(0, dtype=np.intp)
+
+    def _build_pattern(self) -> None:
+        """CSR pattern of all spring blocks (ii, jj, ij, ji) and vertex blocks, and the scatter map into it."""
+        i, j = self.first, self.second
+        offsets = np.arange(3)
+        blocks = [(i, i), (j, j), (i, j), (j, i)]
+        rows = [3 * a[:, None, None] + offsets[None, :, None] + 0 * offsets[None, None, :] for a, _ in blocks]
+        cols = [3 * b[:, None, None] + 0 * offsets[None, :, None] + offsets[None, None, :] for _, b in blocks]
+        vertices = np.arange(self.vertex_count)
+        rows.append(3 * vertices[:, None, None] + offsets[None, :, None] + 0 * offsets[None, None, :])
+        cols.append(3 * vertices[:, None, None] + 0 * offsets[None, :, None] + offsets[None, None, :])
+        rows = np.concatenate([r.ravel() for r in rows])
+        cols = np.concatenate([c.ravel() for c in cols])
+        n = self.dof_count
+        pattern = scipy.sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+        pattern.sum_duplicates()
+        pattern.sort_indices()
+        keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr)) * n + pattern.indices
+        self._scatter = np.searchsorted(keys, rows.astype(np.int64) * n + cols)
+        self._spring_entries = 36 * self.spring_count
+        self._indptr, self._indices = pattern.indptr, pattern.indices
+        self._nnz = pattern.nnz
+        diagonal_keys = np.arange(n, dtype=np.int64) * (n + 1)
+        self.diagonal_positions = np.searchsorted(keys, diagonal_keys)  # where M enters the data array
+        # gradient scatter: spring force components onto 3 i + c and 3 j + c
+        self._gradient_index = np.concatenate([3 * i[:, None] + offsets, 3 * j[:, None] + offsets]).ravel()
+
+    def _matrix(self, data: np.ndarray) -> scipy.sparse.csr_matrix:
+        return scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=(self.dof_count, self.dof_count))
+
+    # -- geometry of all springs at once ---------------------------------------------------------
+    def _springs(self, x: np.ndarray):
+        positions = x.reshape(-1, 3)
+        delta = positions[self.first] - positions[self.second]
+        length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+        direction = delta / length[:, None]
+        return positions, length, direction
+
+    def _penetration(self, positions: np.ndarray):
+        """Per contact: (penetration depth >= 0 per vertex, outward normal per vertex, stiffness)."""
+        contacts = []
+        ground = self.params.contact.ground
+        if ground is not None:
+            depth = np.maximum(ground.height - positions[:, 2], 0.0)
+            normal = np.broadcast_to(np.array([0.0, 0.0, 1.0]), positions.shape)
+            contacts.append((depth, normal, ground.stiffness, None))
+        sphere = self.params.contact.sphere
+        if sphere is not None:
+            offset = positions - np.array(sphere.center)
+            distance = np.sqrt(np.einsum("ij,ij->i", offset, offset))
+            depth = np.maximum(sphere.radius - distance, 0.0)
+            normal = offset / np.maximum(distance, 1e-300)[:, None]
+            contacts.append((depth, normal, sphere.stiffness, distance))
+        return contacts
+
+    # -- energy, gradient, Hessian ---------------------------------------------------------------
+    def spring_energy(self, x: np.ndarray) -> float:
+        _, length, _ = self._springs(x)
+        stretch = length - self.rest_length
+        return 0.5 * float(np.dot(self.stiffness * stretch, stretch))
+
+    def gravity_energy(self, x: np.ndarray) -> float:
+        return -float(np.dot(self._gravity_force, x))
+
+    def contact_energy(self, x: np.ndarray) -> float:
+        return sum(0.5 * stiffness * float(np.dot(depth, depth))
+                   for depth, _, stiffness, _ in self._penetration(x.reshape(-1, 3)))
+
+    def potential_energy(self, x):
+        return self.spring_energy(x) + self.gravity_energy(x) + self.contact_energy(x)
+
+    def gradient(self, x):
+        positions, length, direction = self._springs(x)
+        force = (self.stiffness * (length - self.rest_length))[:, None] * direction  # dP/dx_i of each spring
+        weights = np.concatenate([force, -force]).ravel()
+        gradient = np.bincount(self._gradient_index, weights=weights, minlength=self.dof_count)
+        gradient -= self._gravity_force
+        for depth, normal, stiffness, _ in self._penetration(positions):
+            gradient -= (stiffness * depth[:, None] * normal).ravel()
+        return gradient
+
+    def hessian(self, x, project_spd=False):
+        return self._matrix(self.hessian_data(x, project_spd))
+
+    def hessian_data(self, x: np.ndarray, project_spd: bool = False) -> np.ndarray:
+        """The Hessian's values in the fixed CSR pattern (the data array of ``hessian``)."""
+        positions, length, direction = self._springs(x)
+        outer = direction[:, :, None] * direction[:, None, :]
+        transverse = 1.0 - self.rest_length / length
+        if project_spd:
+            transverse = np.maximum(transverse, 0.0)
+        eye = np.eye(3)
+        block = self.stiffness[:, None, None] * (outer + transverse[:, None, None] * (eye - outer))
+        vertex_block = np.zeros((self.vertex_count, 3, 3))
+        for depth, normal, stiffness, distance in self._penetration(positions):
+            touching = depth > 0
+            if not touching.any():
+                continue
+            n = normal[touching]
+            contact_outer = n[:, :, None] * n[:, None, :]
+            if distance is None or project_spd:
+                vertex_block[touching] += stiffness * contact_outer
+            else:  # sphere: k n n^T - k (r - d)/d (I - n n^T); the second term is negative
+                curvature = (depth[touching] / distance[touching])[:, None, None]
+                vertex_block[touching] += stiffness * (contact_outer - curvature * (eye - contact_outer))
+        values = np.concatenate([block.ravel(), block.ravel(), -block.ravel(), -block.ravel(), vertex_block.ravel()])
+        return np.bincount(self._scatter, weights=values, minlength=self._nnz)
+
+    def damping_matrix(self, x):
+        if self.params.damping == 0.0:
+            return None
+        _, _, direction = self._springs(x)
+        block = self.params.damping * direction[:, :, None] * direction[:, None, :]
+        values = np.concatenate([block.ravel(), block.ravel(), -block.ravel(), -block.ravel(),
+                                 np.zeros(9 * self.vertex_count)])
+        return self._matrix(np.bincount(self._scatter, weights=values, minlength=self._nnz))
+
+    def extra_observables(self, x, v):
+        return {
+            "spring_energy": self.spring_energy(x),
+            "gravity_energy": self.gravity_energy(x),
+            "contact_energy": self.contact_energy(x),
+        }
+
+    def energy_scale(self) -> float:
+        """Energy of lifting the cloth by its longest side, M |g| L, or |KE0| + |PE0| if larger (J)."""
+        lift = self.params.mass * float(np.linalg.norm(self.gravity)) * max(self.params.size)
+        return max(super().energy_scale(), lift) if lift > 0 else super().energy_scale()
+
+    def frame(self, x: np.ndarray) -> np.ndarray:
+        """Vertex positions as (vertices, 3) (m)."""
+        return x.reshape(-1, 3)
