@@ -8,7 +8,10 @@ It supplies
   e.g. the acceleration of Newmark or the previous state of a multistep method) from (x0, v0).
 
 Implicit methods that are the minimisation of an incremental potential (DESIGN.md) build an
-``IncrementalPotential`` and hand it to the solver, which knows nothing about integrators.
+``IncrementalPotential`` and hand it to the solver, which knows nothing about integrators. Methods
+that sample the force at several points of the step (the average vector field, the BDF2/midpoint
+mix) build a ``SegmentPotential``: its gradient is their residual and its Hessian their Jacobian,
+and it still has a value, so line-search solvers can use it too.
 """
 
 from __future__ import annotations
@@ -51,6 +54,11 @@ class Integrator(BaseModel):
     @abstractmethod
     def step(self, system: System, state: State, dt: float, solver) -> tuple[State, SolveStats]:
         """Advance ``state`` by dt (s); implicit methods solve with ``solver``."""
+
+    @property
+    def order_of_accuracy(self) -> int:
+        """The order with these parameter values; ``order`` is the order at the defaults (Newmark: 1 unless gamma = 1/2)."""
+        return self.order
 
     @property
     def label(self) -> str:
@@ -118,4 +126,80 @@ class IncrementalPotential:
         hessian = self.scale * self.system.hessian(y)
         if self.damping is not None:
             hessian = hessian + self.damping_weight * self.damping
+        return add_diagonal(hessian, self.system.mass)
+
+
+class SegmentPotential:
+    """E(y) = 1/2 (y - y~)^T M (y - y~) + h^2 sum_j c_j [P(z_j) - P(x_n)] / s_j  + damping term,
+    with z_j = x_n + s_j (y - x_n) points of the segment from x_n to the unknown y = x_{n+1}.
+
+    Its gradient is the residual of methods that sample the force along the step,
+        M (y - y~) - h^2 sum_j c_j f(z_j, v_j),   v_j = (1 - s_j) v_n + s_j v(y),  v(y) = (y - a)/b,
+    (each sampled force is the gradient of P(z_j)/s_j in y), and its Hessian is their Jacobian
+        M + h^2 sum_j c_j s_j K(z_j) + (h^2 sum_j c_j s_j / b) D.
+    Damping f_d = -D v enters with D taken at ``damping_at`` (the start of the step), as in
+    ``IncrementalPotential``; the damping term is h^2 [sum_j c_j (1 - s_j) v_n^T D y + sum_j c_j s_j (y - a)^T D (y - a) / (2 b)].
+    A single node s = 1 with weight c gives ``IncrementalPotential`` with scale c h^2.
+
+    Parameters: system; y_tilde (m) and x_start = x_n (m), v_start = v_n (m/s), shape (dof_count,);
+    nodes s_j in (0, 1] and weights c_j (dimensionless); dt = h (s); velocity_origin a (m) and
+    velocity_divisor b (s); damping_at: positions at which D is taken.
+    """
+
+    def __init__(self, system: System, y_tilde: np.ndarray, x_start: np.ndarray, v_start: np.ndarray,
+                 nodes, weights, dt: float, velocity_origin: np.ndarray, velocity_divisor: float,
+                 damping_at: np.ndarray | None = None):
+        kept = [(float(s), float(c)) for s, c in zip(nodes, weights) if c != 0.0]
+        self.nodes = np.array([s for s, _ in kept])
+        self.weights = np.array([c for _, c in kept])
+        self.system = system
+        self.y_tilde = y_tilde
+        self.x_start = x_start
+        self.v_start = v_start
+        self.h2 = dt * dt
+        self.fixed_dofs = system.fixed_dofs
+        self.damping = None if damping_at is None else system.damping_matrix(damping_at)
+        self.velocity_origin = velocity_origin
+        self.velocity_divisor = velocity_divisor
+        # sum_j c_j (1 - s_j) and sum_j c_j s_j: how much of v_n and of v(y) the sampled damping forces see
+        self.start_share = float(np.sum(self.weights * (1.0 - self.nodes)))
+        self.end_share = float(np.sum(self.weights * self.nodes))
+        self._start_energy = None
+        self.residual_floor = 64.0 * np.finfo(float).eps * float(np.max(np.abs(system.mass * y_tilde), initial=1e-300))
+
+    def _points(self, y: np.ndarray):
+        step = y - self.x_start
+        return [self.x_start + s * step for s in self.nodes]
+
+    def value(self, y: np.ndarray) -> float:
+        if self._start_energy is None:
+            self._start_energy = self.system.potential_energy(self.x_start)
+        offset = y - self.y_tilde
+        energy = 0.5 * float(np.dot(self.system.mass * offset, offset))
+        for s, c, z in zip(self.nodes, self.weights, self._points(y)):
+            energy += self.h2 * c * (self.system.potential_energy(z) - self._start_energy) / s
+        if self.damping is not None:
+            rate = y - self.velocity_origin
+            energy += self.h2 * (self.start_share * float(self.v_start @ (self.damping @ y))
+                                 + 0.5 * self.end_share / self.velocity_divisor * float(rate @ (self.damping @ rate)))
+        return energy
+
+    def gradient(self, y: np.ndarray) -> np.ndarray:
+        gradient = self.system.mass * (y - self.y_tilde)
+        for c, z in zip(self.weights, self._points(y)):
+            gradient += self.h2 * c * self.system.gradient(z)
+        if self.damping is not None:
+            velocity = self.start_share * self.v_start + self.end_share * (y - self.velocity_origin) / self.velocity_divisor
+            gradient += self.h2 * (self.damping @ velocity)
+        if self.fixed_dofs.size:
+            gradient[self.fixed_dofs] = 0.0
+        return gradient
+
+    def hessian(self, y: np.ndarray):
+        hessian = None
+        for s, c, z in zip(self.nodes, self.weights, self._points(y)):
+            term = (self.h2 * c * s) * self.system.hessian(z)
+            hessian = term if hessian is None else hessian + term
+        if self.damping is not None:
+            hessian = hessian + (self.h2 * self.end_share / self.velocity_divisor) * self.damping
         return add_diagonal(hessian, self.system.mass)

@@ -1,0 +1,128 @@
+"""Explicit methods beyond Euler: leapfrog (velocity Verlet) and the Runge-Kutta methods, given as Butcher tableaux."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from simrun.solvers import EXPLICIT_STEP
+
+from .base import Integrator, State
+
+
+class Leapfrog(Integrator):
+    """Velocity Verlet (kick-drift-kick):
+        v_{n+1/2} = v_n + h/2 M^-1 f(x_n, v_n),  x_{n+1} = x_n + h v_{n+1/2},
+        v_{n+1} = v_{n+1/2} + h/2 M^-1 f(x_{n+1}, v*),   v* = 2 v_{n+1/2} - v_n = v_n + h M^-1 f(x_n, v_n).
+
+    Second order, symplectic and time-reversible without damping. Stable on the spring for h w < 2,
+    where it adds no artificial damping (the energy oscillates, bounded); beyond, the amplification
+    is (x^2 - 2 + x sqrt(x^2 - 4)) / 2 with x = h w. Damping: the last half kick takes the damping
+    force at the extrapolated velocity v* (an O(h^2) estimate of v_{n+1}), which keeps the method
+    explicit and second order; without damping v* is not used and this is exactly velocity Verlet.
+    Source: Hairer, Lubich & Wanner, Geometric Numerical Integration (2006), ch. I (Stoermer-Verlet).
+    """
+
+    name: ClassVar[str] = "leapfrog"
+    order: ClassVar[int] = 2
+    explicit: ClassVar[bool] = True
+    summary: ClassVar[str] = "velocity Verlet / kick-drift-kick; symplectic, 2nd order, stable for h w < 2"
+
+    def step(self, system, state, dt, solver):
+        acceleration = system.acceleration(state.x, state.v)
+        v_half = state.v + 0.5 * dt * acceleration
+        x = state.x + dt * v_half
+        v = v_half + 0.5 * dt * system.acceleration(x, state.v + dt * acceleration)
+        return State(state.t + dt, x, v), EXPLICIT_STEP
+
+
+@dataclass(frozen=True)
+class ButcherTableau:
+    """An explicit Runge-Kutta method as data: stages k_i = F(u_n + h sum_{j<i} A_ij k_j), u_{n+1} = u_n + h sum_i b_i k_i.
+
+    ``c`` (the stage times, c_i = sum_j A_ij) is kept for completeness: the systems are autonomous.
+    """
+
+    A: tuple[tuple[float, ...], ...]
+    b: tuple[float, ...]
+    c: tuple[float, ...]
+    order: int
+
+    @property
+    def stage_count(self) -> int:
+        return len(self.b)
+
+
+class ExplicitRungeKutta(Integrator):
+    """Explicit Runge-Kutta on the first-order system u = (x, v), u' = (v, M^-1 f(x, v)).
+
+    A subclass supplies only its ``tableau``; stability on the spring is |R(i h w)| with R the
+    method's stability polynomial (sum_k z^k / k! up to the order, for s = p <= 4 stages).
+    """
+
+    tableau: ClassVar[ButcherTableau]
+
+    def step(self, system, state, dt, solver):
+        tableau = self.tableau
+        slopes_x: list[np.ndarray] = []  # dx/dt at each stage (a velocity)
+        slopes_v: list[np.ndarray] = []  # dv/dt at each stage (an acceleration)
+        for row in tableau.A:
+            x, v = state.x, state.v
+            for weight, slope_x, slope_v in zip(row, slopes_x, slopes_v):
+                if weight:
+                    x = x + (dt * weight) * slope_x
+                    v = v + (dt * weight) * slope_v
+            slopes_x.append(v)
+            slopes_v.append(system.acceleration(x, v))
+        x, v = state.x, state.v
+        for weight, slope_x, slope_v in zip(tableau.b, slopes_x, slopes_v):
+            if weight:
+                x = x + (dt * weight) * slope_x
+                v = v + (dt * weight) * slope_v
+        return State(state.t + dt, x, v), EXPLICIT_STEP
+
+
+EXPLICIT_MIDPOINT_TABLEAU = ButcherTableau(
+    A=((0.0, 0.0), (0.5, 0.0)),
+    b=(0.0, 1.0),
+    c=(0.0, 0.5),
+    order=2,
+)
+
+RK4_TABLEAU = ButcherTableau(
+    A=((0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0, 0.0), (0.0, 0.5, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0)),
+    b=(1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0),
+    c=(0.0, 0.5, 0.5, 1.0),
+    order=4,
+)
+
+
+class ExplicitMidpoint(ExplicitRungeKutta):
+    """RK2, explicit midpoint: k1 = F(u_n), k2 = F(u_n + h/2 k1), u_{n+1} = u_n + h k2.
+
+    Second order. On the spring R(z) = 1 + z + z^2/2, so |R(i x)| = sqrt(1 + x^4/4) > 1: unstable
+    for every h without damping (energy grows, slowly: by about x^4/4 per step). With damping it is
+    stable for small enough h. Source: Hairer, Norsett & Wanner, Solving ODEs I (1993), ch. II.
+    """
+
+    name: ClassVar[str] = "explicit_midpoint"
+    order: ClassVar[int] = EXPLICIT_MIDPOINT_TABLEAU.order
+    explicit: ClassVar[bool] = True
+    summary: ClassVar[str] = "RK2 (explicit midpoint); energy grows by ~ (h w)^4/4 per step on the spring"
+    tableau: ClassVar[ButcherTableau] = EXPLICIT_MIDPOINT_TABLEAU
+
+
+class RK4(ExplicitRungeKutta):
+    """Classical Runge-Kutta: u_{n+1} = u_n + h (k1 + 2 k2 + 2 k3 + k4) / 6.
+
+    Fourth order. On the spring |R(i x)|^2 = 1 - x^6/72 + x^8/576: slightly dissipative for
+    x < 2 sqrt(2), unstable beyond. Source: Hairer, Norsett & Wanner, Solving ODEs I (1993), ch. II.
+    """
+
+    name: ClassVar[str] = "rk4"
+    order: ClassVar[int] = RK4_TABLEAU.order
+    explicit: ClassVar[bool] = True
+    summary: ClassVar[str] = "classical Runge-Kutta; 4th order, slightly dissipative, stable for h w < 2.83"
+    tableau: ClassVar[ButcherTableau] = RK4_TABLEAU

@@ -1,0 +1,93 @@
+"""Two-step methods: BDF2 and Ascher's theta-mix of BDF2 and the implicit midpoint rule.
+
+Both carry the previous state (x_{n-1}, v_{n-1}) in ``State.aux``; it is empty at the start, and the
+first step is then taken with backward Euler (BDF1). A run keeps dt fixed, as the formulas assume.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from pydantic import Field
+
+from .base import IncrementalPotential, Integrator, SegmentPotential, State
+from .euler import BackwardEuler
+
+# BDF2 increment: u_{n+1} - u_n = HISTORY (u_n - u_{n-1}) + IMPLICIT_WEIGHT h F(u_{n+1})
+BDF2_HISTORY, BDF2_IMPLICIT_WEIGHT = 1.0 / 3.0, 2.0 / 3.0
+
+
+class BDF2(Integrator):
+    """x_{n+1} = 4/3 x_n - 1/3 x_{n-1} + 2/3 h v_{n+1},  M v_{n+1} = M (4/3 v_n - 1/3 v_{n-1}) + 2/3 h f(x_{n+1}, v_{n+1}).
+
+    Incremental potential in y = x_{n+1}: with x^ = (4 x_n - x_{n-1})/3 and v^ = (4 v_n - v_{n-1})/3,
+    y~ = x^ + 2/3 h v^, c = 4/9, v_{n+1} = (y - x^)/(2h/3). The first step is backward Euler.
+    Second order, A-stable and L-stable: the spectral radius on the spring is the largest root of
+    (1 - 2z/3) r^2 - 4/3 r + 1/3 = 0, z = +-i h w; it falls from 1 (artificial damping of order
+    (h w)^4 per step at small h w) to 0 as h w -> infinity (like 1/sqrt(2 h w)). Source: Hairer &
+    Wanner, Solving ODEs II (1996), ch. V; Ascher, Numerical Methods for Evolutionary
+    Differential Equations (SIAM 2008), ch. 5.
+    """
+
+    name: ClassVar[str] = "bdf2"
+    order: ClassVar[int] = 2
+    explicit: ClassVar[bool] = False
+    summary: ClassVar[str] = "two-step BDF, started with one backward Euler step; 2nd order, L-stable (damps)"
+
+    def step(self, system, state, dt, solver):
+        if not state.aux:
+            new, stats = BackwardEuler().step(system, state, dt, solver)
+            return State(new.t, new.x, new.v, (state.x, state.v)), stats
+        x_prev, v_prev = state.aux
+        x_hat = state.x + BDF2_HISTORY * (state.x - x_prev)
+        v_hat = state.v + BDF2_HISTORY * (state.v - v_prev)
+        divisor = BDF2_IMPLICIT_WEIGHT * dt
+        problem = IncrementalPotential(system, x_hat + divisor * v_hat, divisor * divisor,
+                                       velocity_origin=x_hat, velocity_divisor=divisor, damping_at=state.x)
+        x, stats = solver.minimize(problem, state.x)
+        return State(state.t + dt, x, (x - x_hat) / divisor, (state.x, state.v)), stats
+
+
+class BDF2MidpointMix(Integrator):
+    """Ascher's theta method: increment = theta * (BDF2 increment) + (1 - theta) * (implicit midpoint increment),
+    u_{n+1} - u_n = theta [1/3 (u_n - u_{n-1}) + 2/3 h F(u_{n+1})] + (1 - theta) h F((u_n + u_{n+1})/2),  u = (x, v).
+
+    Eliminating v_{n+1} = (x_{n+1} - a)/(kappa h), kappa = 1/2 + theta/6,
+    a = x_n + theta/3 (x_n - x_{n-1}) + (1 - theta) h/2 v_n, the step is the segment potential in
+    y = x_{n+1} with y~ = a + kappa h (v_n + theta/3 (v_n - v_{n-1})) and the force sampled at
+    y (weight 2 theta kappa/3) and at the midpoint (x_n + y)/2 (weight (1 - theta) kappa): a residual
+    whose Jacobian is symmetric, so it also has a value. The first step replaces BDF2 by its
+    one-step member, backward Euler (history weight 0, implicit weight 1). Second order for every
+    theta; theta = 0 is the implicit midpoint rule (no artificial damping), theta = 1 is BDF2;
+    more theta, more damping: the spectral radius at h w -> infinity is 3 (1 - theta)/(3 + theta),
+    and at every h w it does not grow with theta. A-stable for theta in [0, 1]. Source: the
+    course's "Ascher theta method" as defined in issue 3 (no published reference was found to
+    cite); the two members: Ascher, Numerical Methods for Evolutionary Differential Equations
+    (SIAM 2008), ch. 5 and 6.
+    """
+
+    name: ClassVar[str] = "bdf2_midpoint_mix"
+    order: ClassVar[int] = 2
+    explicit: ClassVar[bool] = False
+    summary: ClassVar[str] = "Ascher's theta * BDF2 + (1 - theta) * implicit midpoint; 2nd order, more theta = more damping"
+
+    theta: float = Field(0.5, ge=0.0, le=1.0, allow_inf_nan=False,
+                         description="share of BDF2 in the increment: 0 = implicit midpoint (no damping), 1 = BDF2")
+
+    def step(self, system, state, dt, solver):
+        if state.aux:
+            x_prev, v_prev = state.aux
+            history, implicit_weight = BDF2_HISTORY, BDF2_IMPLICIT_WEIGHT
+        else:  # first step: backward Euler in place of BDF2
+            x_prev, v_prev = state.x, state.v
+            history, implicit_weight = 0.0, 1.0
+        theta = self.theta
+        kappa = theta * implicit_weight + 0.5 * (1.0 - theta)  # weight of v_{n+1} in the position increment / h
+        divisor = kappa * dt
+        origin = state.x + (theta * history) * (state.x - x_prev) + (0.5 * (1.0 - theta) * dt) * state.v
+        y_tilde = origin + divisor * (state.v + (theta * history) * (state.v - v_prev))
+        problem = SegmentPotential(system, y_tilde, state.x, state.v, nodes=(1.0, 0.5),
+                                   weights=(theta * implicit_weight * kappa, (1.0 - theta) * kappa), dt=dt,
+                                   velocity_origin=origin, velocity_divisor=divisor, damping_at=state.x)
+        x, stats = solver.minimize(problem, state.x)
+        return State(state.t + dt, x, (x - origin) / divisor, (state.x, state.v)), stats
