@@ -12,7 +12,7 @@ from pathlib import Path
 
 from simrun import __version__
 
-SUBCOMMANDS = ("run", "plot", "list")
+SUBCOMMANDS = ("run", "plot", "animate", "list")
 EXIT_CONFIG_ERROR = 2
 
 
@@ -39,6 +39,14 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("results", help="a results file, e.g. results/quickstart/results.h5")
     plot.add_argument("--output", help="figure folder (default: figures/ beside the results file)")
 
+    animate = commands.add_parser("animate", help="write an animated GIF of one cloth run",
+                                  description="Write an animated GIF of one cloth run's frames (from the results file alone).")
+    animate.add_argument("results", help="a results file, e.g. results/cloth_hang/results.h5")
+    animate.add_argument("run_id", nargs="?", help="the run to animate (default: the first cloth run); `simrun animate RESULTS --list` lists them")
+    animate.add_argument("--output", help="GIF path (default: figures/<run_id>.gif beside the results file)")
+    animate.add_argument("--fps", type=int, default=20, help="frames per second (default 20)")
+    animate.add_argument("--list", action="store_true", help="list the cloth runs that can be animated")
+
     commands.add_parser("list", help="print the systems, integrators and solvers with their parameters",
                         description="Print every system, integrator and solver that a config may name, with parameters and defaults.")
     return parser
@@ -59,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
             return command_run(args)
         if args.command == "plot":
             return command_plot(args)
+        if args.command == "animate":
+            return command_animate(args)
         return command_list()
     except ConfigError as error:
         print(f"simrun: error: {error}", file=sys.stderr)
@@ -109,6 +119,32 @@ def command_plot(args) -> int:
     out = Path(args.output) if args.output else path.parent / "figures"
     figures = draw_figures(path, out)
     print(f"figures: {out}  ({len(figures)} files)")
+    return 0
+
+
+def command_animate(args) -> int:
+    import h5py
+
+    from simrun.cloth_figures import cloth_runs, write_gif
+    from simrun.config import ConfigError
+
+    path = Path(args.results)
+    if not path.is_file() or not h5py.is_hdf5(path):
+        raise ConfigError(f"results: {str(path)!r} is not a results file (expected e.g. results/cloth_hang/results.h5)")
+    with h5py.File(path, "r") as file:
+        runs = cloth_runs(file)
+    if args.list:
+        print("\n".join(runs) if runs else "no cloth runs with frames in this file")
+        return 0
+    if not runs:
+        raise ConfigError(f"results: {str(path)!r} holds no cloth run with frames to animate")
+    run_id = args.run_id or runs[0]
+    if run_id not in runs:
+        raise ConfigError(f"run_id: {run_id!r} is not a cloth run of this file; valid: " + ", ".join(runs))
+    if args.fps < 1:
+        raise ConfigError(f"--fps: must be >= 1, got {args.fps}")
+    output = Path(args.output) if args.output else path.parent / "figures" / f"{run_id}.gif"
+    print(f"animation: {write_gif(path, run_id, output, fps=args.fps)}")
     return 0
 
 
