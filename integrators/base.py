@@ -122,8 +122,8 @@ class IncrementalPotential:
             gradient[self.fixed_dofs] = 0.0
         return gradient
 
-    def hessian(self, y: np.ndarray):
-        hessian = self.scale * self.system.hessian(y)
+    def hessian(self, y: np.ndarray, project_spd: bool = False):
+        hessian = self.scale * self.system.hessian(y, project_spd=project_spd)
         if self.damping is not None:
             hessian = hessian + self.damping_weight * self.damping
         return add_diagonal(hessian, self.system.mass)
@@ -195,10 +195,10 @@ class SegmentPotential:
             gradient[self.fixed_dofs] = 0.0
         return gradient
 
-    def hessian(self, y: np.ndarray):
+    def hessian(self, y: np.ndarray, project_spd: bool = False):
         hessian = None
         for s, c, z in zip(self.nodes, self.weights, self._points(y)):
-            term = (self.h2 * c * s) * self.system.hessian(z)
+            term = (self.h2 * c * s) * self.system.hessian(z, project_spd=project_spd)
             hessian = term if hessian is None else hessian + term
         if self.damping is not None:
             hessian = hessian + (self.h2 * self.end_share / self.velocity_divisor) * self.damping
