@@ -46,8 +46,8 @@ class Recorder:
         self.frames = None if self.with_state else np.empty((frame_count, system.dof_count // 3, 3))
         self.frame_t = None if self.with_state else np.empty(frame_count)
 
-    def record(self, state: State) -> None:
-        values = {"t": state.t, **self.system.observables(state.x, state.v)}
+    def record(self, state: State, dissipated_energy: float) -> None:
+        values = {"t": state.t, **self.system.observables(state.x, state.v), "dissipated_energy": dissipated_energy}
         if self.with_state:
             values["positions"], values["velocities"] = state.x, state.v
         if not self.arrays:
@@ -85,15 +85,22 @@ def simulate(run: Run) -> RunResult:
         "linear_iterations": np.zeros(step_count, dtype=np.int32),
         "line_search_steps": np.zeros(step_count, dtype=np.int32),
         "residual": np.zeros(step_count),
+        "solver_index": np.zeros(step_count, dtype=np.int8),
     }
     stop_on_not_converged = run.solver.on_not_converged == "stop"
 
     state = State(0.0, system.x0.copy(), system.v0.copy())
     energy0 = system.total_energy(state.x, state.v)
     energy_bound = run.divergence.energy_factor * system.energy_scale()
-    recorder.record(state)
-    if with_frames:
-        recorder.record_frame(state)
+    dissipated = 0.0  # work of the physical damping forces so far (J), for the energy budget
+
+    def record(state: State, sample: bool = True, frame: bool = True) -> None:
+        if sample:
+            recorder.record(state, dissipated)
+        if frame and with_frames:
+            recorder.record_frame(state)
+
+    record(state)
     status, message, t_diverged, not_converged_steps = OK, "", None, 0
     steps = 0
     start = time.perf_counter()
@@ -101,35 +108,36 @@ def simulate(run: Run) -> RunResult:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             state = integrator.start(system, state)
             for n in range(step_count):
+                previous = state
                 state, stats = integrator.step(system, state, dt, solver)
                 state = State(dt * (n + 1), state.x, state.v, state.aux)  # no accumulated round-off in t
                 steps = n + 1
+                damping = system.damping_matrix(previous.x)
+                if damping is not None:
+                    # h v_bar^T D v_bar with the step's mean velocity: the exact discrete balance of
+                    # implicit midpoint for quadratic energies, a second-order estimate for the others
+                    mean_velocity = 0.5 * (previous.v + state.v)
+                    dissipated += dt * float(mean_velocity @ (damping @ mean_velocity))
                 per_step["newton_iterations"][n] = stats.iterations
                 per_step["linear_iterations"][n] = stats.linear_iterations
                 per_step["line_search_steps"][n] = stats.line_search_steps
                 per_step["residual"][n] = stats.residual
+                per_step["solver_index"][n] = stats.solver_index
                 last = steps == step_count
                 if steps % check_every == 0 or last:
                     energy = system.total_energy(state.x, state.v)
                     if not np.isfinite(energy) or abs(energy - energy0) > energy_bound:
                         status, t_diverged = DIVERGED, state.t
                         message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {state.t:.6g} s"
-                        recorder.record(state)
-                        if with_frames:
-                            recorder.record_frame(state)
+                        record(state)
                         break
                 if not stats.converged:
                     not_converged_steps += 1
                     if stop_on_not_converged:
                         message = f"step {steps} (t = {state.t:.6g} s) did not converge: residual {stats.residual:.3g}"
-                        recorder.record(state)
-                        if with_frames:
-                            recorder.record_frame(state)
+                        record(state)
                         break
-                if steps % stride == 0 or last:
-                    recorder.record(state)
-                if with_frames and (steps % frame_stride == 0 or last):
-                    recorder.record_frame(state)
+                record(state, sample=steps % stride == 0 or last, frame=steps % frame_stride == 0 or last)
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start

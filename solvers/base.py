@@ -34,6 +34,7 @@ class SolveStats:
     line_search_steps: int = 0
     residual: float = 0.0  # |gradient|_inf at the returned point
     converged: bool = True
+    solver_index: int = 0  # which solver of the fallback chain finished the step (0: the main one)
 
 
 EXPLICIT_STEP = SolveStats()  # what an explicit step reports: nothing solved

@@ -168,3 +168,16 @@ def test_exact_solution_of_the_damped_spring_solves_the_equation():
         acceleration = (q(t + h) - 2 * q(t) + q(t - h)) / h ** 2
         velocity = system.exact_solution(t)[1][:, 0]
         assert np.allclose(acceleration + damping * velocity + 4.0 * q(t), 0.0, atol=1e-5)
+
+
+def test_dissipated_energy_closes_implicit_midpoints_budget_on_the_damped_spring():
+    """Implicit midpoint on q'' + d q' + k q = 0: E_{n+1} - E_n = -h v_{n+1/2} d v_{n+1/2} exactly, so the
+    recorded dissipated energy plus the energy is constant to round-off; backward Euler loses more."""
+    system = {"type": "spring_mass", "stiffness": 50.0, "damping": 0.7, "x0": 1.0, "v0": 2.0}
+    midpoint = run_one(system, "implicit_midpoint", 0.05, 5.0, solver={"tolerance": 1e-13})
+    budget = midpoint.samples["energy"] + midpoint.samples["dissipated_energy"]
+    assert midpoint.samples["dissipated_energy"][-1] > 0.5 * budget[0]
+    assert np.max(np.abs(budget - budget[0])) < 1e-12 * budget[0]
+    backward = run_one(system, "backward_euler", 0.05, 5.0)
+    remainder = backward.samples["energy"] + backward.samples["dissipated_energy"] - budget[0]
+    assert remainder[-1] < -1e-3 * budget[0]  # the method's own (artificial) dissipation
