@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 CONFIG ?= configs/quickstart.yaml
 PYTEST_ARGS ?=
 
-.PHONY: install install-test run test plot clean
+.PHONY: install install-test run test plot bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -35,3 +35,6 @@ plot: install                          ## redraw the default experiment's figure
 clean:                                 ## remove results and caches (keeps .venv)
 	rm -rf results/*/ .pytest_cache .hypothesis
 	find . -name __pycache__ -type d -prune -not -path './$(VENV)/*' -exec rm -rf {} +
+
+bench: install                         ## speed benchmarks: one table of ratios (never part of `make test`)
+	$(BIN)/python -m benchmarks
