@@ -6,14 +6,22 @@ config -> validated experiment -> runs -> simulate -> HDF5 -> figures
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 from simrun import __version__
+from simrun.config import ConfigError
+from simrun.executors import EXECUTORS, execute
+from simrun.lock import OutputLock, OutputLocked
+from simrun.store import RESULTS_NAME
 
 SUBCOMMANDS = ("run", "plot", "animate", "list")
 EXIT_CONFIG_ERROR = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report Ctrl-C
+DEFAULT_MAX_SIZE_GB = 50.0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -32,6 +40,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="override a config key, value in YAML (repeatable), e.g. --set system.stiffness=1000 --set sweep.dt=[0.01,0.02]")
     run.add_argument("--output", help="output folder (default: the config's `output`, else results/<name>)")
     run.add_argument("--no-plots", action="store_true", help="write the results file only")
+    run.add_argument("-j", "--jobs", type=int, help="runs at once: local processes or Dask workers (default: the number of cores; 1 = serial)")
+    run.add_argument("--executor", choices=EXECUTORS, default="local",
+                     help="local: a process pool on this machine (default); dask: a Dask cluster (pip install 'simrun[dask]')")
+    run.add_argument("--scheduler", metavar="ADDRESS", help="with --executor dask: an existing scheduler, e.g. tcp://host:8786 (default: a local cluster)")
+    run.add_argument("--force", action="store_true", help="start over even if OUTPUT/results.h5 holds other results (default: resume an unchanged config)")
+    run.add_argument("--max-size", type=float, default=DEFAULT_MAX_SIZE_GB, metavar="GB",
+                     help=f"refuse a sweep whose results would exceed this size (default {DEFAULT_MAX_SIZE_GB:g} GB)")
     run.add_argument("-q", "--quiet", action="store_true", help="print only errors and the final paths")
 
     plot = commands.add_parser("plot", help="redraw the figures from a results file alone",
@@ -60,8 +75,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         build_parser().print_help()
         return 0
-    from simrun.config import ConfigError
-
     try:
         if args.command == "run":
             return command_run(args)
@@ -70,34 +83,61 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "animate":
             return command_animate(args)
         return command_list()
-    except ConfigError as error:
+    except (ConfigError, OutputLocked) as error:
         print(f"simrun: error: {error}", file=sys.stderr)
         return EXIT_CONFIG_ERROR
 
 
 def command_run(args) -> int:
     from simrun.config import config_hash, expand_runs, load_experiment
-    from simrun.simulate import simulate
-    from simrun.store import RESULTS_NAME, ResultsWriter
 
     experiment, config_text = load_experiment(args.config, args.overrides)
     runs = expand_runs(experiment)
     output = Path(args.output) if args.output else experiment.output_dir
+    jobs = args.jobs if args.jobs is not None else _default_jobs()
+    if jobs < 1:
+        raise ConfigError(f"--jobs: must be >= 1, got {jobs}")
     _check_writable(output)
-    say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
-    say(f"simrun {__version__}: {experiment.name}: {len(runs)} runs -> {output}")
+    _check_size(runs, output, jobs, args.max_size)
+    quiet = args.quiet
+    say = (lambda *_: None) if quiet else (lambda text: print(text, flush=True))
 
     output.mkdir(parents=True, exist_ok=True)
     results_path = output / RESULTS_NAME
-    counts: dict[str, int] = {}
-    with ResultsWriter(results_path, config_text, config_hash(experiment), experiment.name) as writer:
-        for number, run in enumerate(runs, 1):
-            result = simulate(run)
-            writer.write_run(run, result)
-            counts[result.status] = counts.get(result.status, 0) + 1
-            detail = f" ({result.message})" if result.status != "ok" and result.message else ""
-            say(f"[{number}/{len(runs)}] {run.run_id}: {result.status}, {result.steps} steps in {result.wall_time:.3g} s{detail}")
-    print(f"results: {results_path}  ({', '.join(f'{n} {s}' for s, n in sorted(counts.items()))})")
+    digest = config_hash(experiment)
+    with OutputLock(output):
+        writer = _open_writer(results_path, config_text, digest, experiment.name, args.force)
+        with writer:
+            done = writer.completed_runs()
+            pending = [run for run in runs if run.run_id not in done]
+            where = f"{args.executor}, {jobs} job{'s' if jobs > 1 else ''}" if len(pending) > 1 else "serial"
+            say(f"simrun {__version__}: {experiment.name}: {len(runs)} runs -> {output} ({where})")
+            if done:
+                say(f"resuming: skipped {len(runs) - len(pending)} runs already in {results_path}; running {len(pending)}")
+            counts: dict[str, int] = {}
+            progress = _progress(len(pending), quiet)
+            try:
+                for number, (run, result) in enumerate(execute(pending, args.executor, jobs, args.scheduler), 1):
+                    writer.write_run(run, result)
+                    counts[result.status] = counts.get(result.status, 0) + 1
+                    detail = f" ({result.message})" if result.status != "ok" and result.message else ""
+                    line = f"[{number}/{len(pending)}] {run.run_id}: {result.status}, {result.steps} steps in {result.wall_time:.3g} s{detail}"
+                    if progress is None:
+                        say(line)
+                    else:
+                        progress.set_postfix_str(run.run_id, refresh=False)
+                        progress.update()
+            except KeyboardInterrupt:
+                if progress is not None:
+                    progress.close()
+                kept = len(writer.completed_runs())
+                print(f"simrun: interrupted: {kept} of {len(runs)} runs are in {results_path}; "
+                      "run the same command again to finish the rest", file=sys.stderr)
+                return EXIT_INTERRUPTED
+            if progress is not None:
+                progress.close()
+    summary = ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) or "nothing left to run"
+    print(f"results: {results_path}  ({summary})")
     if not args.no_plots:
         from simrun.plots import draw_figures
 
@@ -106,9 +146,60 @@ def command_run(args) -> int:
     return 0
 
 
-def command_plot(args) -> int:
-    from simrun.config import ConfigError
+def _default_jobs() -> int:
+    from simrun.executors import default_jobs
 
+    return default_jobs()
+
+
+def _open_writer(path: Path, config_text: str, digest: str, name: str, force: bool):
+    """A new results file, or the existing one when it holds the same config (resume)."""
+    from simrun.store import ResultsFileError, ResultsWriter, stored_config_hash
+
+    if path.exists() and not force:
+        try:
+            existing = stored_config_hash(path)
+        except ResultsFileError as error:
+            raise ConfigError(f"output: {str(path)!r} {error}") from None
+        if existing != digest:
+            raise ConfigError(f"output: {str(path)!r} holds the results of a different config; "
+                              "start over with --force, or choose another --output")
+        return ResultsWriter.resume(path)
+    return ResultsWriter.create(path, config_text, digest, name)
+
+
+def _progress(total: int, quiet: bool):
+    """A progress bar on a terminal; None (plain log lines) when quiet or when stderr is not a terminal."""
+    if quiet or total == 0 or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="run", dynamic_ncols=True, file=sys.stderr)
+
+
+def _check_size(runs, output: Path, jobs: int, max_size_gb: float) -> None:
+    """Refuse a sweep whose results would not fit on the disk, under the limit, or in memory."""
+    from simrun.store import estimate_run_bytes
+
+    sizes = [estimate_run_bytes(run) for run in runs]
+    total = sum(sizes)
+    existing = output
+    while not existing.exists():
+        existing = existing.parent
+    free = shutil.disk_usage(existing).free
+    limit = min(max_size_gb * 1e9, free)
+    if total > limit:
+        reason = f"the --max-size limit of {max_size_gb:g} GB" if max_size_gb * 1e9 <= free else f"the {free / 1e9:.3g} GB free"
+        raise ConfigError(f"sweep: the results would take about {total / 1e9:.3g} GB, more than {reason}; "
+                          "record fewer samples (record.max_samples, record.max_frames) or shorten the sweep")
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    in_flight = sum(sorted(sizes)[-jobs:])
+    if in_flight > 0.8 * memory:
+        raise ConfigError(f"sweep: {jobs} runs at once would hold about {in_flight / 1e9:.3g} GB in memory, "
+                          f"more than 80 % of the {memory / 1e9:.3g} GB here; use fewer --jobs or record fewer samples")
+
+
+def command_plot(args) -> int:
     path = Path(args.results)
     import h5py
 
@@ -126,8 +217,6 @@ def command_animate(args) -> int:
     import h5py
 
     from simrun.cloth_figures import cloth_runs, write_gif
-    from simrun.config import ConfigError
-
     path = Path(args.results)
     if not path.is_file() or not h5py.is_hdf5(path):
         raise ConfigError(f"results: {str(path)!r} is not a results file (expected e.g. results/cloth_hang/results.h5)")
@@ -179,8 +268,6 @@ def command_list() -> int:
 
 def _check_writable(output: Path) -> None:
     """Refuse an output folder we cannot write before any run starts (and before creating anything)."""
-    from simrun.config import ConfigError
-
     existing = output
     while not existing.exists():
         existing = existing.parent

@@ -39,6 +39,25 @@ SUMMARY_DTYPE = np.dtype([
 ])
 
 
+# bytes per step of the per-step datasets (int32 x 3, float64, int8) and per sample scalar
+PER_STEP_BYTES = 3 * 4 + 8 + 1
+SAMPLE_SCALARS = 12  # t, energies, dissipated energy, momentum, angular momentum, radius, energy parts
+
+
+def estimate_run_bytes(run: Run) -> int:
+    """An upper bound of what one run holds in memory and writes to the file (uncompressed), in bytes."""
+    steps = run.step_count
+    dof = run.system.dof_count
+    samples = steps // run.record.stride(steps) + 2
+    per_sample = SAMPLE_SCALARS
+    total = steps * PER_STEP_BYTES
+    if run.system.type == "cloth":
+        total += (steps // run.record.frame_stride(steps) + 2) * dof * 8
+    else:
+        per_sample += 2 * dof
+    return total + samples * per_sample * 8
+
+
 def package_versions() -> dict[str, str]:
     versions = {"python": platform.python_version()}
     for name in ("numpy", "scipy", "h5py", "matplotlib", "pydantic", "pyyaml"):
@@ -65,13 +84,35 @@ def drift_scale(samples: dict[str, np.ndarray]) -> float:
     return scale if scale > 0 else 1.0
 
 
-class ResultsWriter:
-    """Writes one experiment's results file; the only place that writes HDF5."""
+class ResultsFileError(Exception):
+    """An existing results file that cannot be resumed (another config, or unreadable)."""
 
-    def __init__(self, path: Path, config_text: str, config_hash: str, name: str):
-        self.path = Path(path)
-        self.file = h5py.File(self.path, "w")
-        attrs = self.file.attrs
+
+def stored_config_hash(path: Path) -> str | None:
+    """The config hash of an existing results file; raises ResultsFileError if it cannot be read."""
+    try:
+        with h5py.File(path, "r") as file:
+            return str(file.attrs.get("config_hash", "")) or None
+    except OSError as error:
+        raise ResultsFileError(f"cannot be opened ({error.__class__.__name__}); start over with --force") from None
+
+
+class ResultsWriter:
+    """Writes one experiment's results file; the only place that writes HDF5.
+
+    A run is committed in one go: its group (attributes, then datasets, then ``complete = True``
+    last), its summary row, then a flush. A group without ``complete`` is the trace of a write that
+    was killed midway: ``resume`` removes it, so the run is simply run again.
+    """
+
+    def __init__(self, file: h5py.File):
+        self.file = file
+        self.path = Path(file.filename)
+
+    @classmethod
+    def create(cls, path: Path, config_text: str, config_hash: str, name: str) -> "ResultsWriter":
+        file = h5py.File(path, "w")
+        attrs = file.attrs
         attrs["format_version"] = FORMAT_VERSION
         attrs["simrun_version"] = __version__
         attrs["created"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
@@ -79,9 +120,26 @@ class ResultsWriter:
         attrs["config"] = config_text
         attrs["config_hash"] = config_hash
         attrs["package_versions"] = json.dumps(package_versions())
-        self.file.create_group("runs")
-        self.file.create_dataset("summary", shape=(0,), maxshape=(None,), dtype=SUMMARY_DTYPE, chunks=True)
-        self.file.flush()
+        file.create_group("runs")
+        file.create_dataset("summary", shape=(0,), maxshape=(None,), dtype=SUMMARY_DTYPE, chunks=True)
+        file.flush()
+        return cls(file)
+
+    @classmethod
+    def resume(cls, path: Path) -> "ResultsWriter":
+        """Open an existing file for more runs: drop incomplete groups, rebuild the summary from the rest."""
+        writer = cls(h5py.File(path, "a"))
+        runs = writer.file["runs"]
+        for run_id in [run_id for run_id, group in runs.items() if not group.attrs.get("complete", False)]:
+            del runs[run_id]
+        rows = [_summary_row(run_id, runs[run_id]) for run_id in sorted(runs, key=lambda key: runs[key].attrs["index"])]
+        del writer.file["summary"]
+        writer.file.create_dataset("summary", data=np.array(rows, dtype=SUMMARY_DTYPE), maxshape=(None,), chunks=True)
+        writer.file.flush()
+        return writer
+
+    def completed_runs(self) -> set[str]:
+        return set(self.file["runs"])
 
     def write_run(self, run: Run, result: RunResult) -> None:
         group = self.file["runs"].create_group(run.run_id)
@@ -110,26 +168,11 @@ class ResultsWriter:
             group.create_dataset(key, data=array)
         for key, array in result.per_step.items():
             group.create_dataset(key, data=array, **(COMPRESSION if array.size > 1024 else {}))
-        self._append_summary(run, result)
-        self.file.flush()
-
-    def _append_summary(self, run: Run, result: RunResult) -> None:
-        samples = result.samples
-        if "energy" in samples and samples["energy"].size:
-            max_drift, final_drift = energy_drift(samples["energy"], drift_scale(samples))
-        else:
-            max_drift = final_drift = float("nan")
-        newton = result.per_step["newton_iterations"]
-        linear = result.per_step["linear_iterations"]
-        row = np.array([(
-            run.run_id, run.integrator.label, run.dt, result.status, result.steps, max_drift, final_drift,
-            result.attrs.get("final_error", float("nan")),
-            float(newton.mean()) if newton.size else 0.0, float(linear.mean()) if linear.size else 0.0,
-            result.wall_time,
-        )], dtype=SUMMARY_DTYPE)
+        attrs["complete"] = True
         summary = self.file["summary"]
         summary.resize((summary.shape[0] + 1,))
-        summary[-1] = row[0]
+        summary[-1] = np.array([_summary_row(run.run_id, group)], dtype=SUMMARY_DTYPE)[0]
+        self.file.flush()
 
     def close(self) -> None:
         self.file.close()
@@ -139,6 +182,24 @@ class ResultsWriter:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _summary_row(run_id: str, group: h5py.Group) -> tuple:
+    """One summary row, computed from the run's group alone (so a resumed file can rebuild it)."""
+    attrs = group.attrs
+    if "energy" in group and group["energy"].shape[0]:
+        samples = {key: group[key][()] for key in ("energy", "kinetic_energy", "potential_energy")}
+        max_drift, final_drift = energy_drift(samples["energy"], drift_scale(samples))
+    else:
+        max_drift = final_drift = float("nan")
+    newton = group["newton_iterations"][()]
+    linear = group["linear_iterations"][()]
+    return (
+        run_id, str(attrs["integrator_label"]), float(attrs["dt"]), str(attrs["status"]), int(attrs["steps"]),
+        max_drift, final_drift, float(attrs.get("final_error", float("nan"))),
+        float(newton.mean()) if newton.size else 0.0, float(linear.mean()) if linear.size else 0.0,
+        float(attrs["wall_time"]),
+    )
 
 
 def load_summary(path: str | Path) -> np.ndarray:

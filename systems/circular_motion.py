@@ -21,6 +21,10 @@ class CircularMotionParams(BaseModel):
     angular_velocity: float = Field(1.0, gt=0, allow_inf_nan=False, description="w (rad/s)")
     dimension: Literal[2, 3] = Field(2, description="2-D plane, or 3-D space with the orbit in the x-y plane")
 
+    @property
+    def dof_count(self) -> int:
+        return self.dimension
+
     def build(self) -> "CircularMotion":
         return CircularMotion(self)
 

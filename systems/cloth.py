@@ -73,6 +73,10 @@ class ClothParams(BaseModel):
                 raise ValueError(f"pinned: vertex {pin} does not exist; a {self.resolution[0]}x{self.resolution[1]} cloth has vertices 0..{count - 1}")
         return self
 
+    @property
+    def dof_count(self) -> int:
+        return 3 * self.resolution[0] * self.resolution[1]
+
     def build(self) -> "Cloth":
         return Cloth(self)
 

@@ -22,6 +22,10 @@ class SpringMassParams(BaseModel):
     x0: float = Field(1.0, allow_inf_nan=False, description="initial position (m)")
     v0: float = Field(0.0, allow_inf_nan=False, description="initial velocity (m/s)")
 
+    @property
+    def dof_count(self) -> int:
+        return 1
+
     def build(self) -> "SpringMass":
         return SpringMass(self)
 

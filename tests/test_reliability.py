@@ -1,0 +1,303 @@
+"""Scale and reliability: executors agree, kill -9 loses only runs in flight, one writer per folder,
+Ctrl-C keeps what finished, and every bad input gets one line and exit status 2."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from simrun.cli import main
+from simrun.config import ConfigError, parse_yaml, validate_experiment, expand_runs
+from simrun.lock import OutputLock
+
+SIMRUN = [sys.executable, "-m", "simrun.cli"]
+
+
+def write_config(tmp_path: Path, body: str, output: Path, name: str = "config.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(body) + f"output: {output}\n")
+    return path
+
+
+SWEEP = """\
+    name: sweep
+    system: {type: spring_mass, stiffness: 50.0, damping: 0.3}
+    integrators: [forward_euler, symplectic_euler, backward_euler, {type: generalized_alpha, rho_inf: 0.3}]
+    duration: 2.0
+    sweep:
+      dt: [0.002, 0.01, 0.3]
+      system.stiffness: [50.0, 400.0]
+    """
+
+
+def run_data(path: Path) -> dict[str, dict]:
+    """Every run's datasets and attributes, minus what legitimately differs between executions."""
+    data = {}
+    with h5py.File(path, "r") as file:
+        for run_id, group in file["runs"].items():
+            attrs = {key: value for key, value in group.attrs.items() if key != "wall_time"}
+            data[run_id] = {"attrs": attrs, **{key: group[key][()] for key in group}}
+    return data
+
+
+def assert_same_runs(first: dict, second: dict) -> None:
+    assert first.keys() == second.keys()
+    for run_id in first:
+        assert first[run_id].keys() == second[run_id].keys(), run_id
+        for key, value in first[run_id].items():
+            if key == "attrs":
+                assert {k: str(v) for k, v in value.items()} == {k: str(v) for k, v in second[run_id][key].items()}
+            else:
+                np.testing.assert_array_equal(value, second[run_id][key], err_msg=f"{run_id}/{key}")
+
+
+def test_process_pool_and_dask_give_the_serial_results(tmp_path):
+    files = {}
+    for label, extra in {"serial": ["-j", "1"], "pool": ["-j", "2"], "dask": ["--executor", "dask", "-j", "2"]}.items():
+        config = write_config(tmp_path, SWEEP, tmp_path / label, f"{label}.yaml")
+        assert main([str(config), "-q", "--no-plots", *extra]) == 0
+        files[label] = tmp_path / label / "results.h5"
+    serial = run_data(files["serial"])
+    assert len(serial) == 24
+    assert_same_runs(serial, run_data(files["pool"]))
+    assert_same_runs(serial, run_data(files["dask"]))
+
+
+def test_unchanged_config_resumes_and_changed_config_is_refused(tmp_path, capsys):
+    config = write_config(tmp_path, SWEEP, tmp_path / "out")
+    assert main([str(config), "-q", "--no-plots", "-j", "1"]) == 0
+    capsys.readouterr()
+    assert main([str(config), "--no-plots", "-j", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "skipped 24 runs" in out and "nothing left to run" in out
+    changed = write_config(tmp_path, SWEEP.replace("damping: 0.3", "damping: 0.4"), tmp_path / "out", "changed.yaml")
+    assert main([str(changed), "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert "different config" in err and "--force" in err and "--output" in err
+    assert main([str(changed), "-q", "--no-plots", "--force", "-j", "1"]) == 0
+    with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
+        assert "damping: 0.4" in file.attrs["config"] and len(file["runs"]) == 24
+
+
+SLOW_SWEEP = """\
+    name: slow
+    system: {type: circular_motion, force: gravity}
+    integrators: [backward_euler]
+    duration: 40.0
+    sweep:
+      dt: [0.002, 0.0021, 0.0022, 0.0023, 0.0024, 0.0025, 0.0026, 0.0027, 0.0028, 0.0029, 0.003, 0.0031]
+    """
+
+
+def test_kill_9_keeps_every_finished_run_and_the_rerun_resumes(tmp_path):
+    """A real subprocess killed with SIGKILL mid-sweep: the file opens, holds only complete runs, and the
+    same command runs exactly the missing ones."""
+    config = write_config(tmp_path, SLOW_SWEEP, tmp_path / "out")
+    process = subprocess.Popen([*SIMRUN, str(config), "--no-plots", "-j", "2"], stdout=subprocess.PIPE, text=True)
+    finished = 0
+    deadline = time.monotonic() + 120
+    for line in process.stdout:  # each "[k/N]" line is printed after its run was committed
+        if line.startswith("["):
+            finished += 1
+        if finished == 3 or time.monotonic() > deadline:
+            break
+    process.kill()
+    process.wait()
+    assert finished == 3
+    with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
+        kept = {run_id for run_id, group in file["runs"].items() if group.attrs.get("complete")}
+        assert len(kept) >= 3
+        assert len(file["summary"]) == len(kept)
+        for run_id in kept:
+            group = file["runs"][run_id]
+            assert group["t"][-1] == pytest.approx(40.0, rel=1e-3) and group.attrs["status"] == "ok"
+    again = subprocess.run([*SIMRUN, str(config), "--no-plots", "-j", "2"], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"skipped {len(kept)} runs" in again.stdout and f"running {12 - len(kept)}" in again.stdout
+    with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
+        assert len(file["runs"]) == 12 and len(file["summary"]) == 12
+
+
+def test_an_interrupted_write_is_dropped_on_resume(tmp_path):
+    """A group without its `complete` mark (a write cut off midway) is removed and run again."""
+    config = write_config(tmp_path, SWEEP, tmp_path / "out")
+    assert main([str(config), "-q", "--no-plots", "-j", "1"]) == 0
+    path = tmp_path / "out" / "results.h5"
+    with h5py.File(path, "a") as file:
+        victim = sorted(file["runs"])[5]
+        del file["runs"][victim].attrs["complete"]
+        del file["runs"][victim]["energy"]
+    assert main([str(config), "-q", "--no-plots", "-j", "1"]) == 0
+    with h5py.File(path, "r") as file:
+        assert "energy" in file["runs"][victim] and len(file["summary"]) == 24
+
+
+def test_a_second_writer_is_refused(tmp_path, capsys):
+    config = write_config(tmp_path, SWEEP, tmp_path / "out")
+    (tmp_path / "out").mkdir()
+    with OutputLock(tmp_path / "out"):
+        assert main([str(config), "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "another simrun" in err and str(os.getpid()) in err
+    assert not (tmp_path / "out" / "results.h5").exists()
+    assert main([str(config), "-q", "--no-plots", "-j", "1"]) == 0  # the lock went with its holder
+
+
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_ctrl_c_keeps_what_finished_and_exits_130(tmp_path, jobs):
+    config = write_config(tmp_path, SLOW_SWEEP, tmp_path / "out")
+    process = subprocess.Popen([*SIMRUN, str(config), "--no-plots", "-j", jobs], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+    for line in process.stdout:
+        if line.startswith("[2/"):
+            break
+    os.killpg(process.pid, signal.SIGINT)  # the terminal sends SIGINT to the whole process group
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
+        assert len(file["runs"]) >= 2
+        assert all(group.attrs.get("complete") for group in file["runs"].values())
+
+
+def test_memory_and_file_of_a_long_run_stay_bounded(tmp_path):
+    """10^6 steps with default recording: at most 10^4 samples, small file, bounded resident memory."""
+    config = write_config(tmp_path, """\
+        name: long
+        system: {type: spring_mass}
+        integrators: [symplectic_euler]
+        duration: 1000.0
+        sweep: {dt: [0.001]}
+        """, tmp_path / "out")
+    script = ("import resource, sys; from simrun.cli import main; code = main(sys.argv[1:]); "
+              "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss); sys.exit(code)")
+    done = subprocess.run([sys.executable, "-c", script, str(config), "-q", "--no-plots", "-j", "1"],
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    peak_kb = int(done.stdout.strip().splitlines()[-1])
+    assert peak_kb < 300 * 1024
+    with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
+        group = next(iter(file["runs"].values()))
+        assert group["t"].shape[0] <= 10_000 and group.attrs["steps"] == 1_000_000
+    assert (tmp_path / "out" / "results.h5").stat().st_size < 50e6
+
+
+# -- every bad input: one line naming the field, exit 2, no traceback, no output ----------------------
+BASE = "name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\nsweep: {dt: [0.1]}\n"
+BAD_INPUTS = [
+    (BASE.replace("stiffness", "x") + "duration: .nan\n", "duration: Input should be a finite number"),
+    (BASE + "duration: .inf\n", "duration: Input should be a finite number"),
+    (BASE.replace("{type: spring_mass}", "{type: spring_mass, mass: .nan}"), "system.mass: Input should be a finite number"),
+    (BASE.replace("[0.1]", "[.nan]"), "sweep: dt must be finite numbers > 0"),
+    (BASE.replace("[forward_euler]", "[{type: generalized_alpha, rho_inf: 1.5}]"), "generalized_alpha: rho_inf: Input should be less than or equal to 1"),
+    (BASE.replace("[forward_euler]", "[{type: bdf2_midpoint_mix, theta: -0.1}]"), "bdf2_midpoint_mix: theta: Input should be greater than or equal to 0"),
+    (BASE.replace("[forward_euler]", "[{type: backward_euler, rho_inf: 0.5}]"), "backward_euler: rho_inf: unknown key"),
+    (BASE.replace("[forward_euler]", "[]"), "integrators: List should have at least 1 item"),
+    (BASE.replace("[forward_euler]", "[42]"), "expected an integrator name or a mapping"),
+    (BASE.replace("{type: spring_mass}", "{type: cloth, resolution: [1, 8]}"), "system.resolution.0: Input should be greater than or equal to 2"),
+    (BASE.replace("{type: spring_mass}", "{type: cloth, resolution: [4, 4], pinned: [16]}"), "pinned: vertex 16 does not exist"),
+    (BASE.replace("{type: spring_mass}", "{type: cloth, pinned: [middle]}"), "system.pinned.0"),
+    (BASE.replace("{type: spring_mass}", "{type: circular_motion, force: magnetic}"), "system.force: Input should be 'linear' or 'gravity'"),
+    (BASE.replace("{type: spring_mass}", "{}"), "system.type: missing"),
+    (BASE + "solver: {type: magic}\n", "solver.type: Input should be"),
+    (BASE + "record: {every: 0}\n", "record.every: Input should be greater than or equal to 1"),
+    (BASE + "divergence: {energy_factor: 0.5}\n", "divergence.energy_factor: Input should be greater than 1"),
+    (BASE + "nmae: typo\n", "nmae: unknown key (did you mean 'name'?)"),
+    (BASE.replace("name: x", "name: ../escape"), "name: String should match pattern"),
+    (BASE.replace("{dt: [0.1]}", "{dt: {logspace: [-3, -1]}}"), "logspace takes three finite numbers"),
+    (BASE.replace("{dt: [0.1]}", "{dt: {geomspace: [1, 2, 3]}}"), "expected a list, {logspace"),
+    (BASE.replace("{dt: [0.1]}", "{dt: [0.1], solver.tolerance: [1e-8, 2.0]}"), "sweep: solver.tolerance: Input should be less than 1"),
+    (BASE.replace("{dt: [0.1]}", "{dt: [0.1], name: [a, b]}"), "sweep.name: cannot sweep 'name'"),
+    (BASE.replace("{dt: [0.1]}", "{dt: {logspace: [-6, -1, 2000]}, system.stiffness: {linspace: [1, 100, 2000]}}"), "runs exceed the limit"),
+    ("name: x\nsystem: {type: spring_mass\n", "line 3, column 1: malformed YAML"),
+    ("name: x\nsystem: !!python/name:os.system\n", "YAML tags that build objects are not allowed"),
+    ("", "expected a mapping"),
+]
+
+
+@pytest.mark.parametrize("text, message", BAD_INPUTS)
+def test_bad_input_matrix(tmp_path, capsys, text, message):
+    path = tmp_path / "config.yaml"
+    path.write_text(text + (f"output: {tmp_path / 'never'}\n" if text.startswith("name") and "{type: spring_mass\n" not in text else ""))
+    assert main([str(path)]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], captured.err
+    assert "Traceback" not in captured.err and captured.out == ""
+    assert not (tmp_path / "never").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--set", "nosuchsection.key=1"], "nosuchsection: unknown key"),
+    (["--set", "system.stiffnes=1"], "system.stiffnes: unknown key (did you mean 'stiffness'?)"),
+    (["--set", "sweep.dt=[]"], "an empty sweep runs nothing"),
+    (["--set", "=3"], "expected key.path=value"),
+    (["--jobs", "0"], "--jobs: must be >= 1"),
+    (["--max-size", "0.000001"], "the results would take about"),
+    (["--executor", "dask", "--scheduler", "tcp://127.0.0.1:9"], "cannot reach the Dask scheduler"),
+])
+def test_bad_command_line_options(tmp_path, capsys, argv, message):
+    config = write_config(tmp_path, SWEEP, tmp_path / "never")
+    assert main([str(config), *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+def test_a_sweep_estimated_beyond_the_disk_is_refused_before_it_starts(tmp_path, capsys):
+    config = write_config(tmp_path, """\
+        name: huge
+        system: {type: cloth, resolution: [200, 200]}
+        integrators: [symplectic_euler]
+        duration: 100.0
+        sweep: {dt: [1.0e-5]}
+        record: {frames_every: 1}
+        """, tmp_path / "never")
+    assert main([str(config)]) == 2
+    err = capsys.readouterr().err
+    assert "GB" in err and "record fewer samples" in err
+    assert not (tmp_path / "never").exists()
+
+
+# -- a property: any YAML document is accepted or refused with a ConfigError, never a traceback ------
+yaml_scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
+                         st.text(max_size=12))
+yaml_values = st.recursive(yaml_scalars, lambda children: st.one_of(
+    st.lists(children, max_size=4), st.dictionaries(st.text(max_size=10), children, max_size=4)), max_leaves=12)
+keys = st.sampled_from(["name", "system", "integrators", "solver", "duration", "sweep", "record", "divergence",
+                        "output", "type", "dt", "stiffness", "mass", "rho_inf", "every", "resolution", "pinned"])
+documents = st.dictionaries(keys, yaml_values, max_size=7)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(documents)
+def test_random_documents_are_accepted_or_refused_cleanly(document):
+    import yaml
+
+    text = yaml.safe_dump(document)
+    try:
+        experiment = validate_experiment(parse_yaml(text))
+        expand_runs(experiment)
+    except ConfigError as error:
+        message = str(error)
+        assert message and "\n" not in message
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.text(max_size=200))
+def test_random_text_is_parsed_or_refused_cleanly(text):
+    try:
+        validate_experiment(parse_yaml(text))
+    except ConfigError as error:
+        assert "\n" not in str(error)
