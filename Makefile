@@ -5,7 +5,14 @@ BIN := $(VENV)/bin
 CONFIG ?= configs/quickstart.yaml
 PYTEST_ARGS ?=
 
-.PHONY: install install-test run test plot bench clean
+# `make sweep` runs every shipped config (or CONFIGS=...), one target each: results/<stem>/results.h5
+# depends on configs/<stem>.yaml, so `make -j4 sweep` runs them side by side and an unchanged
+# config is not run again (a changed one starts over: --force).
+CONFIGS ?= $(wildcard configs/*.yaml)
+RESULTS := $(patsubst configs/%.yaml,results/%/results.h5,$(CONFIGS))
+REPORTS := $(patsubst configs/%.yaml,results/%/report.html,$(CONFIGS))
+
+.PHONY: install install-test run test plot bench sweep reports clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +38,16 @@ test: install-test                     ## run the whole test suite on both cores
 
 plot: install                          ## redraw the default experiment's figures from its results file
 	$(BIN)/simrun plot results/quickstart/results.h5
+
+sweep: $(RESULTS)                      ## run every config in configs/ (CONFIGS=... for some), each once
+
+results/%/results.h5: configs/%.yaml | $(VENV)/.installed
+	$(BIN)/simrun $< --output results/$* --force -q
+
+reports: $(REPORTS)                    ## an HTML report beside each sweep's results
+
+results/%/report.html: results/%/results.h5
+	$(BIN)/simrun report $<
 
 clean:                                 ## remove results and caches (keeps .venv)
 	rm -rf results/*/ .pytest_cache .hypothesis
