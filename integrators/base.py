@@ -76,8 +76,17 @@ def add_diagonal(matrix, diagonal: np.ndarray):
     if scipy.sparse.issparse(matrix):
         return matrix + scipy.sparse.diags(diagonal, format=matrix.format)
     result = np.array(matrix, dtype=float)
-    result[np.diag_indices_from(result)] += diagonal
+    result.flat[:: result.shape[0] + 1] += diagonal  # the diagonal of a C-ordered square array
     return result
+
+
+# round-off of M (y - y~): a few ulps of its largest term
+RESIDUAL_ULPS = 64.0 * np.finfo(float).eps
+
+
+def residual_floor(mass: np.ndarray, y_tilde: np.ndarray) -> float:
+    """The residual below which the inertia term's own round-off hides further progress."""
+    return RESIDUAL_ULPS * float(abs(mass * y_tilde).max()) if y_tilde.size else 0.0
 
 
 class IncrementalPotential:
@@ -104,7 +113,7 @@ class IncrementalPotential:
         self.velocity_origin = velocity_origin
         self.damping_weight = scale / velocity_divisor
         # the residual M (y - y~) + ... cannot resolve differences below round-off of its largest term
-        self.residual_floor = 64.0 * np.finfo(float).eps * float(np.max(np.abs(system.mass * y_tilde), initial=1e-300))
+        self.residual_floor = residual_floor(system.mass, y_tilde)
 
     def value(self, y: np.ndarray) -> float:
         offset = y - self.y_tilde
@@ -165,7 +174,7 @@ class SegmentPotential:
         self.start_share = float(np.sum(self.weights * (1.0 - self.nodes)))
         self.end_share = float(np.sum(self.weights * self.nodes))
         self._start_energy = None
-        self.residual_floor = 64.0 * np.finfo(float).eps * float(np.max(np.abs(system.mass * y_tilde), initial=1e-300))
+        self.residual_floor = residual_floor(system.mass, y_tilde)
 
     def _points(self, y: np.ndarray):
         step = y - self.x_start
