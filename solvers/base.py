@@ -1,19 +1,41 @@
-"""What a solver sees and what it returns.
+"""What a solver sees, what it returns, and the iteration that every nonlinear solver shares.
 
 A solver gets a nonlinear problem and knows nothing about integrators or time steps. A problem offers
 - ``gradient(y)``: the residual, shape (n,) (the gradient of ``value`` where a value exists);
-- ``hessian(y)``: its Jacobian, a dense (n, n) array or a scipy sparse matrix;
-- ``value(y)``: the objective, where the problem is a minimisation (optional);
+- ``hessian(y, project_spd=False)``: its Jacobian, a dense (n, n) array or a scipy sparse matrix;
+  with ``project_spd=True`` the problem's own cheap SPD projection (the cloth clamps each spring's
+  transverse eigenvalue at 0);
+- ``value(y)``: the objective, where the problem is a minimisation (optional; every incremental
+  potential has one);
 - ``fixed_dofs``: indices that the solver must leave unchanged;
 - ``residual_floor``: the residual below which round-off makes further progress meaningless.
+
+Writing a solver (the contract, written once here): subclass ``NonlinearSolver`` and supply
+- ``_begin(problem, iterate, free) -> state``: per-solve state (memory, step lengths), kept off ``self``
+  so that one solver object serves every step of a run;
+- ``_direction(problem, iterate, state) -> (p, linear_iterations)``: the search direction at the
+  current iterate, zero on fixed degrees of freedom;
+- ``_advance(problem, iterate, p, state) -> Advance``: the next iterate (a line search, a full step,
+  a Chebyshev update), with its gradient and energy where it computed them.
+``solve`` does the bookkeeping: the shared convergence test, iteration counts, the best iterate,
+and the optional ``callback(y, gradient)`` after the start and every iteration.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Callable, ClassVar, Protocol
 
 import numpy as np
+
+from .dofs import FreeDofs, free_dofs
+from .linear import LINEAR_SOLVERS, LinearSolver
+
+# A search direction this small relative to |y| changes y only in its last bits: the iterate is as
+# good as floating point allows, whatever the residual's own round-off says.
+ROUNDOFF_STEP = 16 * np.finfo(float).eps
+# A failing linear solve (exactly singular factor, non-finite matrix) ends the nonlinear solve as not converged.
+LINEAR_FAILURES = (np.linalg.LinAlgError, RuntimeError, ValueError, FloatingPointError)
 
 
 class NonlinearProblem(Protocol):
@@ -22,7 +44,7 @@ class NonlinearProblem(Protocol):
 
     def gradient(self, y: np.ndarray) -> np.ndarray: ...
 
-    def hessian(self, y: np.ndarray): ...
+    def hessian(self, y: np.ndarray, project_spd: bool = False): ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,3 +60,195 @@ class SolveStats:
 
 
 EXPLICIT_STEP = SolveStats()  # what an explicit step reports: nothing solved
+
+
+def max_norm(vector: np.ndarray) -> float:
+    return float(np.max(np.abs(vector))) if vector.size else 0.0
+
+
+# ------------------------------------------------------------------------------------------------
+# The convergence test, shared by every nonlinear solver
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class ConvergenceTest:
+    """When a nonlinear solve has converged; fixed at the start point of the step.
+
+    ``residual`` mode: |g(y_k)|_inf <= tolerance |g(y_0)|_inf, relative to the starting residual so
+    that it needs no units. ``step`` mode (Newton-type solvers): |p_k|_inf <= tolerance |p_0|_inf with
+    p the (unscaled) Newton direction; near the solution p_k estimates the error y_k - y*, so this is
+    the error-oriented test of Deuflhard ("Newton Methods for Nonlinear Problems", sec. 2.1), the
+    dimensionless form of the lectures' |p|_inf / h < tolerance. In both modes two round-off limits
+    end the iteration as converged: the residual below the problem's ``residual_floor``, or a
+    direction that no longer changes y beyond its last bits.
+    """
+
+    tolerance: float
+    mode: str  # "residual" | "step"
+    threshold: float  # the residual at which the solve has converged
+    first_direction: float | None = None  # |p_0|_inf, set by the first direction (step mode)
+
+    @classmethod
+    def at_start(cls, tolerance: float, mode: str, problem, residual: float) -> "ConvergenceTest":
+        floor = float(getattr(problem, "residual_floor", 0.0))
+        relative = tolerance * residual if mode == "residual" else 0.0
+        return cls(tolerance, mode, max(relative, floor))
+
+    def residual_met(self, residual: float) -> bool:
+        return residual <= self.threshold
+
+    def step_met(self, direction_norm: float) -> bool:
+        """Step mode: the direction is small enough (the first direction only sets the reference)."""
+        if self.mode != "step":
+            return False
+        if self.first_direction is None:
+            self.first_direction = direction_norm
+            return direction_norm == 0.0
+        return direction_norm <= self.tolerance * self.first_direction
+
+    @staticmethod
+    def stalled(direction_norm: float, y: np.ndarray) -> bool:
+        return direction_norm <= ROUNDOFF_STEP * max_norm(y)
+
+
+# ------------------------------------------------------------------------------------------------
+# The shared iteration
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class Iterate:
+    """The current point of a solve: y, its gradient (zero on fixed dofs), |gradient|_inf, E(y) if known."""
+
+    y: np.ndarray
+    gradient: np.ndarray
+    residual: float
+    energy: float | None = None
+
+
+@dataclass
+class Advance:
+    """What ``_advance`` produced: the next y, with its gradient and energy where already computed."""
+
+    y: np.ndarray
+    gradient: np.ndarray | None = None
+    energy: float | None = None
+    line_search_steps: int = 0
+    ok: bool = True  # False: no acceptable step was found (the solve stops, not converged)
+
+
+@dataclass
+class Outcome:
+    """A finished solve: the result, its statistics, the best iterate seen and the convergence test used."""
+
+    y: np.ndarray
+    stats: SolveStats
+    best: np.ndarray
+    test: ConvergenceTest
+
+
+class NonlinearSolver:
+    """Base of the nonlinear solvers: the loop, the counts and the convergence test (see the module docstring).
+
+    Parameters: tolerance (dimensionless, see ``ConvergenceTest``); max_iterations per solve;
+    linear_solver: a name of LINEAR_SOLVERS or a LinearSolver (Newton directions, and the one Newton
+    step of ``newton_step`` for every solver); tolerance_mode ``residual`` or ``step``;
+    callback(y, gradient), called after the start and every iteration (tests record histories with it).
+    """
+
+    name: ClassVar[str]
+    supports_step_test: ClassVar[bool] = False  # does |p_k| estimate the error (Newton-type directions)?
+    uses_linear_solver: ClassVar[bool] = False  # are its directions linear solves (else only newton_step uses one)?
+
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver: str | LinearSolver = "direct",
+                 *, tolerance_mode: str = "residual", callback: Callable | None = None):
+        if tolerance_mode not in ("residual", "step"):
+            raise ValueError(f"tolerance_mode must be 'residual' or 'step', got {tolerance_mode!r}")
+        if tolerance_mode == "step" and not self.supports_step_test:
+            raise ValueError(f"tolerance_mode 'step' needs a Newton-type solver; {self.name} steps do not estimate the error")
+        self.tolerance = tolerance
+        self.max_iterations = max_iterations
+        self.linear_solver = LINEAR_SOLVERS[linear_solver]() if isinstance(linear_solver, str) else linear_solver
+        self.tolerance_mode = tolerance_mode
+        self.callback = callback
+
+    # -- public ------------------------------------------------------------------------------
+    def minimize(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
+        """Minimise (or zero the residual of) ``problem`` from ``start``; returns (y, SolveStats)."""
+        outcome = self.solve(problem, start)
+        return outcome.y, outcome.stats
+
+    def solve(self, problem: NonlinearProblem, start: np.ndarray, test: ConvergenceTest | None = None) -> Outcome:
+        """``minimize`` with everything a fallback chain needs; ``test`` carries the chain's first start."""
+        free = free_dofs(start.size, problem.fixed_dofs)
+        y = np.array(start, dtype=float)
+        gradient = free.zero_fixed(np.array(problem.gradient(y), dtype=float))
+        current = Iterate(y, gradient, max_norm(gradient))
+        if test is None:
+            test = ConvergenceTest.at_start(self.tolerance, self.tolerance_mode, problem, current.residual)
+        best_residual, best = current.residual, y.copy()
+        iterations = linear_iterations = line_search_steps = 0
+        converged = test.residual_met(current.residual)
+        self._notify(current)
+        if not converged and np.isfinite(current.residual):
+            state = self._begin(problem, current, free)
+            while iterations < self.max_iterations:
+                try:
+                    direction, cost = self._direction(problem, current, state)
+                except LINEAR_FAILURES:
+                    break
+                linear_iterations += cost
+                size = max_norm(direction)
+                if not np.isfinite(size):
+                    break
+                if test.step_met(size) or test.stalled(size, current.y):
+                    converged = True
+                    break
+                advance = self._advance(problem, current, direction, state)
+                iterations += 1
+                line_search_steps += advance.line_search_steps
+                if not advance.ok:
+                    break
+                gradient = advance.gradient
+                if gradient is None:
+                    gradient = free.zero_fixed(np.array(problem.gradient(advance.y), dtype=float))
+                current = Iterate(advance.y, gradient, max_norm(gradient), advance.energy)
+                self._notify(current)
+                if current.residual < best_residual:
+                    best_residual, best = current.residual, current.y.copy()
+                if not np.isfinite(current.residual):
+                    break
+                if test.residual_met(current.residual):
+                    converged = True
+                    break
+        stats = SolveStats(iterations, linear_iterations, line_search_steps, current.residual, bool(converged))
+        return Outcome(current.y, stats, best, test)
+
+    def newton_step(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
+        """Exactly one Newton iteration from ``start`` (the semi-implicit methods): no convergence test.
+
+        Uses the solver's linear solver and Hessian (projected for projected Newton, raw otherwise)."""
+        free = free_dofs(start.size, problem.fixed_dofs)
+        gradient = free.zero_fixed(np.array(problem.gradient(start), dtype=float))
+        direction, cost = self.linear_solver.solve(self._model_hessian(problem, start), -gradient, free,
+                                                   spd=self.model_is_spd)
+        y = start + direction
+        # the residual left at the result says how far one iteration is from the implicit solution
+        residual = max_norm(free.zero_fixed(np.array(problem.gradient(y), dtype=float)))
+        return y, SolveStats(1, cost, 0, residual, True)
+
+    # -- for subclasses --------------------------------------------------------------------------
+    model_is_spd = False  # is _model_hessian SPD (the direct solver then factors without pivoting)?
+
+    def _model_hessian(self, problem, y, state=None):
+        return problem.hessian(y)
+
+    def _begin(self, problem, current: Iterate, free: FreeDofs):
+        return None
+
+    def _direction(self, problem, current: Iterate, state) -> tuple[np.ndarray, int]:
+        raise NotImplementedError
+
+    def _advance(self, problem, current: Iterate, direction: np.ndarray, state) -> Advance:
+        raise NotImplementedError
+
+    def _notify(self, current: Iterate) -> None:
+        if self.callback is not None:
+            self.callback(current.y, current.gradient)

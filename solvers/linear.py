@@ -1,49 +1,256 @@
-"""Linear solvers for Newton directions: solve A p = b for a dense or sparse A.
+"""Linear solvers for Newton directions: solve A p = b for a dense or sparse A with fixed degrees of freedom.
 
-Each returns ``(p, iterations)``. Fixed degrees of freedom are removed before the solve (their rows
-and columns dropped, their entries of p set to zero).
+Every solver is a small object built with its tolerance and iteration limit, and
+``solve(matrix, rhs, free, spd=False) -> (p, iterations)`` returns p with zeros on the fixed degrees of
+freedom and the number of iterations it took (a direct factor-and-solve counts as one). All but
+``mpcg`` solve the reduced system: the free rows and columns of A (restricted through the cached
+``FreeDofs`` map, no index arrays rebuilt per call). ``mpcg`` works on the full system with Baraff
+& Witkin's constraint filter instead. Iterative solvers start from p = 0 and stop when
+|b - A p|_2 <= tolerance |b|_2 (scipy's ``rtol``) or after ``max_iterations``; a solver that did not
+reach its tolerance returns its last iterate (an inexact Newton direction) and its count; one that
+breaks down (mpcg on an indefinite matrix) or diverges (jacobi, gauss_seidel past DIVERGED_FACTOR)
+raises ``numpy.linalg.LinAlgError``, which ends the nonlinear solve as not converged.
 """
 
 from __future__ import annotations
+
+from typing import ClassVar
 
 import numpy as np
 import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
+from .dofs import FreeDofs
+
 # MMD on A^T + A suits the symmetric pattern of M + c h^2 K: it factors about twice as fast as
 # scipy's default COLAMD ordering on a 64x64 cloth.
 SPLU_ORDERING = "MMD_AT_PLUS_A"
+# SPD matrices need no pivoting: diagonal pivots in symmetric mode factor a 20x20 cloth's matrix
+# in 5.2 ms instead of 11.9 ms (measured here, scipy 1.17 SuperLU).
+SPLU_SPD_OPTIONS = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+# A stationary iteration whose residual grows past this factor times |b| diverges (spectral radius > 1).
+DIVERGED_FACTOR = 1e8
 
 
-def _restrict(matrix, rhs: np.ndarray, fixed_dofs: np.ndarray):
-    if fixed_dofs.size == 0:
-        return matrix, rhs, None
-    free = np.ones(rhs.shape[0], dtype=bool)
-    free[fixed_dofs] = False
-    if scipy.sparse.issparse(matrix):
-        matrix = matrix.tocsr()[free][:, free]
-    else:
-        matrix = matrix[np.ix_(free, free)]
-    return matrix, rhs[free], free
+def _diagonal(matrix) -> np.ndarray:
+    diagonal = matrix.diagonal() if scipy.sparse.issparse(matrix) else np.diag(matrix)
+    return np.asarray(diagonal, dtype=float)
 
 
-def direct_solve(matrix, rhs: np.ndarray, fixed_dofs: np.ndarray) -> tuple[np.ndarray, int]:
-    """Sparse LU (SuperLU, MMD ordering) for sparse matrices, LAPACK for dense ones."""
-    reduced, reduced_rhs, free = _restrict(matrix, rhs, fixed_dofs)
-    if scipy.sparse.issparse(reduced):
-        solution = scipy.sparse.linalg.splu(reduced.tocsc(), permc_spec=SPLU_ORDERING).solve(reduced_rhs)
-    elif reduced.shape[0] == 1:
-        solution = reduced_rhs / reduced[0, 0]
-    else:
-        solution = scipy.linalg.solve(reduced, reduced_rhs, check_finite=False)
-    if free is None:
-        return solution, 1
-    full = np.zeros_like(rhs)
-    full[free] = solution
-    return full, 1
+def _inverse_diagonal(matrix) -> np.ndarray:
+    """1 / diag(A), with 1 where the diagonal vanishes (no scaling is better than a division by zero)."""
+    diagonal = _diagonal(matrix)
+    safe = np.where(diagonal != 0.0, diagonal, 1.0)
+    return 1.0 / safe
 
 
-LINEAR_SOLVERS = {
-    "direct": direct_solve,
+class LinearSolver:
+    """Base: restrict to the free dofs, solve the reduced system with ``_solve``, extend with zeros.
+
+    Parameters: tolerance (relative residual |b - A p|_2 / |b|_2, iterative solvers only);
+    max_iterations (iterative solvers only).
+    """
+
+    name: ClassVar[str]
+    iterative: ClassVar[bool] = True
+
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 1000):
+        self.tolerance = tolerance
+        self.max_iterations = max_iterations
+
+    def solve(self, matrix, rhs: np.ndarray, free: FreeDofs, spd: bool = False) -> tuple[np.ndarray, int]:
+        """p with A_ff p_f = b_f on the free dofs and p = 0 on the fixed ones; (p, iterations)."""
+        reduced_rhs = free.restrict(rhs)
+        if reduced_rhs.size == 0:
+            return np.zeros_like(rhs), 0
+        solution, iterations = self._solve(free.restrict_matrix(matrix), reduced_rhs, spd)
+        return free.extend(solution), iterations
+
+    def _solve(self, matrix, rhs: np.ndarray, spd: bool) -> tuple[np.ndarray, int]:
+        raise NotImplementedError
+
+    def _target(self, rhs: np.ndarray) -> float:
+        return self.tolerance * float(np.linalg.norm(rhs))
+
+
+class DirectSolver(LinearSolver):
+    """Sparse LU (SuperLU, MMD ordering; diagonal pivots in symmetric mode for SPD matrices), or
+    LAPACK for dense matrices (Cholesky for SPD ones, LU otherwise). Counts one iteration."""
+
+    name = "direct"
+    iterative = False
+
+    def _solve(self, matrix, rhs, spd):
+        if scipy.sparse.issparse(matrix):
+            if not matrix.has_sorted_indices:
+                matrix = matrix.sorted_indices()  # a copy: the problem's matrix may share its index arrays
+            # a CSR matrix's arrays read as CSC are its transpose: factor A^T, solve with its transpose
+            transposed = scipy.sparse.csc_matrix((matrix.data, matrix.indices, matrix.indptr), shape=matrix.shape)
+            if spd:
+                try:
+                    factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS)
+                except RuntimeError:  # not definite after all (a zero pivot): pivot as for any matrix
+                    factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING)
+            else:
+                factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING)
+            return factor.solve(rhs, trans="T"), 1
+        if matrix.shape[0] == 1:
+            return rhs / matrix[0, 0], 1
+        if spd:
+            try:
+                return scipy.linalg.solve(matrix, rhs, assume_a="pos", check_finite=False), 1
+            except np.linalg.LinAlgError:
+                pass
+        return scipy.linalg.solve(matrix, rhs, check_finite=False), 1
+
+
+class ConjugateGradient(LinearSolver):
+    """Conjugate gradients (Hestenes & Stiefel 1952) through scipy.sparse.linalg.cg; SPD matrices.
+
+    In exact arithmetic CG ends after at most k iterations on a matrix with k distinct eigenvalues."""
+
+    name = "cg"
+
+    def _preconditioner(self, matrix):
+        return None
+
+    def _solve(self, matrix, rhs, spd):
+        count = 0
+
+        def counted(_):
+            nonlocal count
+            count += 1
+
+        solution, _ = scipy.sparse.linalg.cg(matrix, rhs, rtol=self.tolerance, atol=0.0, maxiter=self.max_iterations,
+                                             M=self._preconditioner(matrix), callback=counted)
+        return solution, count
+
+
+class JacobiPCG(ConjugateGradient):
+    """CG preconditioned with the diagonal of A (Jacobi preconditioner), through scipy.sparse.linalg.cg."""
+
+    name = "pcg"
+
+    def _preconditioner(self, matrix):
+        inverse = _inverse_diagonal(matrix)
+        return scipy.sparse.linalg.LinearOperator(matrix.shape, matvec=lambda r: inverse * r.ravel(), dtype=float)
+
+
+class ModifiedPCG(LinearSolver):
+    """The modified PCG of Baraff & Witkin ("Large steps in cloth simulation", SIGGRAPH 1998, sec. 5.3).
+
+    CG with the Jacobi preconditioner on the full system, every search direction and residual passed
+    through the constraint filter S (here: zero on the fixed dofs, the filter of a fully pinned
+    vertex). The start p_0 = z (the prescribed values on the constrained dofs, here 0) is the one
+    that Ascher & Boxerman's convergence proof needs ("On the modified conjugate gradient method in
+    cloth simulation", The Visual Computer 19, 2003): from it, MPCG is PCG on the reduced system and
+    converges like it. Stops on the filtered residual, |S(b - A p)|_2 <= tolerance |S b|_2 (the 2-norm
+    test of the other CG solvers, where Baraff & Witkin use the preconditioned norm).
+    """
+
+    name = "mpcg"
+
+    def solve(self, matrix, rhs, free, spd=False):
+        weights = None if free.all_free else free.filter_weights
+
+        def filtered(vector):
+            return vector if weights is None else vector * weights
+
+        inverse = _inverse_diagonal(matrix)
+        solution = np.zeros_like(rhs, dtype=float)  # p_0 = z: satisfies the constraints exactly
+        residual = filtered(np.array(rhs, dtype=float))  # S (b - A p_0)
+        target = self._target(residual)
+        direction = filtered(inverse * residual)
+        delta = float(residual @ direction)
+        iterations = 0
+        while float(np.linalg.norm(residual)) > target and iterations < self.max_iterations:
+            product = filtered(matrix @ direction)
+            curvature = float(direction @ product)
+            if not curvature > 0.0:  # breakdown: A is not positive definite on the free subspace
+                if iterations == 0:
+                    raise np.linalg.LinAlgError("mpcg: the matrix is not positive definite on the free dofs")
+                break
+            alpha = delta / curvature
+            solution += alpha * direction
+            residual -= alpha * product
+            iterations += 1
+            preconditioned = inverse * residual
+            delta_old, delta = delta, float(residual @ preconditioned)
+            direction = filtered(preconditioned + (delta / delta_old) * direction)
+        return solution, iterations
+
+
+class Jacobi(LinearSolver):
+    """The Jacobi iteration p_{k+1} = p_k + D^{-1} (b - A p_k), D = diag(A).
+
+    Converges iff the spectral radius of I - D^{-1} A is below 1 (e.g. strictly diagonally dominant
+    A), at that rate; raises LinAlgError when the residual grows past DIVERGED_FACTOR |b| (Saad,
+    "Iterative Methods for Sparse Linear Systems", sec. 4.1)."""
+
+    name = "jacobi"
+
+    def _solve(self, matrix, rhs, spd):
+        inverse = _inverse_diagonal(matrix)
+        solution = np.zeros_like(rhs)
+        residual = rhs.copy()
+        target = self._target(rhs)
+        limit = DIVERGED_FACTOR * float(np.linalg.norm(rhs))
+        iterations = 0
+        while iterations < self.max_iterations:
+            norm = float(np.linalg.norm(residual))
+            if norm <= target:
+                break
+            if not norm <= limit:
+                raise np.linalg.LinAlgError(f"{self.name}: the iteration diverges (spectral radius of its iteration matrix > 1)")
+            solution += inverse * residual
+            residual = rhs - matrix @ solution
+            iterations += 1
+        return solution, iterations
+
+
+class GaussSeidel(LinearSolver):
+    """Forward Gauss-Seidel p_{k+1} = p_k + (D + L)^{-1} (b - A p_k), L the strictly lower part of A.
+
+    Converges for SPD and for strictly diagonally dominant A (Saad, sec. 4.1). Each sweep is one
+    sparse triangular solve in compiled code: the lower triangle factored once per linear solve by
+    SuperLU in natural order without pivoting (its factors are the triangle itself), which sweeps
+    6x (32x32 cloth) to 15x (12x12) faster than scipy.sparse.linalg.spsolve_triangular, whose
+    per-call copies and rescaling dominate at these sizes.
+    Dense matrices use LAPACK's triangular solve."""
+
+    name = "gauss_seidel"
+
+    def _solve(self, matrix, rhs, spd):
+        if scipy.sparse.issparse(matrix):
+            lower = scipy.sparse.tril(matrix, format="csc")
+            triangle = scipy.sparse.linalg.splu(lower, permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                                                options=dict(SymmetricMode=True))
+            sweep = triangle.solve
+        else:
+            lower = np.tril(matrix)
+
+            def sweep(residual):
+                return scipy.linalg.solve_triangular(lower, residual, lower=True, check_finite=False)
+
+        solution = np.zeros_like(rhs)
+        residual = rhs.copy()
+        target = self._target(rhs)
+        limit = DIVERGED_FACTOR * float(np.linalg.norm(rhs))
+        iterations = 0
+        while iterations < self.max_iterations:
+            norm = float(np.linalg.norm(residual))
+            if norm <= target:
+                break
+            if not norm <= limit:
+                raise np.linalg.LinAlgError(f"{self.name}: the iteration diverges (spectral radius of its iteration matrix > 1)")
+            solution += sweep(residual)
+            residual = rhs - matrix @ solution
+            iterations += 1
+        return solution, iterations
+
+
+# config name -> class; each is built with (tolerance, max_iterations)
+LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
+    cls.name: cls for cls in (DirectSolver, ConjugateGradient, JacobiPCG, ModifiedPCG, Jacobi, GaussSeidel)
 }

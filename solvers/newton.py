@@ -2,70 +2,66 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+import scipy.linalg
+import scipy.sparse
 
-from .base import NonlinearProblem, SolveStats
-from .linear import LINEAR_SOLVERS
+from .base import Advance, NonlinearSolver
+from .dofs import FreeDofs
+from .line_search import has_value, line_search
 
-# A Newton step this small relative to |y| changes y only in its last bits: the iterate is as good
-# as floating point allows, whatever the residual's own round-off says.
-ROUNDOFF_STEP = 16 * np.finfo(float).eps
-# Armijo's sufficient-decrease constant; 1e-4 is the customary choice (Nocedal & Wright, sec. 3.1).
-ARMIJO_C = 1e-4
+SPD_PROJECTIONS = ("none", "clamp", "eigen")
+# Whole-matrix eigenvalue clamping keeps eigenvalues >= this fraction of the largest |eigenvalue|:
+# the projected matrix then has a condition number <= 1e8, well inside what a double solve resolves.
+EIGEN_FLOOR = 1e-8
 
 
-class Newton:
-    """Newton's method: H(y_k) p = -g(y_k), y_{k+1} = y_k + p, until |g|_inf <= tol |g(y_0)|_inf.
+def project_eigen(matrix: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """Clamp the eigenvalues of the free block of a symmetric dense matrix at EIGEN_FLOOR max |eigenvalue|.
 
-    The test is relative to the starting residual, so it needs no units. Two round-off limits also
-    end the iteration as converged: the residual below the problem's ``residual_floor``, or a Newton
-    step that no longer changes y beyond its last bits. Checking the residual after an update is not
+    Only the free rows and columns (the matrix the linear solve sees) are projected; the fixed ones,
+    which the solve drops, are left as they are."""
+    symmetric = 0.5 * (matrix + matrix.T)
+    free = np.setdiff1d(np.arange(symmetric.shape[0]), fixed) if fixed.size else np.arange(symmetric.shape[0])
+    block = symmetric[np.ix_(free, free)]
+    eigenvalues, eigenvectors = scipy.linalg.eigh(block, check_finite=False)
+    floor = EIGEN_FLOOR * float(np.max(np.abs(eigenvalues), initial=0.0))
+    if eigenvalues.size == 0 or eigenvalues.min() >= floor:
+        return symmetric
+    symmetric[np.ix_(free, free)] = (eigenvectors * np.maximum(eigenvalues, floor)) @ eigenvectors.T
+    return symmetric
+
+
+@dataclass
+class _NewtonState:
+    free: FreeDofs
+    sparse_hessian: bool = False  # eigen projection: the problem's Hessian turned out sparse (use clamp)
+
+
+class Newton(NonlinearSolver):
+    """Newton's method on the residual: H(y_k) p = -g(y_k), y_{k+1} = y_k + p (full steps).
+
+    The raw Hessian (Jacobian) is used as is, so Newton also solves problems without a value and
+    converges quadratically near a solution with a nonsingular Jacobian (Nocedal & Wright, thm 3.5);
+    far from it, it may overshoot (no line search). Checking the residual after an update is not
     counted as an iteration, so a linear problem converges in exactly one.
     """
 
-    project_spd = False
+    name = "newton"
+    supports_step_test = True
+    uses_linear_solver = True
 
-    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver: str = "direct"):
-        self.tolerance = tolerance
-        self.max_iterations = max_iterations
-        self.linear_solve = LINEAR_SOLVERS[linear_solver]
+    def _begin(self, problem, current, free):
+        return _NewtonState(free)
 
-    def minimize(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
-        y = start.copy()
-        gradient = problem.gradient(y)
-        residual = float(np.max(np.abs(gradient))) if gradient.size else 0.0
-        threshold = max(self.tolerance * residual, problem.residual_floor)
-        iterations = linear_iterations = 0
-        stalled = False
-        line_search_steps = 0
-        while residual > threshold and not stalled and np.isfinite(residual) and iterations < self.max_iterations:
-            direction, cost = self.linear_solve(self._hessian(problem, y), -gradient, problem.fixed_dofs)
-            step, reductions = self._step_length(problem, y, direction, gradient)
-            direction *= step
-            y += direction
-            iterations += 1
-            linear_iterations += cost
-            line_search_steps += reductions
-            gradient = problem.gradient(y)
-            residual = float(np.max(np.abs(gradient)))
-            stalled = float(np.max(np.abs(direction))) <= ROUNDOFF_STEP * float(np.max(np.abs(y)))
-        converged = bool(residual <= threshold or (stalled and np.isfinite(residual)))
-        return y, SolveStats(iterations, linear_iterations, line_search_steps, residual, converged)
+    def _direction(self, problem, current, state):
+        return self.linear_solver.solve(self._model_hessian(problem, current.y, state), -current.gradient,
+                                        state.free, spd=self.model_is_spd)
 
-    def _hessian(self, problem, y):
-        return problem.hessian(y, project_spd=True) if self.project_spd else problem.hessian(y)
-
-    def _step_length(self, problem, y, direction, gradient) -> tuple[float, int]:
-        """Plain Newton takes the full step."""
-        return 1.0, 0
-
-    def newton_step(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
-        """Exactly one Newton iteration from ``start`` (the semi-implicit methods): no convergence test."""
-        direction, cost = self.linear_solve(self._hessian(problem, start), -problem.gradient(start), problem.fixed_dofs)
-        y = start + direction
-        # the residual left at the result says how far one iteration is from the implicit solution
-        residual = float(np.max(np.abs(problem.gradient(y))))
-        return y, SolveStats(1, cost, 0, residual, True)
+    def _advance(self, problem, current, direction, state):
+        return Advance(current.y + direction)
 
 
 class ProjectedNewton(Newton):
@@ -74,27 +70,39 @@ class ProjectedNewton(Newton):
     H+(y_k) p = -g(y_k) gives a descent direction (H+ is positive definite), and the step length
     alpha = 1, 1/2, 1/4, ... is cut until E(y_k + alpha p) <= E(y_k) (`backtracking`) or
     E(y_k + alpha p) <= E(y_k) + c alpha g^T p (`armijo`), so E never increases along the iterations
-    (Li et al., "Physics-Based Simulation" lecture notes, projected Newton). Problems without a value
-    (a residual and its Jacobian only) take full steps.
+    (Li et al., "Physics-Based Simulation" lecture notes, projected Newton). ``spd_projection``:
+    ``none`` (raw Hessian; a non-descent direction ends the solve as not converged), ``clamp`` (the
+    problem's own projection: per spring for the cloth), ``eigen`` (eigenvalue clamping of the whole
+    matrix for dense problems; sparse problems use ``clamp``, which for the cloth is the exact
+    eigenvalue clamp of every spring's 3x3 block). Problems without a value take full steps.
     """
 
-    project_spd = True
+    name = "projected_newton"
 
-    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver: str = "direct",
-                 line_search: str = "backtracking", max_line_search: int = 40):
-        super().__init__(tolerance, max_iterations, linear_solver)
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
+                 line_search: str = "backtracking", spd_projection: str = "clamp", **options):
+        super().__init__(tolerance, max_iterations, linear_solver, **options)
+        if spd_projection not in SPD_PROJECTIONS:
+            raise ValueError(f"spd_projection must be one of {', '.join(SPD_PROJECTIONS)}, got {spd_projection!r}")
         self.line_search = line_search
-        self.max_line_search = max_line_search
+        self.spd_projection = spd_projection
+        self.model_is_spd = spd_projection != "none"
 
-    def _step_length(self, problem, y, direction, gradient) -> tuple[float, int]:
-        if self.line_search == "none" or not hasattr(problem, "value"):
-            return 1.0, 0
-        energy = problem.value(y)
-        slope = float(np.dot(gradient, direction))
-        sufficient = ARMIJO_C * slope if self.line_search == "armijo" else 0.0
-        step = 1.0
-        for reductions in range(self.max_line_search):
-            if problem.value(y + step * direction) <= energy + step * sufficient:
-                return step, reductions
-            step *= 0.5
-        return step, self.max_line_search
+    def _model_hessian(self, problem, y, state=None):
+        if self.spd_projection == "none":
+            return problem.hessian(y)
+        if self.spd_projection == "eigen" and not (state is not None and state.sparse_hessian):
+            hessian = problem.hessian(y)
+            if not scipy.sparse.issparse(hessian):
+                return project_eigen(np.array(hessian, dtype=float), np.asarray(problem.fixed_dofs, dtype=np.intp))
+            if state is not None:  # sparse: clamp, and skip the raw Hessian for the rest of the solve
+                state.sparse_hessian = True
+        return problem.hessian(y, project_spd=True)
+
+    def _begin(self, problem, current, free):
+        if self.line_search != "none" and has_value(problem):
+            current.energy = problem.value(current.y)
+        return _NewtonState(free)
+
+    def _advance(self, problem, current, direction, state):
+        return line_search(problem, state.free, current, direction, self.line_search)

@@ -1,0 +1,223 @@
+"""First-order minimisers of the incremental potential: gradient descent, L-BFGS, Jacobi-Chebyshev descent.
+
+None of them solves a linear system: each iteration costs a gradient and the line search's energy
+evaluations (linear_iterations stays 0). Gradient descent and L-BFGS evaluate the (SPD-projected)
+Hessian once per solve, to scale their first step; Jacobi-Chebyshev evaluates its diagonal once per
+solve (refreshing it at restarts changed no iteration count in our cloth tests and cost a Hessian each).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse
+
+from .base import Advance, Iterate, NonlinearSolver
+from .dofs import FreeDofs
+from .line_search import MAX_LINE_SEARCH, accept, has_value, line_search
+
+# A curvature pair (s, dg) of L-BFGS is kept only when s^T dg > this times dg^T dg, so that the
+# inverse-Hessian model stays positive definite and well scaled (Byrd, Lu, Nocedal & Zhu 1995, sec. 6).
+CURVATURE_EPS = np.finfo(float).eps
+
+
+def cauchy_step(problem, current: Iterate) -> float:
+    """g^T g / g^T H+ g: the minimiser along -g of the quadratic model with the SPD-projected Hessian.
+
+    It gives the first step its length (units of y per unit of gradient); 1 where the model has no
+    positive curvature along g."""
+    gradient = current.gradient
+    curvature = float(gradient @ (problem.hessian(current.y, project_spd=True) @ gradient))
+    length = float(gradient @ gradient) / curvature if curvature > 0.0 else 1.0
+    return length if np.isfinite(length) and length > 0.0 else 1.0
+
+
+def _prepare_energy(problem, current: Iterate, rule: str) -> None:
+    if rule != "none" and has_value(problem):
+        current.energy = problem.value(current.y)
+
+
+def _gradient_at(problem, free: FreeDofs, advance: Advance) -> np.ndarray:
+    if advance.gradient is None:
+        advance.gradient = free.zero_fixed(np.array(problem.gradient(advance.y), dtype=float))
+    return advance.gradient
+
+
+@dataclass
+class _DescentState:
+    free: FreeDofs
+    step_length: float
+    pairs: deque = field(default_factory=deque)
+
+
+class GradientDescent(NonlinearSolver):
+    """Steepest descent p_k = -a_k g_k with the line search; a_0 the Cauchy step, then the
+    Barzilai-Borwein length a_k = s^T s / s^T dg (s = y_k - y_{k-1}, dg = g_k - g_{k-1}) as the trial
+    step that the line search may cut (Barzilai & Borwein, IMA J. Numer. Anal. 8, 1988). Linear
+    convergence; the rate degrades with the condition number of the Hessian."""
+
+    name = "gradient_descent"
+
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
+                 line_search: str = "backtracking", **options):
+        super().__init__(tolerance, max_iterations, linear_solver, **options)
+        self.line_search = line_search
+
+    def _begin(self, problem, current, free):
+        _prepare_energy(problem, current, self.line_search)
+        return _DescentState(free, cauchy_step(problem, current))
+
+    def _direction(self, problem, current, state):
+        return -state.step_length * current.gradient, 0
+
+    def _advance(self, problem, current, direction, state):
+        advance = line_search(problem, state.free, current, direction, self.line_search)
+        if advance.ok:
+            step = advance.y - current.y
+            change = _gradient_at(problem, state.free, advance) - current.gradient
+            curvature = float(step @ change)
+            if curvature > 0.0:
+                state.step_length = float(step @ step) / curvature
+        return advance
+
+
+class LBFGS(NonlinearSolver):
+    """Limited-memory BFGS: p_k = -H_k g_k by the two-loop recursion over the last ``history`` pairs
+    (s_i, dg_i), H_0 = (s^T dg / dg^T dg) I from the newest pair (the Cauchy step before the first),
+    then the line search (Nocedal & Wright, "Numerical Optimization", alg. 7.4 and 7.5). Pairs with
+    s^T dg <= eps dg^T dg are skipped, so H_k stays positive definite and p_k a descent direction."""
+
+    name = "lbfgs"
+
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
+                 line_search: str = "backtracking", history: int = 8, **options):
+        super().__init__(tolerance, max_iterations, linear_solver, **options)
+        if history < 1:
+            raise ValueError(f"history must be >= 1, got {history}")
+        self.line_search = line_search
+        self.history = history
+
+    def _begin(self, problem, current, free):
+        _prepare_energy(problem, current, self.line_search)
+        return _DescentState(free, cauchy_step(problem, current), deque(maxlen=self.history))
+
+    def _direction(self, problem, current, state):
+        if not state.pairs:
+            return -state.step_length * current.gradient, 0
+        q = current.gradient.copy()
+        alphas = []
+        for s, dg, rho in reversed(state.pairs):  # newest first; a loop over the memory, not the dofs
+            alpha = rho * float(s @ q)
+            q -= alpha * dg
+            alphas.append(alpha)
+        s, dg, _ = state.pairs[-1]
+        q *= float(s @ dg) / float(dg @ dg)
+        for (s, dg, rho), alpha in zip(state.pairs, reversed(alphas)):  # oldest first
+            beta = rho * float(dg @ q)
+            q += (alpha - beta) * s
+        return -q, 0
+
+    def _advance(self, problem, current, direction, state):
+        advance = line_search(problem, state.free, current, direction, self.line_search)
+        if advance.ok:
+            step = advance.y - current.y
+            change = _gradient_at(problem, state.free, advance) - current.gradient
+            curvature = float(step @ change)
+            if curvature > CURVATURE_EPS * float(change @ change) and np.isfinite(curvature):
+                state.pairs.append((step, change, 1.0 / curvature))
+        return advance
+
+
+@dataclass
+class _ChebyshevState:
+    free: FreeDofs
+    inverse_diagonal: np.ndarray
+    relaxation: float
+    previous: np.ndarray  # y_{k-1}
+    position: int = 0  # iterates produced since the (re)start of the Chebyshev sequence
+    weight: float = 1.0  # omega_k
+
+
+class JacobiChebyshev(NonlinearSolver):
+    """Jacobi-preconditioned descent with Chebyshev semi-iterative acceleration.
+
+        y^_{k+1} = y_k - D^{-1} g(y_k)                      (a Jacobi step, D = diag of the projected Hessian)
+        y_{k+1}  = omega_{k+1} (gamma (y^_{k+1} - y_k) + y_k - y_{k-1}) + y_{k-1}
+        omega_1 = 1,  omega_2 = 2 / (2 - rho^2),  omega_{k+1} = 4 / (4 - rho^2 omega_k)
+
+    rho (``chebyshev_rho``) estimates the spectral radius of the Jacobi iteration, gamma
+    (``relaxation``) under-relaxes each Jacobi step. With a line search, an update that raises the
+    energy (or misses Armijo's decrease) is rejected and the Chebyshev sequence restarts from y_k
+    (omega = 1, a plain Jacobi step); when that step too raises the energy, gamma is halved until it
+    does not, and keeps its new value for the rest of the solve. Every rejection counts as a line
+    search step. D is evaluated once per solve (at the start point). Sources: H. Wang, "A Chebyshev semi-iterative
+    approach for accelerating projective and position-based dynamics", ACM TOG 34(6), 2015, eq. 12;
+    H. Wang & Y. Yang, "Descent methods for elastic body simulation on the GPU", ACM TOG 35(6),
+    2016, sec. 4 (the energy check and restart; they check every few iterations, we every one).
+    """
+
+    name = "jacobi_chebyshev"
+
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
+                 line_search: str = "backtracking", chebyshev_rho: float = 0.99, relaxation: float = 0.9,
+                 spd_projection: str = "clamp", **options):
+        super().__init__(tolerance, max_iterations, linear_solver, **options)
+        if not 0.0 <= chebyshev_rho < 1.0:
+            raise ValueError(f"chebyshev_rho must be in [0, 1), got {chebyshev_rho}")
+        if not 0.0 < relaxation <= 1.0:
+            raise ValueError(f"relaxation must be in (0, 1], got {relaxation}")
+        self.line_search = line_search
+        self.rho = chebyshev_rho
+        self.relaxation = relaxation
+        self.spd_projection = spd_projection
+
+    def _inverse_diagonal(self, problem, y, free: FreeDofs) -> np.ndarray:
+        hessian = problem.hessian(y, project_spd=self.spd_projection != "none")
+        diagonal = np.asarray(hessian.diagonal() if scipy.sparse.issparse(hessian) else np.diag(hessian), dtype=float)
+        diagonal = np.abs(diagonal)
+        floor = np.finfo(float).eps * float(np.max(diagonal, initial=0.0))
+        return free.zero_fixed(1.0 / np.maximum(diagonal, floor if floor > 0 else 1.0))
+
+    def _begin(self, problem, current, free):
+        _prepare_energy(problem, current, self.line_search)
+        return _ChebyshevState(free, self._inverse_diagonal(problem, current.y, free), self.relaxation, current.y)
+
+    def _direction(self, problem, current, state):
+        return -state.inverse_diagonal * current.gradient, 0
+
+    def _weight(self, position: int, previous_weight: float) -> float:
+        if position <= 1:
+            return 1.0
+        if position == 2:
+            return 2.0 / (2.0 - self.rho ** 2)
+        return 4.0 / (4.0 - self.rho ** 2 * previous_weight)
+
+    def _advance(self, problem, current, direction, state):
+        state.position += 1
+        state.weight = self._weight(state.position, state.weight)
+        candidate = state.weight * (state.relaxation * direction + current.y - state.previous) + state.previous
+        checked = self.line_search != "none" and current.energy is not None
+        if not checked:
+            state.previous = current.y
+            return Advance(candidate)
+        energy = problem.value(candidate)
+        ok, gradient = accept(problem, state.free, current, self.line_search, candidate, energy)
+        rejections = 0
+        if not ok:  # restart the Chebyshev sequence: a plain Jacobi step with a fresh diagonal
+            rejections = 1
+            state.position, state.weight = 1, 1.0
+            while True:
+                candidate = current.y + state.relaxation * direction
+                energy = problem.value(candidate)
+                ok, gradient = accept(problem, state.free, current, self.line_search, candidate, energy)
+                if ok:
+                    break
+                if rejections > MAX_LINE_SEARCH:
+                    return Advance(current.y, line_search_steps=rejections, ok=False)
+                state.relaxation *= 0.5
+                rejections += 1
+        state.previous = current.y
+        return Advance(candidate, gradient, energy, rejections)
+

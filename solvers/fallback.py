@@ -1,0 +1,49 @@
+"""A fallback chain: when a solver does not converge on a step, the next one of the chain tries.
+
+As PolyFEM's solver fallbacks: ``fallback: [lbfgs, gradient_descent]`` behind the main solver.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import NonlinearSolver, SolveStats
+
+
+class FallbackChain:
+    """Solvers tried in turn on a step until one converges.
+
+    A fallback restarts from the best iterate of the attempt before it (the one with the smallest
+    |residual|_inf, the start itself when nothing improved on it), with the convergence test fixed
+    at the step's start: the threshold stays tolerance times the residual at the original start,
+    so a rescued step meets the same criterion as one the main solver finished. The statistics sum
+    the iterations (nonlinear, linear, line search) over all attempts; ``solver_index`` says which
+    solver finished the step (0: the main one, 1: the first fallback, ...) and ``converged`` whether
+    it converged. ``newton_step`` (the semi-implicit methods' single iteration) is the main solver's.
+    """
+
+    def __init__(self, solvers: list[NonlinearSolver]):
+        if not solvers:
+            raise ValueError("a fallback chain needs at least one solver")
+        self.solvers = list(solvers)
+
+    @property
+    def main(self) -> NonlinearSolver:
+        return self.solvers[0]
+
+    def minimize(self, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
+        outcome = self.main.solve(problem, start)
+        iterations, linear, line_search = (outcome.stats.iterations, outcome.stats.linear_iterations,
+                                           outcome.stats.line_search_steps)
+        index = 0
+        while not outcome.stats.converged and index + 1 < len(self.solvers):
+            index += 1
+            outcome = self.solvers[index].solve(problem, outcome.best, test=outcome.test)
+            iterations += outcome.stats.iterations
+            linear += outcome.stats.linear_iterations
+            line_search += outcome.stats.line_search_steps
+        return outcome.y, SolveStats(iterations, linear, line_search, outcome.stats.residual,
+                                     outcome.stats.converged, index)
+
+    def newton_step(self, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
+        return self.main.newton_step(problem, start)

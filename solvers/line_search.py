@@ -1,0 +1,71 @@
+"""The energy line search shared by projected Newton, L-BFGS, gradient descent and Jacobi-Chebyshev.
+
+Rules (``line_search``): ``none`` takes the full step; ``backtracking`` halves the step until
+E(y + a p) <= E(y); ``armijo`` halves it until E(y + a p) <= E(y) + c a g^T p (sufficient decrease,
+Nocedal & Wright, "Numerical Optimization", sec. 3.1). Near the solution the change of E drops
+below the round-off of E itself (|dE| ~ |g|^2 / H while E is resolved to ~eps |E|), so a change that
+E cannot resolve is judged by the gradient instead: the step is accepted when it lowers
+|g|_inf. E therefore never increases by more than its own round-off.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Advance, Iterate, max_norm
+from .dofs import FreeDofs
+
+LINE_SEARCHES = ("none", "backtracking", "armijo")
+# Armijo's sufficient-decrease constant; 1e-4 is the customary choice (Nocedal & Wright, sec. 3.1).
+ARMIJO_C = 1e-4
+# Halvings before a line search gives up: 2^-40 ~ 1e-12 of the trial step changes nothing of use.
+MAX_LINE_SEARCH = 40
+# E sums many terms of both signs; a change below this fraction of |E| is within its round-off.
+ENERGY_ROUNDOFF = 1024 * np.finfo(float).eps
+
+
+def judge(rule: str, energy: float, candidate_energy: float, predicted: float) -> bool | None:
+    """True: acceptable; False: not; None: the change is below the round-off of E (judge by the gradient).
+
+    ``predicted`` is g^T (y_candidate - y), the first-order change; a non-negative prediction never
+    licenses an increase."""
+    if not np.isfinite(candidate_energy):
+        return False
+    limit = energy + (ARMIJO_C * min(predicted, 0.0) if rule == "armijo" else 0.0)
+    if candidate_energy <= limit:
+        return True
+    if abs(candidate_energy - energy) <= ENERGY_ROUNDOFF * max(abs(energy), abs(candidate_energy)):
+        return None
+    return False
+
+
+def accept(problem, free: FreeDofs, current: Iterate, rule: str, candidate: np.ndarray,
+           candidate_energy: float) -> tuple[bool, np.ndarray | None]:
+    """Is ``candidate`` an acceptable next iterate? Returns (verdict, its gradient if it was computed)."""
+    verdict = judge(rule, current.energy, candidate_energy, float(current.gradient @ (candidate - current.y)))
+    if verdict is None:
+        gradient = free.zero_fixed(np.array(problem.gradient(candidate), dtype=float))
+        return bool(max_norm(gradient) < current.residual), gradient
+    return verdict, None
+
+
+def line_search(problem, free: FreeDofs, current: Iterate, direction: np.ndarray, rule: str) -> Advance:
+    """y + a p for the first a = 1, 1/2, 1/4, ... that ``rule`` accepts; a full step for ``none`` or
+    for a problem without a value. A direction that is not a descent direction (g^T p >= 0) fails."""
+    if rule == "none" or current.energy is None:
+        return Advance(current.y + direction)
+    if not float(current.gradient @ direction) < 0.0:
+        return Advance(current.y, ok=False)
+    step = 1.0
+    for reductions in range(MAX_LINE_SEARCH + 1):
+        candidate = current.y + step * direction
+        energy = problem.value(candidate)
+        ok, gradient = accept(problem, free, current, rule, candidate, energy)
+        if ok:
+            return Advance(candidate, gradient, energy, reductions)
+        step *= 0.5
+    return Advance(current.y, line_search_steps=MAX_LINE_SEARCH, ok=False)
+
+
+def has_value(problem) -> bool:
+    return callable(getattr(problem, "value", None))

@@ -1,0 +1,451 @@
+"""The solvers against theory (issue 5).
+
+One backward Euler step of a small cloth (6x6, pinned corners, a stretched and bulged start so the
+step is nonlinear, the incremental potential strictly convex) is the common test problem: every
+nonlinear solver with every linear solver it uses must reach the minimiser y* to its tolerance.
+The error bound is that of a strongly convex problem, |y - y*|_2 <= |g(y)|_2 / mu with mu the
+smallest eigenvalue of the Hessian on the free dofs. Linear solvers are checked against their
+convergence theory (CG: at most k iterations for k distinct eigenvalues; Jacobi and Gauss-Seidel:
+log(tol) / log(rho) iterations for the spectral radius rho of their iteration matrix; MPCG: PCG on
+the reduced system, Ascher & Boxerman 2003). Tests are parametrised over SOLVERS and LINEAR_SOLVERS.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse
+
+from conftest import run_one
+from simrun.cli import main
+from simrun.config import ConfigError, expand_runs, load_experiment, validate_experiment
+from simrun.integrators import INTEGRATORS, State
+from simrun.solvers import LINEAR_SOLVERS, SOLVERS, Newton, SolverParams, SolveStats
+from simrun.solvers.dofs import free_dofs
+from simrun.solvers.line_search import ENERGY_ROUNDOFF
+from simrun.solvers.newton import EIGEN_FLOOR, project_eigen
+from simrun.store import load_summary
+from simrun.systems import CircularMotionParams, ClothParams
+
+CORNERS = ["top_left", "top_right", "bottom_left", "bottom_right"]
+# h^2 k / m = 0.0004 * 200 * 36 = 2.9: nonlinear, yet the Jacobi iteration converges (rho ~ 0.93)
+CLOTH = dict(resolution=(6, 6), mass=1.0, stretch_stiffness=200.0, shear_stiffness=50.0, bend_stiffness=5.0,
+             damping=0.5, pinned=CORNERS)
+DT = 0.02
+TOLERANCE = 1e-8
+
+
+class Capture:
+    """A stand-in solver that keeps the problem an integrator hands over (and solves nothing)."""
+
+    def minimize(self, problem, start):
+        self.problem, self.start = problem, start.copy()
+        return start, SolveStats()
+
+
+def backward_euler_problem(system, x, v, dt):
+    capture = Capture()
+    INTEGRATORS["backward_euler"]().step(system, State(0.0, x, v), dt, capture)
+    return capture.problem, capture.start
+
+
+def stretched_cloth_step(stretch=1.1, bulge=0.1, dt=DT, **overrides):
+    """The cloth stretched in its plane (pins included) and bulged, with random velocities: one BE step."""
+    system = ClothParams(**{**CLOTH, **overrides}).build()
+    positions = system.x0.reshape(-1, 3).copy()
+    centre = positions.mean(axis=0)
+    positions[:, :2] = centre[:2] + stretch * (positions[:, :2] - centre[:2])
+    positions[:, 2] = bulge * np.sin(np.pi * positions[:, 0]) * np.sin(np.pi * positions[:, 1])
+    v = 0.3 * np.random.default_rng(3).standard_normal(system.dof_count)
+    v[system.fixed_dofs] = 0.0
+    problem, start = backward_euler_problem(system, positions.ravel(), v, dt)
+    return system, problem, start
+
+
+def compressed_cloth_step():
+    """A poor start: the cloth squeezed to half its size with a little noise out of plane, at rest."""
+    system = ClothParams(**{**CLOTH, "mass": 0.1}).build()
+    positions = system.x0.reshape(-1, 3).copy()
+    centre = positions.mean(axis=0)
+    positions[:, :2] = centre[:2] + 0.5 * (positions[:, :2] - centre[:2])
+    positions[:, 2] = 0.01 * np.random.default_rng(0).standard_normal(len(positions))
+    problem, start = backward_euler_problem(system, positions.ravel(), np.zeros(system.dof_count), 0.05)
+    return system, problem, start
+
+
+def free_block(matrix, fixed):
+    dense = matrix.toarray() if scipy.sparse.issparse(matrix) else np.asarray(matrix)
+    free = np.setdiff1d(np.arange(dense.shape[0]), fixed)
+    return dense[np.ix_(free, free)], free
+
+
+@pytest.fixture(scope="module")
+def cloth_step():
+    system, problem, start = stretched_cloth_step()
+    reference, stats = SolverParams(type="projected_newton", tolerance=1e-14).build().minimize(problem, start)
+    assert stats.converged and stats.iterations >= 3, "the step must be nonlinear"
+    hessian, free = free_block(problem.hessian(reference), system.fixed_dofs)
+    mu = np.linalg.eigvalsh(hessian).min()
+    assert mu > 0, "the test problem must be strictly convex, so that y* is unique"
+    return system, problem, start, reference, mu, free
+
+
+def combinations():
+    """Every nonlinear solver with every linear solver it uses, and the line-search/projection variants."""
+    cases = [(name, {"linear_solver": linear}) for name, cls in SOLVERS.items()
+             for linear in (LINEAR_SOLVERS if cls.uses_linear_solver else ["direct"])]
+    cases += [("projected_newton", {"spd_projection": "none"}), ("projected_newton", {"spd_projection": "eigen"}),
+              ("newton", {"tolerance_mode": "step"}), ("projected_newton", {"tolerance_mode": "step"})]
+    cases += [(name, {"line_search": "armijo"}) for name in ("projected_newton", "lbfgs", "gradient_descent", "jacobi_chebyshev")]
+    return cases
+
+
+@pytest.mark.parametrize("name, options", combinations(),
+                         ids=[f"{name}-{'-'.join(map(str, options.values()))}" for name, options in combinations()])
+def test_every_solver_reaches_the_minimiser_of_a_cloth_step(cloth_step, name, options):
+    """|y - y*|_2 <= |g(y)|_2 / mu (strong convexity), and the residual meets the shared convergence test."""
+    system, problem, start, reference, mu, free = cloth_step
+    params = SolverParams(type=name, tolerance=TOLERANCE, max_iterations=500, linear_max_iterations=5000, **options)
+    y, stats = params.build().minimize(problem, start)
+    assert stats.converged, stats
+    assert np.array_equal(y[system.fixed_dofs], start[system.fixed_dofs])
+    gradient = problem.gradient(y)
+    assert stats.residual == pytest.approx(np.abs(gradient).max(), rel=1e-12, abs=1e-300)
+    if options.get("tolerance_mode") != "step":
+        assert stats.residual <= max(TOLERANCE * np.abs(problem.gradient(start)).max(), problem.residual_floor)
+    bound = np.linalg.norm(gradient[free]) / mu
+    assert np.linalg.norm(y - reference) <= 2.0 * bound + 1e-13
+    assert np.abs(y - reference).max() < 1e-6
+    if SOLVERS[name].uses_linear_solver:
+        assert stats.linear_iterations >= stats.iterations  # a direct solve counts one, iterative ones more
+        if LINEAR_SOLVERS[params.linear_solver].iterative:
+            assert stats.linear_iterations > stats.iterations
+    else:
+        assert stats.linear_iterations == 0
+
+
+def newton_decrement(problem, fixed, y, gradient):
+    """lambda(y) = sqrt(g^T H^{-1} g) on the free dofs: the residual in the affine-invariant norm."""
+    hessian, free = free_block(problem.hessian(y), fixed)
+    return float(np.sqrt(gradient[free] @ np.linalg.solve(hessian, gradient[free])))
+
+
+def test_newton_converges_quadratically_near_the_solution():
+    """lambda_{k+1} <= C lambda_k^2 (Newton decrement; Boyd & Vandenberghe sec. 9.5.3): the observed
+    order log(lambda_{k+1}/lambda_k) / log(lambda_k/lambda_{k-1}) approaches 2, and the ratio
+    lambda_{k+1} / lambda_k^2 stays bounded, until round-off."""
+    system, problem, start = stretched_cloth_step()
+    history = []
+    solver = Newton(tolerance=1e-15, max_iterations=30, callback=lambda y, g: history.append((y.copy(), g.copy())))
+    _, stats = solver.minimize(problem, start)
+    assert stats.converged
+    decrements = np.array([newton_decrement(problem, system.fixed_dofs, y, g) for y, g in history])
+    above_roundoff = decrements[decrements > 1e-12 * decrements[0]]
+    assert above_roundoff.size >= 4
+    orders = np.log(above_roundoff[2:] / above_roundoff[1:-1]) / np.log(above_roundoff[1:-1] / above_roundoff[:-2])
+    assert orders[-1] >= 1.8
+    constants = above_roundoff[1:] / above_roundoff[:-1] ** 2
+    assert constants.max() < 100.0
+    # the max-norm residual the runner records drops by > 1e3 in the last iteration before round-off
+    residuals = np.array([np.abs(g).max() for _, g in history])
+    assert residuals[-2] < 1e-3 * residuals[-3]
+
+
+@pytest.mark.parametrize("name", ["projected_newton", "lbfgs", "gradient_descent", "jacobi_chebyshev"])
+@pytest.mark.parametrize("line_search", ["backtracking", "armijo"])
+def test_line_search_solvers_never_increase_the_incremental_potential(name, line_search):
+    """From a squeezed cloth plain Newton overshoots (its energy rises); the line-search solvers'
+    energies never rise beyond the round-off of E along their iterations."""
+    system, problem, start = compressed_cloth_step()
+    newton_energies = []
+    Newton(tolerance=1e-10, max_iterations=10, callback=lambda y, g: newton_energies.append(problem.value(y))).minimize(problem, start)
+    assert np.max(np.diff(newton_energies)) > 0.1 * newton_energies[0], "the start must make plain Newton overshoot"
+    energies = []
+    solver = SolverParams(type=name, line_search=line_search, max_iterations=30).build()
+    solver.callback = lambda y, g: energies.append(problem.value(y))
+    solver.minimize(problem, start)
+    energies = np.array(energies)
+    assert energies.size > 5
+    assert np.all(np.diff(energies) <= ENERGY_ROUNDOFF * np.abs(energies[:-1]))
+    assert energies[-1] < 0.5 * energies[0]
+
+
+# ------------------------------------------------------------------------------------------------
+# Linear solvers
+# ------------------------------------------------------------------------------------------------
+def diagonally_dominant_spd(n, seed, density=0.05, margin=1.2):
+    """Random sparse symmetric matrix made strictly diagonally dominant with a positive diagonal: SPD by Gershgorin."""
+    rng = np.random.default_rng(seed)
+    random = scipy.sparse.random(n, n, density=density, random_state=rng, data_rvs=lambda k: rng.uniform(-1, 1, k))
+    symmetric = (random + random.T).tolil()
+    symmetric.setdiag(0.0)
+    symmetric = symmetric.tocsr()
+    diagonal = margin * np.abs(symmetric).sum(axis=1).A1 + 0.1
+    return (symmetric + scipy.sparse.diags(diagonal)).tocsr()
+
+
+def cloth_matrix(pinned=CORNERS):
+    system, problem, start = stretched_cloth_step(pinned=pinned)
+    return system, problem.hessian(start, project_spd=True)
+
+
+@pytest.mark.parametrize("name", sorted(LINEAR_SOLVERS))
+@pytest.mark.parametrize("matrix_kind", ["random_sparse", "random_dense", "cloth"])
+def test_each_linear_solver_solves_an_spd_system_to_its_tolerance(name, matrix_kind):
+    """|b - A p|_2 <= tolerance |b|_2 on the free dofs, p = 0 on the fixed ones; a direct solve counts one."""
+    rng = np.random.default_rng(11)
+    if matrix_kind == "cloth":
+        system, matrix = cloth_matrix()
+        fixed = system.fixed_dofs
+    else:
+        matrix = diagonally_dominant_spd(150, seed=5)
+        matrix = matrix.toarray() if matrix_kind == "random_dense" else matrix
+        fixed = np.array([0, 7, 8, 149])
+    n = matrix.shape[0]
+    free = free_dofs(n, fixed)
+    rhs = rng.standard_normal(n)
+    tolerance = 1e-10
+    solution, iterations = LINEAR_SOLVERS[name](tolerance, 5000).solve(matrix, rhs, free, spd=True)
+    assert np.all(solution[fixed] == 0.0)
+    reduced = free.restrict_matrix(matrix)
+    residual = free.restrict(rhs) - reduced @ free.restrict(solution)
+    assert np.linalg.norm(residual) <= tolerance * np.linalg.norm(free.restrict(rhs))
+    assert iterations == 1 if name == "direct" else iterations > 1
+
+
+def spectral_radius(iteration_matrix):
+    return float(np.abs(np.linalg.eigvals(iteration_matrix)).max())
+
+
+@pytest.mark.parametrize("name", ["jacobi", "gauss_seidel"])
+@pytest.mark.parametrize("seed", range(3))
+def test_stationary_iterations_converge_at_their_spectral_radius(name, seed):
+    """On a diagonally dominant matrix the residual shrinks like rho^k, rho the spectral radius of
+    I - D^{-1} A (Jacobi) or I - (D + L)^{-1} A (Gauss-Seidel): about log(tol)/log(rho) iterations."""
+    matrix = diagonally_dominant_spd(120, seed=seed)
+    dense = matrix.toarray()
+    splitting = np.diag(np.diag(dense)) if name == "jacobi" else np.tril(dense)
+    rho = spectral_radius(np.eye(120) - np.linalg.solve(splitting, dense))
+    assert rho < 1
+    tolerance = 1e-10
+    rhs = np.random.default_rng(seed).standard_normal(120)
+    solution, iterations = LINEAR_SOLVERS[name](tolerance, 1000).solve(matrix, rhs, free_dofs(120, []))
+    assert np.linalg.norm(rhs - matrix @ solution) <= tolerance * np.linalg.norm(rhs)
+    predicted = np.log(tolerance) / np.log(rho)
+    assert abs(iterations - predicted) <= 0.25 * predicted + 3
+
+
+def test_jacobi_reports_divergence_instead_of_returning_garbage():
+    """A matrix whose Jacobi iteration matrix has spectral radius > 1 (SPD but not diagonally dominant)."""
+    matrix = np.array([[1.0, 0.9, 0.9], [0.9, 1.0, 0.9], [0.9, 0.9, 1.0]])  # SPD; I - D^-1 A has eigenvalue -1.8
+    with pytest.raises(np.linalg.LinAlgError, match="diverges"):
+        LINEAR_SOLVERS["jacobi"](1e-10, 1000).solve(matrix, np.ones(3), free_dofs(3, []))
+    solution, _ = LINEAR_SOLVERS["gauss_seidel"](1e-10, 1000).solve(matrix, np.ones(3), free_dofs(3, []))
+    assert np.allclose(matrix @ solution, 1.0)  # Gauss-Seidel converges on every SPD matrix
+
+
+@pytest.mark.parametrize("k", [2, 4, 7])
+def test_cg_needs_at_most_k_iterations_for_k_distinct_eigenvalues(k):
+    """The CG residual is a degree-k polynomial in A applied to b; the one vanishing on the k eigenvalues
+    makes it zero, so CG ends after at most k iterations (to round-off)."""
+    rng = np.random.default_rng(k)
+    n = 120
+    basis, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    values = np.linspace(1.0, 20.0, k)
+    eigenvalues = np.concatenate([values, rng.choice(values, n - k)])
+    matrix = (basis * eigenvalues) @ basis.T
+    rhs = rng.standard_normal(n)
+    solution, iterations = LINEAR_SOLVERS["cg"](1e-10, 1000).solve(matrix, rhs, free_dofs(n, []))
+    assert iterations <= k
+    assert np.linalg.norm(rhs - matrix @ solution) <= 1e-10 * np.linalg.norm(rhs)
+
+
+def test_mpcg_with_pinned_vertices_matches_the_direct_solve_of_the_reduced_system():
+    """Baraff & Witkin's filtered PCG from the start p_0 = 0 on the constrained dofs is PCG on the
+    reduced system (Ascher & Boxerman 2003): the same solution (to cond(A) * tol) and the same
+    iteration count as Jacobi-PCG on the free rows and columns, and exactly zero on the pins."""
+    pinned = [*CORNERS, 14, 21]  # the corners and two interior vertices
+    system, matrix = cloth_matrix(pinned=pinned)
+    fixed = system.fixed_dofs
+    assert fixed.size == 18
+    free = free_dofs(system.dof_count, fixed)
+    rhs = np.random.default_rng(2).standard_normal(system.dof_count)  # nonzero on the pinned dofs too
+    tolerance = 1e-10
+    filtered, iterations = LINEAR_SOLVERS["mpcg"](tolerance, 1000).solve(matrix, rhs, free)
+    direct, _ = LINEAR_SOLVERS["direct"]().solve(matrix, rhs, free, spd=True)
+    reduced = free.restrict_matrix(matrix).toarray()
+    condition = np.linalg.cond(reduced)
+    assert np.all(filtered[fixed] == 0.0) and np.all(direct[fixed] == 0.0)
+    assert np.linalg.norm(filtered - direct) <= condition * tolerance * np.linalg.norm(direct)
+    _, pcg_iterations = LINEAR_SOLVERS["pcg"](tolerance, 1000).solve(matrix, rhs, free)
+    assert abs(iterations - pcg_iterations) <= 1
+
+
+def test_restriction_to_free_dofs_is_cached():
+    """One FreeDofs per fixed_dofs; its CSR restriction map is built once per sparsity pattern."""
+    system, matrix = cloth_matrix()
+    free = free_dofs(system.dof_count, system.fixed_dofs)
+    assert free_dofs(system.dof_count, system.fixed_dofs.copy()) is free
+    first = free.restrict_matrix(matrix)
+    pattern = free._pattern
+    again = free.restrict_matrix(matrix.copy())  # same pattern, other arrays: the map is reused
+    assert free._pattern is pattern
+    expected = matrix.tocsr()[free.mask][:, free.mask]
+    assert abs(first - expected).max() == 0 and abs(again - expected).max() == 0
+
+
+def test_eigen_projection_clamps_the_free_block_only():
+    """Whole-matrix eigenvalue clamping on a dense problem: eigenvalues >= EIGEN_FLOOR max|eigenvalue|,
+    unchanged where already SPD; the Kepler Hessian has a negative radial eigenvalue."""
+    system = CircularMotionParams(force="gravity").build()
+    hessian = system.hessian(np.array([0.7, 0.4]))
+    assert np.linalg.eigvalsh(hessian).min() < 0
+    projected = project_eigen(hessian, np.zeros(0, dtype=np.intp))
+    eigenvalues = np.linalg.eigvalsh(projected)
+    assert eigenvalues.min() >= EIGEN_FLOOR * np.abs(eigenvalues).max() * (1 - 1e-9)
+    spd = np.array([[2.0, 0.5], [0.5, 1.0]])
+    assert np.allclose(project_eigen(spd, np.zeros(0, dtype=np.intp)), spd)
+
+
+# ------------------------------------------------------------------------------------------------
+# Through the runner: counts per step, not_converged, fallbacks, sweeps, the shipped config
+# ------------------------------------------------------------------------------------------------
+SMALL_CLOTH = {"type": "cloth", "resolution": [5, 5], "mass": 0.5, "stretch_stiffness": 300.0, "shear_stiffness": 30.0,
+               "bend_stiffness": 1.0, "pinned": ["top_left", "top_right"]}
+
+
+def test_iteration_counts_are_recorded_per_step_and_summarised(tmp_path):
+    """Per step: nonlinear, linear (summed over the step) and line-search counts and the residual; the
+    summary's means are those of the per-step series."""
+    result = run_one(SMALL_CLOTH, "backward_euler", 0.02, 0.2,
+                     solver={"type": "projected_newton", "linear_solver": "pcg", "tolerance": 1e-8})
+    assert result.status == "ok"
+    newton, linear = result.per_step["newton_iterations"], result.per_step["linear_iterations"]
+    assert newton.shape == (10,) and np.all(newton >= 2)
+    assert np.all(linear > newton)  # several CG iterations per Newton iteration
+    assert np.all(result.per_step["residual"] > 0) and np.all(result.per_step["solver_index"] == 0)
+    config = tmp_path / "config.yaml"
+    config.write_text(textwrap.dedent(f"""\
+        name: counts
+        system: {{type: cloth, resolution: [5, 5], mass: 0.5, stretch_stiffness: 300.0, shear_stiffness: 30.0,
+                 bend_stiffness: 1.0, pinned: [top_left, top_right]}}
+        integrators: [backward_euler]
+        solver: {{type: projected_newton, linear_solver: pcg, tolerance: 1.0e-8}}
+        duration: 0.2
+        sweep: {{dt: [0.02]}}
+        output: {tmp_path / 'out'}
+        """))
+    assert main(["run", str(config), "--no-plots", "-q", "-j", "1"]) == 0
+    (row,) = load_summary(tmp_path / "out" / "results.h5")
+    assert row["mean_newton_iterations"] == pytest.approx(newton.mean())
+    assert row["mean_linear_iterations"] == pytest.approx(linear.mean())
+
+
+def test_tiny_max_iterations_gives_not_converged_with_the_counts_intact():
+    result = run_one(SMALL_CLOTH, "backward_euler", 0.02, 0.2,
+                     solver={"type": "projected_newton", "linear_solver": "cg", "max_iterations": 1, "tolerance": 1e-12})
+    assert result.status == "not_converged" and result.steps == 10
+    assert np.all(result.per_step["newton_iterations"] == 1)
+    # CG's counts survive (one on the first step: the flat cloth's z block is M, CG's first iterate solves it)
+    assert np.all(result.per_step["linear_iterations"] >= 1) and result.per_step["linear_iterations"].sum() > 100
+    assert result.attrs["not_converged_steps"] == 10
+
+
+def test_a_fallback_chain_records_which_solver_rescued_each_step():
+    """Gradient descent with 5 iterations cannot solve a stiff cloth step to 1e-8; projected Newton,
+    restarting from gradient descent's best iterate, can: solver_index 1, counts summed."""
+    alone = run_one(SMALL_CLOTH, "backward_euler", 0.02, 0.1,
+                    solver={"type": "gradient_descent", "max_iterations": 5, "tolerance": 1e-8})
+    assert alone.status == "not_converged"
+    chained = run_one(SMALL_CLOTH, "backward_euler", 0.02, 0.1,
+                      solver={"type": "gradient_descent", "max_iterations": 5, "tolerance": 1e-8,
+                              "fallback": ["projected_newton"]})
+    assert chained.status == "ok"
+    index = chained.per_step["solver_index"]
+    rescued = index == 1
+    assert rescued.any()
+    assert np.all(chained.per_step["newton_iterations"][rescued] > 5)  # 5 of gradient descent + Newton's
+    assert np.all(chained.per_step["linear_iterations"][rescued] >= 1)
+    assert np.all(chained.per_step["linear_iterations"][~rescued] == 0)
+
+
+def test_solver_parameters_sweep_like_any_other_key():
+    raw = {"name": "sweep", "system": SMALL_CLOTH, "integrators": ["backward_euler"], "duration": 0.1,
+           "sweep": {"dt": [0.05], "solver.type": sorted(SOLVERS), "solver.linear_solver": ["direct", "mpcg"]}}
+    runs = expand_runs(validate_experiment(raw))
+    assert {(run.solver.type, run.solver.linear_solver) for run in runs} == {
+        (name, linear) for name in SOLVERS for linear in ("direct", "mpcg")}
+    raw["sweep"]["solver.type"] = ["newton", "bfgs"]
+    with pytest.raises(ConfigError, match="solver.type"):
+        expand_runs(validate_experiment(raw))
+
+
+@pytest.mark.parametrize("solver, message", [
+    ({"type": "lbfgs", "tolerance_mode": "step"}, "step needs Newton-type solvers"),
+    ({"type": "newton", "tolerance_mode": "step", "fallback": ["gradient_descent"]}, "step needs Newton-type solvers"),
+    ({"type": "newton", "fallback": ["lbfgs", "newton"]}, "appear once"),
+    ({"type": "newton", "fallback": ["bfgs"]}, "solver.fallback"),
+    ({"type": "jacobi_chebyshev", "chebyshev_rho": 1.0}, "solver.chebyshev_rho"),
+])
+def test_inconsistent_solver_configs_are_rejected(solver, message):
+    raw = {"name": "bad", "system": SMALL_CLOTH, "integrators": ["backward_euler"], "sweep": {"dt": [0.1]}, "solver": solver}
+    with pytest.raises(ConfigError, match=message):
+        validate_experiment(raw)
+
+
+def test_the_shipped_solver_comparison_sweeps_solvers_and_linear_solvers():
+    experiment, _ = load_experiment(Path(__file__).parent.parent / "configs" / "solver_comparison.yaml")
+    runs = expand_runs(experiment)
+    assert {run.solver.type for run in runs} == set(SOLVERS)
+    assert {run.solver.linear_solver for run in runs} == set(LINEAR_SOLVERS)
+    assert len({run.dt for run in runs}) >= 2
+    assert experiment.system.type == "cloth"
+
+
+@pytest.mark.parametrize("name, options", combinations(),
+                         ids=[f"{name}-{'-'.join(map(str, options.values()))}" for name, options in combinations()])
+def test_every_solver_solves_a_dense_kepler_step(name, options):
+    """The dense path (2x2 Hessians, LAPACK, whole-matrix eigen clamp): a backward Euler step of the
+    Kepler orbit at dt = 0.3 s from x_n (M + h^2 K is SPD there; from dt ~ 0.7 s the incremental
+    potential is unbounded below at the centre and descent methods rightly fall in), compared with
+    a tight Newton solve."""
+    system = CircularMotionParams(force="gravity").build()
+    problem, start = backward_euler_problem(system, system.x0, system.v0, 0.3)
+    reference, stats = Newton(tolerance=1e-15).minimize(problem, start)
+    assert stats.converged and stats.iterations >= 3
+    y, stats = SolverParams(type=name, tolerance=1e-10, max_iterations=500, **options).build().minimize(problem, start)
+    assert stats.converged, stats
+    assert np.abs(y - reference).max() < 1e-8
+
+
+def test_a_fallback_restarts_from_the_best_iterate_with_the_original_threshold(cloth_step):
+    """The fallback starts where the failed attempt had its smallest |g|_inf and must reach
+    tolerance * |g(start)|_inf, not tolerance times the residual at its own start."""
+    from simrun.solvers import FallbackChain, GradientDescent, ProjectedNewton
+
+    system, problem, start, reference, mu, free = cloth_step
+    tried, rescuing = [], []
+    main_solver = GradientDescent(tolerance=TOLERANCE, max_iterations=4,
+                                  callback=lambda y, g: tried.append((np.abs(g).max(), y.copy())))
+    fallback = ProjectedNewton(tolerance=TOLERANCE, callback=lambda y, g: rescuing.append((np.abs(g).max(), y.copy())))
+    y, stats = FallbackChain([main_solver, fallback]).minimize(problem, start)
+    best_residual, best = min(tried, key=lambda item: item[0])
+    assert best_residual < tried[0][0]
+    assert np.array_equal(rescuing[0][1], best)
+    assert stats.converged and stats.solver_index == 1 and stats.iterations == 4 + len(rescuing) - 1
+    assert stats.residual <= TOLERANCE * np.abs(problem.gradient(start)).max()
+    assert np.abs(y - reference).max() < 1e-6
+    first = main_solver.solve(problem, start)
+    assert first.test.threshold == TOLERANCE * np.abs(problem.gradient(start)).max()
+    assert fallback.solve(problem, first.best, test=first.test).test is first.test
+
+
+def test_eigen_projection_leaves_the_fixed_rows_alone():
+    matrix = np.array([[5.0, 1.0, 0.0], [1.0, -2.0, 0.5], [0.0, 0.5, 1.0]])
+    projected = project_eigen(matrix, np.array([0]))
+    assert np.array_equal(projected[0], matrix[0]) and np.array_equal(projected[:, 0], matrix[:, 0])
+    block = np.linalg.eigvalsh(projected[1:, 1:])
+    assert block.min() >= EIGEN_FLOOR * np.abs(np.linalg.eigvalsh(matrix[1:, 1:])).max() * (1 - 1e-9)
