@@ -18,7 +18,7 @@ from simrun.executors import EXECUTORS, execute
 from simrun.lock import OutputLock, OutputLocked
 from simrun.store import RESULTS_NAME
 
-SUBCOMMANDS = ("run", "plot", "animate", "list")
+SUBCOMMANDS = ("run", "plot", "animate", "list", "report", "show", "analyze")
 EXIT_CONFIG_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report Ctrl-C
 DEFAULT_MAX_SIZE_GB = 50.0
@@ -54,6 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("results", help="a results file, e.g. results/quickstart/results.h5")
     plot.add_argument("--output", help="figure folder (default: figures/ beside the results file)")
 
+    from simrun.report import add_analyze_parser, add_reference_option, add_report_parser, add_show_parser
+
+    add_reference_option(plot)  # simrun plot RESULTS --reference [dop853|...|none|RUN_ID]
+    add_report_parser(commands)
+    add_show_parser(commands)
+    add_analyze_parser(commands)
+
     animate = commands.add_parser("animate", help="write an animated GIF of one cloth run",
                                   description="Write an animated GIF of one cloth run's frames (from the results file alone).")
     animate.add_argument("results", help="a results file, e.g. results/cloth_hang/results.h5")
@@ -82,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
             return command_plot(args)
         if args.command == "animate":
             return command_animate(args)
+        if hasattr(args, "handler"):
+            return args.handler(args)
         return command_list()
     except (ConfigError, OutputLocked) as error:
         print(f"simrun: error: {error}", file=sys.stderr)
@@ -206,9 +215,11 @@ def command_plot(args) -> int:
     if not path.is_file() or not h5py.is_hdf5(path):
         raise ConfigError(f"results: {str(path)!r} is not a results file (expected e.g. results/quickstart/results.h5)")
     from simrun.plots import draw_figures
+    from simrun.report import plot_reference_errors
 
     out = Path(args.output) if args.output else path.parent / "figures"
-    figures = draw_figures(path, out)
+    errors = plot_reference_errors(path, args.reference, say=lambda text: print(text, file=sys.stderr))
+    figures = draw_figures(path, out, reference_errors=errors)
     print(f"figures: {out}  ({len(figures)} files)")
     return 0
 

@@ -24,7 +24,10 @@ from matplotlib.image import imread
 from simrun.cli import main
 from simrun.plots import draw_figures, load_results, newton_iterations_vs_dt
 
-ALWAYS = {"energy_over_time", "energy_drift_vs_dt", "stability_map", "newton_iterations_vs_dt"}
+ALWAYS = {"energy_over_time", "energy_drift_vs_dt", "stability_map", "newton_iterations_vs_dt",
+          "convergence", "work_precision", "wall_time_per_step_vs_dt", "energy_budget"}
+# runs on the undamped test equation (spring, linear circular motion) add the predicted-vs-measured curves
+TEST_EQUATION = {"artificial_damping", "spectral_radius_and_period"}
 EULERS = ["forward_euler", "symplectic_euler", "backward_euler"]
 SPRING = {"system": {"type": "spring_mass", "stiffness": 100.0}, "integrators": EULERS,
           "duration": 2.0, "sweep": {"dt": [0.01, 0.05, 0.25]}}
@@ -77,7 +80,7 @@ def test_spring_figures_with_diverged_runs(spring, tmp_path):
     assert {"diverged"} <= set(statuses(spring).values())  # the case this test is about
     style = dict(matplotlib.rcParams)
     paths = draw_figures(spring, tmp_path / "figures")
-    assert_figures(paths, tmp_path / "figures", ALWAYS)  # no orbits for the spring
+    assert_figures(paths, tmp_path / "figures", ALWAYS | TEST_EQUATION)  # no orbits for the spring
     assert plt.get_fignums() == []  # every figure closed
     assert dict(matplotlib.rcParams) == style  # no global style side effects
 
@@ -123,7 +126,7 @@ def test_one_panel_row_per_group_of_swept_parameters(tmp_path):
     assert [title for title, _ in loaded.groups] == ["system.stiffness = 10", "system.stiffness = 100"]
     assert all(len(runs) == 4 for _, runs in loaded.groups)  # 2 integrators x 2 dt each
     paths = draw_figures(results, tmp_path / "figures")
-    assert_figures(paths, tmp_path / "figures", ALWAYS)
+    assert_figures(paths, tmp_path / "figures", ALWAYS | TEST_EQUATION)
 
 
 def test_colours_follow_the_sorted_labels(spring):
@@ -143,15 +146,20 @@ def test_figures_are_redrawn_from_the_results_file_alone(tmp_path):
     shutil.rmtree(tmp_path / "first")
     paths = draw_figures(copy, tmp_path / "elsewhere" / "figures")
     # explicit methods only: every figure but the Newton iterations
-    assert_figures(paths, tmp_path / "elsewhere" / "figures", ALWAYS - {"newton_iterations_vs_dt"})
+    assert_figures(paths, tmp_path / "elsewhere" / "figures", (ALWAYS | TEST_EQUATION) - {"newton_iterations_vs_dt"})
 
 
 def test_plots_import_neither_config_nor_simulation():
-    """Plots depend on the file format only: importing them loads no config, simulation or solver code."""
+    """Plots depend on the file format only: importing them loads no config, simulation, store or CLI code.
+
+    The predicted curves come from simrun.analysis, which probes the integrators named in the file
+    (so the integrators, and the systems and solvers they step with, are loaded), never from runs."""
     code = ("import json, sys, simrun.plots; "
             "print(json.dumps(sorted(m for m in sys.modules if m.startswith('simrun.') and m != 'simrun.plots')))")
-    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert json.loads(loaded) == []
+    loaded = set(json.loads(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout))
+    assert "simrun.analysis" in loaded
+    allowed = ("simrun.analysis", "simrun.integrators", "simrun.systems", "simrun.solvers")
+    assert {module for module in loaded if not module.startswith(allowed)} == set()
 
 
 def test_a_file_without_runs_gives_no_figures(tmp_path):
