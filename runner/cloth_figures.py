@@ -14,6 +14,9 @@ import numpy as np  # noqa: E402
 from matplotlib.animation import FuncAnimation, PillowWriter  # noqa: E402
 
 SNAPSHOT_COUNT = 4
+# A sweep of many cloth runs would drown its figure folder in snapshots: beyond this many runs,
+# draw one per method and swept setting (its largest dt); `simrun animate` reaches any run.
+MAX_SNAPSHOT_FIGURES = 12
 GIF_FRAMES_MAX = 120  # a longer GIF only grows the file; 120 frames at 20 fps is 6 s
 
 
@@ -61,10 +64,26 @@ def _limits(frames: np.ndarray, params: dict) -> tuple[np.ndarray, np.ndarray]:
     return middle - span / 2, middle + span / 2
 
 
+def snapshot_runs(file: h5py.File) -> list[str]:
+    """Every cloth run, or for big sweeps one per integrator label and swept setting: the largest dt."""
+    runs = cloth_runs(file)
+    if len(runs) <= MAX_SNAPSHOT_FIGURES:
+        return runs
+    chosen: dict[tuple, tuple[float, str]] = {}
+    for run_id in runs:
+        attrs = file["runs"][run_id].attrs
+        params = json.loads(attrs["params"])
+        setting = tuple(sorted((key, str(value)) for key, value in params.items() if key != "dt"))
+        key = (str(attrs["integrator_label"]), setting)
+        if key not in chosen or attrs["dt"] > chosen[key][0]:
+            chosen[key] = (float(attrs["dt"]), run_id)
+    return sorted(run_id for _, run_id in chosen.values())[:MAX_SNAPSHOT_FIGURES]
+
+
 def draw_cloth_snapshots(file: h5py.File, out_dir: Path) -> list[Path]:
-    """One figure per cloth run: the cloth at SNAPSHOT_COUNT times spread over the run."""
+    """One figure per cloth run (see snapshot_runs): the cloth at SNAPSHOT_COUNT times spread over the run."""
     written = []
-    for run_id in cloth_runs(file):
+    for run_id in snapshot_runs(file):
         group = file["runs"][run_id]
         nx, ny, params = _grid(group)
         frames = group["frames"][()]
