@@ -9,6 +9,7 @@ import numpy as np
 
 from simrun.config import Run
 from simrun.integrators import State
+from simrun.solvers import EXPLICIT_STEP
 
 OK, DIVERGED, NOT_CONVERGED, FAILED = "ok", "diverged", "not_converged", "failed"
 STATUSES = (OK, DIVERGED, NOT_CONVERGED, FAILED)
@@ -46,19 +47,28 @@ class Recorder:
         self.frames = None if self.with_state else np.empty((frame_count, system.dof_count // 3, 3))
         self.frame_t = None if self.with_state else np.empty(frame_count)
 
-    def record(self, state: State, dissipated_energy: float) -> None:
-        values = {"t": state.t, **self.system.observables(state.x, state.v), "dissipated_energy": dissipated_energy}
-        if self.with_state:
-            values["positions"], values["velocities"] = state.x, state.v
+    def record(self, t: float, x: np.ndarray, v: np.ndarray, observed: dict, dissipated_energy: float) -> None:
+        """One sample at time t (s) of (x, v), with their ``system.observables`` already computed."""
         if not self.arrays:
+            values = {"t": t, **observed, "dissipated_energy": dissipated_energy}
+            if self.with_state:
+                values["positions"], values["velocities"] = x, v
             self.arrays = {key: np.empty((self.capacity,) + np.shape(value)) for key, value in values.items()}
-        for key, value in values.items():
-            self.arrays[key][self.count] = value
-        self.count += 1
+            self._observed_arrays = [(self.arrays[key], key) for key in observed]
+        row = self.count
+        arrays = self.arrays
+        arrays["t"][row] = t
+        for array, key in self._observed_arrays:
+            array[row] = observed[key]
+        arrays["dissipated_energy"][row] = dissipated_energy
+        if self.with_state:
+            arrays["positions"][row] = x
+            arrays["velocities"][row] = v
+        self.count = row + 1
 
-    def record_frame(self, state: State) -> None:
-        self.frames[self.frame_count] = state.x.reshape(-1, 3)
-        self.frame_t[self.frame_count] = state.t
+    def record_frame(self, t: float, x: np.ndarray) -> None:
+        self.frames[self.frame_count] = x.reshape(-1, 3)
+        self.frame_t[self.frame_count] = t
         self.frame_count += 1
 
     def result(self) -> dict[str, np.ndarray]:
@@ -93,14 +103,17 @@ def simulate(run: Run) -> RunResult:
     energy0 = system.total_energy(state.x, state.v)
     energy_bound = run.divergence.energy_factor * system.energy_scale()
     dissipated = 0.0  # work of the physical damping forces so far (J), for the energy budget
+    damped = system.is_damped
+    newton_iterations, linear_iterations = per_step["newton_iterations"], per_step["linear_iterations"]
+    line_search_steps, residuals, solver_index = per_step["line_search_steps"], per_step["residual"], per_step["solver_index"]
 
-    def record(state: State, sample: bool = True, frame: bool = True) -> None:
-        if sample:
-            recorder.record(state, dissipated)
+    def record(t: float, state: State, observed: dict | None = None, frame: bool = True) -> None:
+        recorder.record(t, state.x, state.v, observed if observed is not None else system.observables(state.x, state.v),
+                        dissipated)
         if frame and with_frames:
-            recorder.record_frame(state)
+            recorder.record_frame(t, state.x)
 
-    record(state)
+    record(0.0, state)
     status, message, t_diverged, not_converged_steps = OK, "", None, 0
     steps = 0
     start = time.perf_counter()
@@ -110,34 +123,41 @@ def simulate(run: Run) -> RunResult:
             for n in range(step_count):
                 previous = state
                 state, stats = integrator.step(system, state, dt, solver)
-                state = State(dt * (n + 1), state.x, state.v, state.aux)  # no accumulated round-off in t
                 steps = n + 1
-                damping = system.damping_matrix(previous.x)
-                if damping is not None:
+                t = dt * steps  # the loop owns t: no accumulated round-off, whatever state.t says
+                if damped:
+                    damping = system.damping_matrix(previous.x)
                     # h v_bar^T D v_bar with the step's mean velocity: the exact discrete balance of
                     # implicit midpoint for quadratic energies, a second-order estimate for the others
                     mean_velocity = 0.5 * (previous.v + state.v)
                     dissipated += dt * float(mean_velocity @ (damping @ mean_velocity))
-                per_step["newton_iterations"][n] = stats.iterations
-                per_step["linear_iterations"][n] = stats.linear_iterations
-                per_step["line_search_steps"][n] = stats.line_search_steps
-                per_step["residual"][n] = stats.residual
-                per_step["solver_index"][n] = stats.solver_index
+                if stats is not EXPLICIT_STEP:  # the per-step arrays start at zero, what an explicit step reports
+                    newton_iterations[n] = stats.iterations
+                    linear_iterations[n] = stats.linear_iterations
+                    line_search_steps[n] = stats.line_search_steps
+                    residuals[n] = stats.residual
+                    solver_index[n] = stats.solver_index
                 last = steps == step_count
+                sample = steps % stride == 0 or last
+                # one evaluation of the observables serves the energy check and the sample
+                observed = system.observables(state.x, state.v) if sample else None
                 if steps % check_every == 0 or last:
-                    energy = system.total_energy(state.x, state.v)
+                    energy = observed["energy"] if sample else system.total_energy(state.x, state.v)
                     if not np.isfinite(energy) or abs(energy - energy0) > energy_bound:
-                        status, t_diverged = DIVERGED, state.t
-                        message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {state.t:.6g} s"
-                        record(state)
+                        status, t_diverged = DIVERGED, t
+                        message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {t:.6g} s"
+                        record(t, state, observed)
                         break
                 if not stats.converged:
                     not_converged_steps += 1
                     if stop_on_not_converged:
-                        message = f"step {steps} (t = {state.t:.6g} s) did not converge: residual {stats.residual:.3g}"
-                        record(state)
+                        message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
+                        record(t, state, observed)
                         break
-                record(state, sample=steps % stride == 0 or last, frame=steps % frame_stride == 0 or last)
+                if sample:
+                    record(t, state, observed, frame=steps % frame_stride == 0 or last)
+                elif with_frames and (steps % frame_stride == 0 or last):
+                    recorder.record_frame(t, state.x)
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start

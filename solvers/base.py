@@ -23,6 +23,7 @@ and the optional ``callback(y, gradient)`` after the start and every iteration.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, ClassVar, Protocol
 
@@ -34,6 +35,8 @@ from .linear import LINEAR_SOLVERS, LinearSolver
 # A search direction this small relative to |y| changes y only in its last bits: the iterate is as
 # good as floating point allows, whatever the residual's own round-off says.
 ROUNDOFF_STEP = 16 * np.finfo(float).eps
+# Up to this many entries, |v|_inf is taken over Python floats (one particle in 3-D has 3 dofs).
+SMALL_VECTOR = 8
 # A failing linear solve (exactly singular factor, non-finite matrix) ends the nonlinear solve as not converged.
 LINEAR_FAILURES = (np.linalg.LinAlgError, RuntimeError, ValueError, FloatingPointError)
 
@@ -63,7 +66,32 @@ EXPLICIT_STEP = SolveStats()  # what an explicit step reports: nothing solved
 
 
 def max_norm(vector: np.ndarray) -> float:
-    return float(np.max(np.abs(vector))) if vector.size else 0.0
+    """|vector|_inf (NaN if any entry is NaN), 0 for an empty vector: the ufunc itself, not np.max's wrappers."""
+    size = vector.size
+    if size <= SMALL_VECTOR:  # the small systems: Python floats cost a fraction of any array reduction
+        largest = 0.0
+        for value in vector.ravel().tolist():
+            value = abs(value)
+            if value > largest:
+                largest = value
+            elif value != value:  # NaN, which np.max propagates too
+                return math.nan
+        return float(largest)
+    # the ufunc's reduce on the flat view: np.max's wrappers and an axis=None argument each double the cost
+    return float(np.maximum.reduce(abs(vector.ravel())))
+
+
+_ALL_FREE: dict[int, FreeDofs] = {}  # size -> FreeDofs without fixed dofs (most problems of the small systems)
+
+
+def _free_dofs(size: int, fixed_dofs) -> FreeDofs:
+    """``free_dofs``, with the common case of no fixed dofs answered from a dict (no hashing of index bytes)."""
+    if fixed_dofs is None or len(fixed_dofs) == 0:
+        free = _ALL_FREE.get(size)
+        if free is None:
+            free = _ALL_FREE[size] = free_dofs(size, ())
+        return free
+    return free_dofs(size, fixed_dofs)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -177,7 +205,7 @@ class NonlinearSolver:
 
     def solve(self, problem: NonlinearProblem, start: np.ndarray, test: ConvergenceTest | None = None) -> Outcome:
         """``minimize`` with everything a fallback chain needs; ``test`` carries the chain's first start."""
-        free = free_dofs(start.size, problem.fixed_dofs)
+        free = _free_dofs(start.size, problem.fixed_dofs)
         y = np.array(start, dtype=float)
         gradient = free.zero_fixed(np.array(problem.gradient(y), dtype=float))
         current = Iterate(y, gradient, max_norm(gradient))
@@ -187,7 +215,7 @@ class NonlinearSolver:
         iterations = linear_iterations = line_search_steps = 0
         converged = test.residual_met(current.residual)
         self._notify(current)
-        if not converged and np.isfinite(current.residual):
+        if not converged and math.isfinite(current.residual):
             state = self._begin(problem, current, free)
             while iterations < self.max_iterations:
                 try:
@@ -196,7 +224,7 @@ class NonlinearSolver:
                     break
                 linear_iterations += cost
                 size = max_norm(direction)
-                if not np.isfinite(size):
+                if not math.isfinite(size):
                     break
                 if test.step_met(size) or test.stalled(size, current.y):
                     converged = True
@@ -213,7 +241,7 @@ class NonlinearSolver:
                 self._notify(current)
                 if current.residual < best_residual:
                     best_residual, best = current.residual, current.y.copy()
-                if not np.isfinite(current.residual):
+                if not math.isfinite(current.residual):
                     break
                 if test.residual_met(current.residual):
                     converged = True
@@ -225,7 +253,7 @@ class NonlinearSolver:
         """Exactly one Newton iteration from ``start`` (the semi-implicit methods): no convergence test.
 
         Uses the solver's linear solver and Hessian (projected for projected Newton, raw otherwise)."""
-        free = free_dofs(start.size, problem.fixed_dofs)
+        free = _free_dofs(start.size, problem.fixed_dofs)
         gradient = free.zero_fixed(np.array(problem.gradient(start), dtype=float))
         direction, cost = self.linear_solver.solve(self._model_hessian(problem, start), -gradient, free,
                                                    spd=self.model_is_spd)

@@ -14,10 +14,12 @@ raises ``numpy.linalg.LinAlgError``, which ends the nonlinear solve as not conve
 
 from __future__ import annotations
 
+import warnings
 from typing import ClassVar
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 import scipy.sparse
 import scipy.sparse.linalg
 
@@ -82,7 +84,7 @@ class DirectSolver(LinearSolver):
     iterative = False
 
     def _solve(self, matrix, rhs, spd):
-        if scipy.sparse.issparse(matrix):
+        if type(matrix) is not np.ndarray and scipy.sparse.issparse(matrix):  # the type test first: issparse is an ABC check
             if not matrix.has_sorted_indices:
                 matrix = matrix.sorted_indices()  # a copy: the problem's matrix may share its index arrays
             # a CSR matrix's arrays read as CSC are its transpose: factor A^T, solve with its transpose
@@ -97,12 +99,48 @@ class DirectSolver(LinearSolver):
             return factor.solve(rhs, trans="T"), 1
         if matrix.shape[0] == 1:
             return rhs / matrix[0, 0], 1
+        if matrix.dtype == np.float64 and rhs.dtype == np.float64 and rhs.ndim == 1:
+            return _dense_solve(matrix, rhs, spd), 1
         if spd:
             try:
                 return scipy.linalg.solve(matrix, rhs, assume_a="pos", check_finite=False), 1
             except np.linalg.LinAlgError:
                 pass
         return scipy.linalg.solve(matrix, rhs, check_finite=False), 1
+
+
+def _dense_solve(matrix: np.ndarray, rhs: np.ndarray, spd: bool) -> np.ndarray:
+    """scipy.linalg.solve(matrix, rhs) (assume_a="pos" first when spd) through the LAPACK drivers it
+    uses, called directly: on the 2x2 and 3x3 matrices of the small systems its argument checks cost
+    20x the solve. The same checks of the result: LinAlgError for a singular matrix, LinAlgWarning
+    when the reciprocal condition number is below eps."""
+    if spd:
+        factor, solution, info = scipy.linalg.lapack.dposv(matrix, rhs)
+        if info == 0:
+            _check_condition(scipy.linalg.lapack.dpocon(factor, _one_norm(matrix))[0])
+            return solution
+        if info < 0:
+            raise ValueError(f"LAPACK reported an illegal value in {-info}-th argument.")
+    factor, _, solution, info = scipy.linalg.lapack.dgesv(matrix, rhs)
+    if info < 0:
+        raise ValueError(f"LAPACK reported an illegal value in {-info}-th argument.")
+    if info > 0:
+        raise np.linalg.LinAlgError("Matrix is singular.")
+    _check_condition(scipy.linalg.lapack.dgecon(factor, _one_norm(matrix))[0])
+    return solution
+
+
+def _one_norm(matrix: np.ndarray) -> float:
+    """|A|_1 through LAPACK's dlange, as scipy.linalg.solve computes it."""
+    return float(scipy.linalg.lapack.dlange("1", matrix))
+
+
+def _check_condition(rcond: float) -> None:
+    if rcond == 0:
+        raise np.linalg.LinAlgError("Matrix is singular.")
+    if not rcond >= np.finfo(float).eps:  # `rcond < eps` would miss NaN
+        warnings.warn(f"Ill-conditioned matrix (rcond={rcond:.6g}): result may not be accurate.",
+                      scipy.linalg.LinAlgWarning, stacklevel=4)
 
 
 class ConjugateGradient(LinearSolver):

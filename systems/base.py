@@ -10,14 +10,20 @@ Implementers supply
 - ``potential_energy(x)`` (J), ``gradient(x)`` (dP/dx, N) and ``hessian(x, project_spd=False)``
   (d^2P/dx^2, N/m; a dense array for small systems, a scipy sparse matrix for large ones);
 - optionally ``damping_matrix(x)`` (D in f_d = -D(x) v, N s/m; ``None`` when undamped),
-  ``fixed_dofs`` (indices that never move), ``observables(x, v)`` and ``exact_solution(t)``.
+  ``fixed_dofs`` (indices that never move), ``observables(x, v)`` and ``exact_solution(t)``;
+- optionally, for large sparse systems, ``hessian_pattern`` (a CSR matrix whose pattern holds every
+  entry of the Hessian and of D, and the whole diagonal), ``diagonal_positions`` (where the diagonal
+  sits in its data array) and ``hessian_data(x, project_spd)`` (the Hessian's values in that pattern):
+  implicit methods then assemble M + s K + ... in one data array instead of adding sparse matrices.
 """
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 
 import numpy as np
+import scipy.sparse
 
 
 class System(ABC):
@@ -46,9 +52,32 @@ class System(ABC):
         """d^2P/dx^2 (N/m), (dof_count, dof_count); SPD-projected on request."""
 
     # -- optional parts with neutral defaults --------------------------------------------------
+    hessian_pattern = None  # a scipy CSR matrix: the fixed pattern of hessian_data (see the module docstring)
+    diagonal_positions: np.ndarray
+
+    def hessian_data(self, x: np.ndarray, project_spd: bool = False) -> np.ndarray:
+        """The Hessian's values in ``hessian_pattern`` (a new array), for systems that have one."""
+        raise NotImplementedError(f"{type(self).__name__} has no fixed Hessian pattern")
+
+    def pattern_matrix(self, data: np.ndarray):
+        """The CSR matrix with ``hessian_pattern``'s structure and these values (shares the index arrays)."""
+        pattern = self.hessian_pattern
+        return scipy.sparse.csr_matrix((data, pattern.indices, pattern.indptr), shape=pattern.shape)
+
+    def in_hessian_pattern(self, matrix) -> bool:
+        """Is ``matrix`` a CSR matrix in exactly ``hessian_pattern`` (so that data arrays can be added)?"""
+        pattern = self.hessian_pattern
+        return matrix.format == "csr" and _same(matrix.indptr, pattern.indptr) and _same(matrix.indices, pattern.indices)
+
     def damping_matrix(self, x: np.ndarray):
         """D(x) in the damping force f_d = -D(x) v, or None for an undamped system."""
         return None
+
+    @functools.cached_property
+    def is_damped(self) -> bool:
+        """Does the system have physical damping? Decided once (at x0), so that undamped systems skip
+        ``damping_matrix`` on every force and step; a system's damping model does not switch on and off with x."""
+        return self.damping_matrix(self.x0) is not None
 
     def exact_solution(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Exact (x, v) at times t, shapes (len(t), dof_count), or None where none is known."""
@@ -60,7 +89,7 @@ class System(ABC):
 
     # -- derived quantities ---------------------------------------------------------------------
     def kinetic_energy(self, v: np.ndarray) -> float:
-        return 0.5 * float(np.dot(self.mass * v, v))
+        return 0.5 * float((self.mass * v).dot(v))  # ndarray.dot: cheapest on the 1- to 3-element vectors of the small systems
 
     def total_energy(self, x: np.ndarray, v: np.ndarray) -> float:
         return self.kinetic_energy(v) + self.potential_energy(x)
@@ -74,9 +103,10 @@ class System(ABC):
     def force(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Total force -dP/dx + f_d(x, v) (N); zero on fixed degrees of freedom."""
         force = -self.gradient(x)
-        damping = self.damping_force(x, v)
-        if damping is not None:
-            force = force + damping
+        if self.is_damped:
+            damping = self.damping_force(x, v)
+            if damping is not None:
+                force = force + damping
         if self.fixed_dofs.size:
             force[self.fixed_dofs] = 0.0
         return force
@@ -87,31 +117,47 @@ class System(ABC):
 
     def momentum(self, v: np.ndarray) -> np.ndarray:
         """Linear momentum sum_i m_i v_i, shape (dim,)."""
-        return (self.mass * v).reshape(-1, self.dim).sum(axis=0)
+        return self._momentum(self.mass * v)
+
+    def _momentum(self, momenta: np.ndarray) -> np.ndarray:
+        """sum_i p_i from the per-dof momenta m * v, shape (dim,); a single particle needs no sum."""
+        if momenta.size == self.dim:
+            return momenta
+        return momenta.reshape(-1, self.dim).sum(axis=0)
 
     def angular_momentum(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Angular momentum about the origin sum_i x_i x m_i v_i, shape (3,) (2-D systems: (0, 0, Lz))."""
+        return self._angular_momentum(x, self.mass * v)
+
+    def _angular_momentum(self, x: np.ndarray, momenta: np.ndarray) -> np.ndarray:
         if self.dim == 1:
             return np.zeros(3)
         positions = x.reshape(-1, self.dim)
-        momenta = (self.mass * v).reshape(-1, self.dim)
+        momenta = momenta.reshape(-1, self.dim)
         if self.dim == 2:
-            lz = np.sum(positions[:, 0] * momenta[:, 1] - positions[:, 1] * momenta[:, 0])
+            if self.dof_count == 2:  # one particle: the same two products on scalars, no array temporaries
+                lz = x[0] * momenta[0, 1] - x[1] * momenta[0, 0]
+            else:
+                lz = (positions[:, 0] * momenta[:, 1] - positions[:, 1] * momenta[:, 0]).sum()
             return np.array([0.0, 0.0, lz])
-        return np.cross(positions, momenta).sum(axis=0)
+        # the components of np.cross, written out: the same products, without its broadcasting set-up
+        px, py, pz = positions[:, 0], positions[:, 1], positions[:, 2]
+        mx, my, mz = momenta[:, 0], momenta[:, 1], momenta[:, 2]
+        return np.array([(py * mz - pz * my).sum(), (pz * mx - px * mz).sum(), (px * my - py * mx).sum()])
 
     def observables(self, x: np.ndarray, v: np.ndarray) -> dict[str, np.ndarray | float]:
         """Every recorded observable at (x, v): energies (J), momenta and the system's own."""
-        kinetic = self.kinetic_energy(v)
+        momenta = self.mass * v  # shared by the kinetic energy and both momenta
+        kinetic = 0.5 * float(momenta.dot(v))  # = kinetic_energy(v), bit for bit
         potential = self.potential_energy(x)
         values: dict[str, np.ndarray | float] = {
             "energy": kinetic + potential,
             "kinetic_energy": kinetic,
             "potential_energy": potential,
-            "momentum": self.momentum(v),
+            "momentum": self._momentum(momenta),
         }
         if self.dim >= 2:
-            values["angular_momentum"] = self.angular_momentum(x, v)
+            values["angular_momentum"] = self._angular_momentum(x, momenta)
         values.update(self.extra_observables(x, v))
         return values
 
@@ -119,3 +165,12 @@ class System(ABC):
         """A characteristic energy (J) against which energy growth is judged: |KE0| + |PE0|, else 1."""
         scale = abs(self.kinetic_energy(self.v0)) + abs(self.potential_energy(self.x0))
         return scale if scale > 0.0 else 1.0
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal index arrays: the same memory (views of one array, no compare needed) or equal entries."""
+    if a.shape != b.shape:
+        return False
+    if a.ctypes.data == b.ctypes.data and a.strides == b.strides and a.dtype == b.dtype:
+        return True
+    return bool(np.array_equal(a, b))

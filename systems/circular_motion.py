@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
@@ -49,19 +50,19 @@ class CircularMotion(System):
 
     def potential_energy(self, x):
         if self.linear:
-            return 0.5 * self.stiffness * float(np.dot(x, x))
-        return -self.gm_m / float(np.sqrt(np.dot(x, x)))
+            return 0.5 * self.stiffness * float(x.dot(x))
+        return -self.gm_m / math.sqrt(x.dot(x))
 
     def gradient(self, x):
         if self.linear:
             return self.stiffness * x
-        r = float(np.sqrt(np.dot(x, x)))
+        r = math.sqrt(x.dot(x))
         return self.gm_m * x / r ** 3
 
     def hessian(self, x, project_spd=False):
         if self.linear:
             return self._linear_hessian
-        r = float(np.sqrt(np.dot(x, x)))
+        r = math.sqrt(x.dot(x))
         # d/dx (GMm x / r^3) = GMm (I / r^3 - 3 x x^T / r^5): one negative (radial) eigenvalue
         hessian = self.gm_m * (np.eye(self.dof_count) / r ** 3 - 3.0 * np.outer(x, x) / r ** 5)
         if project_spd:
@@ -79,4 +80,4 @@ class CircularMotion(System):
         return x, v
 
     def extra_observables(self, x, v):
-        return {"radius": float(np.sqrt(np.dot(x, x)))}
+        return {"radius": math.sqrt(x.dot(x))}

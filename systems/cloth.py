@@ -136,6 +136,8 @@ class Cloth(System):
         self.v0[self.fixed_dofs] = 0.0  # pinned vertices never move
         self._gravity_force = np.tile(self.vertex_mass * self.gravity, self.vertex_count)
         self._build_pattern()
+        self._spring_cache = None  # (x, length, direction) of the last _springs call
+        self._spring_energy_cache = None  # (length array of that geometry, its spring energy)
 
     # -- setup ----------------------------------------------------------------------------------
     def _pinned_vertices(self, pinned) -> np.ndarray:
@@ -170,20 +172,29 @@ class Cloth(System):
         self._spring_entries = 36 * self.spring_count
         self._indptr, self._indices = pattern.indptr, pattern.indices
         self._nnz = pattern.nnz
+        self.hessian_pattern = pattern  # every Hessian and damping matrix shares its index arrays
         diagonal_keys = np.arange(n, dtype=np.int64) * (n + 1)
         self.diagonal_positions = np.searchsorted(keys, diagonal_keys)  # where M enters the data array
         # gradient scatter: spring force components onto 3 i + c and 3 j + c
         self._gradient_index = np.concatenate([3 * i[:, None] + offsets, 3 * j[:, None] + offsets]).ravel()
 
     def _matrix(self, data: np.ndarray) -> scipy.sparse.csr_matrix:
-        return scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=(self.dof_count, self.dof_count))
+        return self.pattern_matrix(data)
 
     # -- geometry of all springs at once ---------------------------------------------------------
     def _springs(self, x: np.ndarray):
+        """(vertex positions, spring lengths, unit directions); the last x's geometry is kept, since a
+        step evaluates the same x several times (the energy check and the samples at the end of a
+        step, the force at the start of the next). The arrays returned are shared: read them only."""
         positions = x.reshape(-1, 3)
-        delta = positions[self.first] - positions[self.second]
+        cached = self._spring_cache
+        if cached is not None and np.array_equal(cached[0], x):  # an O(n) compare, far below the O(springs) geometry
+            return positions, cached[1], cached[2]
+        # np.take along axis 0 gathers the same rows as positions[self.first], ~3x faster (numpy 2.4, 64x64)
+        delta = np.take(positions, self.first, axis=0) - np.take(positions, self.second, axis=0)
         length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
         direction = delta / length[:, None]
+        self._spring_cache = (x.copy(), length, direction)  # one assignment: a reader sees the old or the new entry whole
         return positions, length, direction
 
     def _penetration(self, positions: np.ndarray):
@@ -206,8 +217,13 @@ class Cloth(System):
     # -- energy, gradient, Hessian ---------------------------------------------------------------
     def spring_energy(self, x: np.ndarray) -> float:
         _, length, _ = self._springs(x)
+        cached = self._spring_energy_cache
+        if cached is not None and cached[0] is length:  # the same geometry: the energy (P and its part) is known
+            return cached[1]
         stretch = length - self.rest_length
-        return 0.5 * float(np.dot(self.stiffness * stretch, stretch))
+        energy = 0.5 * float(np.dot(self.stiffness * stretch, stretch))
+        self._spring_energy_cache = (length, energy)
+        return energy
 
     def gravity_energy(self, x: np.ndarray) -> float:
         return -float(np.dot(self._gravity_force, x))

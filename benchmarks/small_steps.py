@@ -1,0 +1,80 @@
+"""Cost of one step on the small systems through the real ``simulate()`` loop, default recording.
+
+Explicit: symplectic Euler on the spring and on linear circular motion; implicit: backward Euler
+with Newton (direct) on the same systems. Each is reported as the ratio of the per-step time of
+``simulate()`` over a bare loop, written inline here, that does the same update in plain numpy
+(no recording, no checks); absolute times per step and steps per second for information.
+Targets (issue 8): at most 5 us per explicit step and 30 us per implicit step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simrun.config import DivergenceParams, RecordParams, Run
+from simrun.integrators import INTEGRATORS
+from simrun.simulate import simulate
+from simrun.solvers import SolverParams
+from simrun.systems import CircularMotionParams, SpringMassParams
+
+from .timing import best_of
+
+STEPS = 10_000  # every step recorded under the default max_samples
+DT = 1e-3
+TARGET = {"symplectic_euler": 5e-6, "backward_euler": 30e-6}
+
+
+def make_run(system, integrator: str, steps: int = STEPS) -> Run:
+    return Run(run_id="bench", index=0, system=system, integrator=INTEGRATORS[integrator](),
+               solver=SolverParams(type="newton", linear_solver="direct"), dt=DT, duration=steps * DT,
+               record=RecordParams(), divergence=DivergenceParams(), swept={})
+
+
+def bare_symplectic(k: float, m: np.ndarray, x0: np.ndarray, v0: np.ndarray, steps: int) -> None:
+    """v += h (-k x)/m; x += h v: the same update as SymplecticEuler on a linear force."""
+    x, v = x0.copy(), v0.copy()
+    for _ in range(steps):
+        v = v + DT * (-k * x) / m
+        x = x + DT * v
+
+
+def bare_backward(k: float, m: np.ndarray, x0: np.ndarray, v0: np.ndarray, steps: int) -> None:
+    """One Newton iteration on (M + h^2 K) y = M y~ (linear force: exact), then the velocity update."""
+    x, v = x0.copy(), v0.copy()
+    n = x.size
+    matrix = np.diag(m) + DT * DT * k * np.eye(n)
+    for _ in range(steps):
+        y_tilde = x + DT * v
+        gradient = m * (x - y_tilde) + DT * DT * k * x
+        y = x + np.linalg.solve(matrix, -gradient) if n > 1 else x - gradient / matrix[0, 0]
+        v = (y - x) / DT
+        x = y
+
+
+def _loop_time(run: Run) -> float:
+    """Wall time (s) of simulate()'s stepping loop (its RunResult.wall_time: the set-up excluded)."""
+    result = simulate(run)
+    assert result.status == "ok" and result.steps == run.step_count, result.message
+    return result.wall_time
+
+
+def rows() -> list[tuple[str, float, str, str]]:
+    systems = {
+        "spring": SpringMassParams(),
+        "circular 2-D": CircularMotionParams(force="linear"),
+    }
+    table = []
+    for label, params in systems.items():
+        system = params.build()
+        k = system.stiffness
+        for integrator, bare in (("symplectic_euler", bare_symplectic), ("backward_euler", bare_backward)):
+            run = make_run(params, integrator)
+            full = min(_loop_time(run) for _ in range(5)) / STEPS
+            reference = best_of(lambda: bare(k, system.mass, system.x0, system.v0, STEPS), 5) / STEPS
+            table.append((
+                f"{label}, {integrator}: simulate() step / bare loop step",
+                full / reference,
+                f"<= {TARGET[integrator] * 1e6:.0f} us/step",
+                f"{full * 1e6:.2f} us/step ({1 / full:,.0f} steps/s), bare {reference * 1e6:.2f} us/step",
+            ))
+    return table

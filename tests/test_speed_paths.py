@@ -1,0 +1,178 @@
+"""The fast paths of issue 8 give the generic results: bit for bit where the same operations run,
+within round-off where LAPACK is called directly. No timing here: that is benchmarks/."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.sparse
+
+from conftest import run_one
+from simrun.integrators import IncrementalPotential
+from simrun.integrators.base import add_diagonal
+from simrun.solvers.base import SMALL_VECTOR, _free_dofs, max_norm
+from simrun.solvers.dofs import free_dofs
+from simrun.solvers.linear import _dense_solve
+from simrun.systems import CircularMotionParams, ClothParams, SpringMassParams
+
+
+@pytest.mark.parametrize("size", range(0, 2 * SMALL_VECTOR + 2))
+def test_max_norm_is_numpys_max_abs_with_nan_inf_and_signed_zeros(size):
+    """max_norm(v) == np.max(np.abs(v)) (0 for an empty v), NaN propagated, on both sides of SMALL_VECTOR."""
+    rng = np.random.default_rng(size)
+    for _ in range(100):
+        vector = rng.standard_normal(size) * 10.0 ** rng.integers(-300, 300)
+        if size and rng.random() < 0.3:
+            vector[rng.integers(size)] = rng.choice([np.nan, np.inf, -np.inf, -0.0])
+        expected = float(np.max(np.abs(vector))) if size else 0.0
+        result = max_norm(vector)
+        assert type(result) is float
+        assert (math.isnan(expected) and math.isnan(result)) or result == expected
+
+
+def test_free_dofs_without_fixed_dofs_is_the_cached_all_free_object():
+    free = _free_dofs(3, np.zeros(0, dtype=np.intp))
+    assert free.all_free and free.count == 3
+    assert _free_dofs(3, None) is free
+    assert _free_dofs(5, [1]).fixed.tolist() == free_dofs(5, [1]).fixed.tolist() == [1]
+
+
+@pytest.mark.parametrize("size", [2, 3, 6])
+def test_dense_solve_is_scipy_solve(size):
+    """The direct LAPACK calls give scipy.linalg.solve's result: bit for bit for general and SPD matrices."""
+    rng = np.random.default_rng(size)
+    for _ in range(30):
+        matrix = rng.standard_normal((size, size))
+        spd = matrix @ matrix.T + 0.1 * np.eye(size)
+        rhs = rng.standard_normal(size)
+        np.testing.assert_array_equal(_dense_solve(matrix, rhs, False), scipy.linalg.solve(matrix, rhs, check_finite=False))
+        np.testing.assert_array_equal(_dense_solve(spd, rhs, True),
+                                      scipy.linalg.solve(spd, rhs, assume_a="pos", check_finite=False))
+        # an indefinite matrix handed in as SPD falls back to the general solve: the solution, within round-off
+        indefinite = matrix + matrix.T
+        np.testing.assert_allclose(indefinite @ _dense_solve(indefinite, rhs, True), rhs, rtol=0, atol=1e-8 * np.abs(rhs).max()
+                                   * np.linalg.cond(indefinite))
+
+
+def test_dense_solve_raises_and_warns_as_scipy_does():
+    with pytest.raises(np.linalg.LinAlgError):
+        _dense_solve(np.ones((2, 2)), np.ones(2), False)
+    with pytest.raises(np.linalg.LinAlgError):
+        _dense_solve(np.ones((2, 2)), np.ones(2), True)
+    nearly = np.array([[1.0, 1.0], [1.0, 1.0 + 1e-17 + 2e-16]])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _dense_solve(nearly, np.array([1.0, 0.0]), False)
+    assert any(issubclass(w.category, scipy.linalg.LinAlgWarning) for w in caught)
+
+
+def test_add_diagonal_in_place_equals_the_copy_and_leaves_shared_matrices_alone():
+    rng = np.random.default_rng(0)
+    matrix, diagonal = rng.standard_normal((4, 4)), rng.standard_normal(4)
+    original = matrix.copy()
+    copied = add_diagonal(matrix, diagonal)
+    np.testing.assert_array_equal(matrix, original)
+    in_place = add_diagonal(matrix, diagonal, in_place=True)
+    assert in_place is matrix
+    np.testing.assert_array_equal(in_place, copied)
+    transposed = original.T  # not C-contiguous: copied even when in_place is asked for
+    np.testing.assert_array_equal(add_diagonal(transposed, diagonal, in_place=True), original.T + np.diag(diagonal))
+
+
+def _deformed_cloth(damping: float, contact: bool = False):
+    params = {"resolution": (7, 6), "damping": damping}
+    if contact:
+        params["contact"] = {"ground": {"height": -0.02}, "sphere": {"center": (0.5, 0.5, -0.05), "radius": 0.1}}
+    system = ClothParams(**params).build()
+    rng = np.random.default_rng(3)
+    x = system.x0 + 0.05 * rng.standard_normal(system.dof_count)
+    v = rng.standard_normal(system.dof_count)
+    return system, x, v
+
+
+@pytest.mark.parametrize("damping", [0.0, 0.3])
+@pytest.mark.parametrize("project_spd", [False, True])
+def test_cloth_hessian_in_its_pattern_equals_the_sum_of_sparse_matrices(damping, project_spd):
+    """M + s K + (s/b) D filled into the fixed pattern has the values of the generic sparse sums, bit for bit."""
+    system, x, v = _deformed_cloth(damping, contact=True)
+    dt = 0.01
+    problem = IncrementalPotential(system, x + dt * v, dt * dt, velocity_origin=x, velocity_divisor=dt, damping_at=x)
+    assert problem._in_pattern
+    generic = dt * dt * system.hessian(x, project_spd=project_spd)
+    if problem.damping is not None:
+        generic = generic + problem.damping_weight * problem.damping
+    generic = add_diagonal(generic, system.mass)
+    fast = problem.hessian(x, project_spd=project_spd)
+    np.testing.assert_array_equal(fast.toarray(), generic.toarray())
+    assert np.array_equal(fast.indptr, system.hessian_pattern.indptr)  # one pattern for every step
+
+
+def test_cloth_geometry_cache_gives_fresh_results_and_sees_in_place_changes():
+    """Energies, gradients and Hessians with the last x's geometry kept equal those of a fresh cloth."""
+    system, x, v = _deformed_cloth(0.2, contact=True)
+    fresh = ClothParams(resolution=(7, 6), damping=0.2, contact=system.params.contact).build
+    for point in (x, x + 0.01, x):
+        system.potential_energy(point)  # fills the cache at this point
+        reference = fresh()
+        assert system.potential_energy(point) == reference.potential_energy(point)
+        np.testing.assert_array_equal(system.gradient(point), reference.gradient(point))
+        np.testing.assert_array_equal(system.hessian_data(point, True), reference.hessian_data(point, True))
+        np.testing.assert_array_equal(system.damping_matrix(point).data, reference.damping_matrix(point).data)
+    changed = x.copy()
+    system.gradient(changed)
+    changed[5] += 0.1  # changed in place after the call: the cache compares values, not identities
+    np.testing.assert_array_equal(system.gradient(changed), fresh().gradient(changed))
+
+
+@pytest.mark.parametrize("params", [SpringMassParams(), CircularMotionParams(), CircularMotionParams(dimension=3),
+                                    ClothParams(resolution=(4, 3), initial_spin=(0.3, -0.2, 1.0))])
+def test_observables_equal_their_generic_formulas(params):
+    """The shared momenta and the written-out cross product give the textbook sums, bit for bit."""
+    system = params.build()
+    rng = np.random.default_rng(1)
+    x = system.x0 + 0.1 * rng.standard_normal(system.dof_count)
+    v = system.v0 + rng.standard_normal(system.dof_count)
+    observed = system.observables(x, v)
+    momenta = (system.mass * v).reshape(-1, system.dim)
+    assert observed["kinetic_energy"] == 0.5 * float(np.dot(system.mass * v, v)) == system.kinetic_energy(v)
+    assert observed["energy"] == system.total_energy(x, v)
+    np.testing.assert_array_equal(observed["momentum"], momenta.sum(axis=0))
+    if system.dim == 3:
+        np.testing.assert_array_equal(observed["angular_momentum"], np.cross(x.reshape(-1, 3), momenta).sum(axis=0))
+    elif system.dim == 2:
+        positions = x.reshape(-1, 2)
+        lz = np.sum(positions[:, 0] * momenta[:, 1] - positions[:, 1] * momenta[:, 0])
+        np.testing.assert_array_equal(observed["angular_momentum"], [0.0, 0.0, lz])
+
+
+@pytest.mark.parametrize("integrator", ["symplectic_euler", "backward_euler"])
+@pytest.mark.parametrize("damping", [0.0, 0.5])
+def test_the_loop_records_what_the_generic_observables_give(integrator, damping):
+    """simulate(): t is exactly dt n, every sample is system.observables of the recorded state, the energy
+    budget of a damped spring closes, and an explicit method's per-step statistics stay zero."""
+    system_config = {"type": "spring_mass", "stiffness": 4.0, "damping": damping}
+    dt = 0.01
+    result = run_one(system_config, integrator, dt, 2.0, record={"every": 1})
+    assert result.status == "ok"
+    samples = result.samples
+    np.testing.assert_array_equal(samples["t"], dt * np.arange(samples["t"].size))
+    system = SpringMassParams(stiffness=4.0, damping=damping).build()
+    for row in (0, 57, samples["t"].size - 1):
+        observed = system.observables(samples["positions"][row], samples["velocities"][row])
+        for key, value in observed.items():
+            np.testing.assert_array_equal(samples[key][row], value)
+    if damping == 0.0:
+        assert not system.is_damped and np.all(samples["dissipated_energy"] == 0.0)
+    else:
+        assert system.is_damped and samples["dissipated_energy"][-1] > 0.0
+        # energy plus dissipated work stays near E0: the budget is first order in dt for these methods
+        budget = samples["energy"] + samples["dissipated_energy"]
+        assert abs(budget[-1] - budget[0]) < 0.05 * budget[0]
+    if integrator == "symplectic_euler":
+        assert not any(np.any(values) for values in result.per_step.values())
+    else:
+        assert np.all(result.per_step["newton_iterations"] >= 1)
