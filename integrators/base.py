@@ -168,33 +168,39 @@ class SegmentPotential:
         M (y - y~) - h^2 sum_j c_j f(z_j, v_j),   v_j = (1 - s_j) v_n + s_j v(y),  v(y) = (y - a)/b,
     (each sampled force is the gradient of P(z_j)/s_j in y), and its Hessian is their Jacobian
         M + h^2 sum_j c_j s_j K(z_j) + (h^2 sum_j c_j s_j / b) D.
-    Damping f_d = -D v enters with D taken at ``damping_at`` (the start of the step), as in
-    ``IncrementalPotential``; the damping term is h^2 [sum_j c_j (1 - s_j) v_n^T D y + sum_j c_j s_j (y - a)^T D (y - a) / (2 b)].
+    Damping f_d = -D v enters with node j's D_j taken at ``damping_at`` (one point for all nodes, or
+    one per node), as in ``IncrementalPotential``; the damping term is
+    h^2 [v_n^T D_start y + (y - a)^T D_end (y - a) / (2 b)], D_start = sum_j c_j (1 - s_j) D_j, D_end = sum_j c_j s_j D_j.
     A single node s = 1 with weight c gives ``IncrementalPotential`` with scale c h^2.
 
     Parameters: system; y_tilde (m) and x_start = x_n (m), v_start = v_n (m/s), shape (dof_count,);
     nodes s_j in (0, 1] and weights c_j (dimensionless); dt = h (s); velocity_origin a (m) and
-    velocity_divisor b (s); damping_at: positions at which D is taken.
+    velocity_divisor b (s); damping_at: positions (m) at which D is taken, an array or one per node.
     """
 
     def __init__(self, system: System, y_tilde: np.ndarray, x_start: np.ndarray, v_start: np.ndarray,
                  nodes, weights, dt: float, velocity_origin: np.ndarray, velocity_divisor: float,
                  damping_at: np.ndarray | None = None):
-        kept = [(float(s), float(c)) for s, c in zip(nodes, weights) if c != 0.0]
-        self.nodes = np.array([s for s, _ in kept])
-        self.weights = np.array([c for _, c in kept])
+        points = damping_at if isinstance(damping_at, (list, tuple)) else [damping_at] * len(nodes)
+        kept = [(float(s), float(c), point) for s, c, point in zip(nodes, weights, points) if c != 0.0]
+        self.nodes = np.array([s for s, _, _ in kept])
+        self.weights = np.array([c for _, c, _ in kept])
         self.system = system
         self.y_tilde = y_tilde
         self.x_start = x_start
         self.v_start = v_start
         self.h2 = dt * dt
         self.fixed_dofs = system.fixed_dofs
-        self.damping = None if damping_at is None else system.damping_matrix(damping_at)
         self.velocity_origin = velocity_origin
         self.velocity_divisor = velocity_divisor
-        # sum_j c_j (1 - s_j) and sum_j c_j s_j: how much of v_n and of v(y) the sampled damping forces see
-        self.start_share = float(np.sum(self.weights * (1.0 - self.nodes)))
-        self.end_share = float(np.sum(self.weights * self.nodes))
+        # D_start and D_end: how the sampled damping forces see v_n and v(y)
+        self.damping_start = self.damping_end = None
+        if damping_at is not None and system.damping_matrix(x_start) is not None:
+            for s, c, point in kept:
+                damping = system.damping_matrix(point)
+                start, end = (c * (1.0 - s)) * damping, (c * s) * damping
+                self.damping_start = start if self.damping_start is None else self.damping_start + start
+                self.damping_end = end if self.damping_end is None else self.damping_end + end
         self._start_energy = None
         self.residual_floor = residual_floor(system.mass, y_tilde)
 
@@ -209,19 +215,19 @@ class SegmentPotential:
         energy = 0.5 * float(np.dot(self.system.mass * offset, offset))
         for s, c, z in zip(self.nodes, self.weights, self._points(y)):
             energy += self.h2 * c * (self.system.potential_energy(z) - self._start_energy) / s
-        if self.damping is not None:
+        if self.damping_end is not None:
             rate = y - self.velocity_origin
-            energy += self.h2 * (self.start_share * float(self.v_start @ (self.damping @ y))
-                                 + 0.5 * self.end_share / self.velocity_divisor * float(rate @ (self.damping @ rate)))
+            energy += self.h2 * (float(self.v_start @ (self.damping_start @ y))
+                                 + 0.5 / self.velocity_divisor * float(rate @ (self.damping_end @ rate)))
         return energy
 
     def gradient(self, y: np.ndarray) -> np.ndarray:
         gradient = self.system.mass * (y - self.y_tilde)
         for c, z in zip(self.weights, self._points(y)):
             gradient += self.h2 * c * self.system.gradient(z)
-        if self.damping is not None:
-            velocity = self.start_share * self.v_start + self.end_share * (y - self.velocity_origin) / self.velocity_divisor
-            gradient += self.h2 * (self.damping @ velocity)
+        if self.damping_end is not None:
+            gradient += self.h2 * (self.damping_start @ self.v_start
+                                   + self.damping_end @ ((y - self.velocity_origin) / self.velocity_divisor))
         if self.fixed_dofs.size:
             gradient[self.fixed_dofs] = 0.0
         return gradient
@@ -231,6 +237,6 @@ class SegmentPotential:
         for s, c, z in zip(self.nodes, self.weights, self._points(y)):
             term = (self.h2 * c * s) * self.system.hessian(z, project_spd=project_spd)
             hessian = term if hessian is None else hessian + term
-        if self.damping is not None:
-            hessian = hessian + (self.h2 * self.end_share / self.velocity_divisor) * self.damping
+        if self.damping_end is not None:
+            hessian = hessian + (self.h2 / self.velocity_divisor) * self.damping_end
         return add_diagonal(hessian, self.system.mass)

@@ -34,8 +34,9 @@ class ImplicitMidpoint(Integrator):
 
     def step(self, system, state, dt, solver):
         half = 0.5 * dt
-        problem = IncrementalPotential(system, state.x + half * state.v, 0.25 * dt * dt,
-                                       velocity_origin=state.x, velocity_divisor=half, damping_at=state.x)
+        predictor = state.x + half * state.v  # x_{n+1/2} to O(h^2): D(x) there keeps the method second order
+        problem = IncrementalPotential(system, predictor, 0.25 * dt * dt,
+                                       velocity_origin=state.x, velocity_divisor=half, damping_at=predictor)
         midpoint, stats = solver.minimize(problem, state.x)
         v_half = (midpoint - state.x) / half
         return State(state.t + dt, 2.0 * midpoint - state.x, 2.0 * v_half - state.v), stats
@@ -59,8 +60,9 @@ def _newmark_like_step(system, state, dt, solver, beta, gamma, alpha_m=0.0, alph
     divisor = beta * dt / gamma
     origin = y_start - divisor * (state.v + ((1.0 - alpha_f) * dt * (1.0 - gamma)) * acceleration)
     y_tilde = y_start - (scale * dt * dt * alpha_m) * acceleration
+    # D(x) at y_start, the evaluation point to O(h^2), so that damping keeps the method's order
     problem = IncrementalPotential(system, y_tilde, scale * dt * dt, velocity_origin=origin,
-                                   velocity_divisor=divisor, damping_at=state.x)
+                                   velocity_divisor=divisor, damping_at=y_start)
     y, stats = solver.minimize(problem, state.x)
     x = state.x + (y - state.x) / (1.0 - alpha_f)
     new_acceleration = (x - x_hat) / (beta * dt * dt)
@@ -210,6 +212,6 @@ class AverageVectorField(Integrator):
         problem = SegmentPotential(system, state.x + dt * state.v, state.x, state.v,
                                    nodes=nodes, weights=0.5 * weights, dt=dt,
                                    velocity_origin=state.x + half * state.v, velocity_divisor=half,
-                                   damping_at=state.x)
+                                   damping_at=[state.x + (s * dt) * state.v for s in nodes])  # each node's point to O(h^2)
         x, stats = solver.minimize(problem, state.x)
         return State(state.t + dt, x, 2.0 * (x - state.x) / dt - state.v), stats

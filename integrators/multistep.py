@@ -42,8 +42,9 @@ class BDF2(Integrator):
         x_hat = state.x + BDF2_HISTORY * (state.x - x_prev)
         v_hat = state.v + BDF2_HISTORY * (state.v - v_prev)
         divisor = BDF2_IMPLICIT_WEIGHT * dt
-        problem = IncrementalPotential(system, x_hat + divisor * v_hat, divisor * divisor,
-                                       velocity_origin=x_hat, velocity_divisor=divisor, damping_at=state.x)
+        predictor = x_hat + divisor * v_hat  # x_{n+1} to O(h^2): D(x) there keeps the method second order
+        problem = IncrementalPotential(system, predictor, divisor * divisor,
+                                       velocity_origin=x_hat, velocity_divisor=divisor, damping_at=predictor)
         x, stats = solver.minimize(problem, state.x)
         return State(state.t + dt, x, (x - x_hat) / divisor, (state.x, state.v)), stats
 
@@ -86,8 +87,10 @@ class BDF2MidpointMix(Integrator):
         divisor = kappa * dt
         origin = state.x + (theta * history) * (state.x - x_prev) + (0.5 * (1.0 - theta) * dt) * state.v
         y_tilde = origin + divisor * (state.v + (theta * history) * (state.v - v_prev))
+        # D(x) at each node's point x_n + s h v_n, right to O(h^2), keeps the method second order
         problem = SegmentPotential(system, y_tilde, state.x, state.v, nodes=(1.0, 0.5),
                                    weights=(theta * implicit_weight * kappa, (1.0 - theta) * kappa), dt=dt,
-                                   velocity_origin=origin, velocity_divisor=divisor, damping_at=state.x)
+                                   velocity_origin=origin, velocity_divisor=divisor,
+                                   damping_at=[state.x + dt * state.v, state.x + (0.5 * dt) * state.v])
         x, stats = solver.minimize(problem, state.x)
         return State(state.t + dt, x, (x - origin) / divisor, (state.x, state.v)), stats
