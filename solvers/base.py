@@ -24,6 +24,7 @@ and the optional ``callback(y, gradient)`` after the start and every iteration.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Callable, ClassVar, Protocol
 
@@ -172,7 +173,7 @@ class Outcome:
     test: ConvergenceTest
 
 
-class NonlinearSolver:
+class NonlinearSolver(ABC):
     """Base of the nonlinear solvers: the loop, the counts and the convergence test (see the module docstring).
 
     Parameters: tolerance (dimensionless, see ``ConvergenceTest``); max_iterations per solve;
@@ -271,11 +272,13 @@ class NonlinearSolver:
     def _begin(self, problem, current: Iterate, free: FreeDofs):
         return None
 
+    @abstractmethod
     def _direction(self, problem, current: Iterate, state) -> tuple[np.ndarray, int]:
-        raise NotImplementedError
+        """The search direction at the current iterate, and the linear iterations it cost."""
 
+    @abstractmethod
     def _advance(self, problem, current: Iterate, direction: np.ndarray, state) -> Advance:
-        raise NotImplementedError
+        """The step along ``direction`` (line search or full step) and the new iterate."""
 
     def _notify(self, current: Iterate) -> None:
         if self.callback is not None:

@@ -14,6 +14,8 @@ raises ``numpy.linalg.LinAlgError``, which ends the nonlinear solve as not conve
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import warnings
 from typing import ClassVar
 
@@ -47,8 +49,8 @@ def _inverse_diagonal(matrix) -> np.ndarray:
     return 1.0 / safe
 
 
-class LinearSolver:
-    """Base: restrict to the free dofs, solve the reduced system with ``_solve``, extend with zeros.
+class LinearSolver(ABC):
+    """Base of the linear solvers: ``solve(A, b, free, spd) -> (p, iterations)`` with p = 0 on fixed dofs.
 
     Parameters: tolerance (relative residual |b - A p|_2 / |b|_2, iterative solvers only);
     max_iterations (iterative solvers only).
@@ -61,22 +63,49 @@ class LinearSolver:
         self.tolerance = tolerance
         self.max_iterations = max_iterations
 
+    @abstractmethod
     def solve(self, matrix, rhs: np.ndarray, free: FreeDofs, spd: bool = False) -> tuple[np.ndarray, int]:
         """p with A_ff p_f = b_f on the free dofs and p = 0 on the fixed ones; (p, iterations)."""
+
+    def _target(self, rhs: np.ndarray) -> float:
+        return self.tolerance * float(np.linalg.norm(rhs))
+
+
+class ReducedSolver(LinearSolver):
+    """Restrict to the free dofs, solve the reduced system with ``_solve``, extend with zeros."""
+
+    def solve(self, matrix, rhs: np.ndarray, free: FreeDofs, spd: bool = False) -> tuple[np.ndarray, int]:
         reduced_rhs = free.restrict(rhs)
         if reduced_rhs.size == 0:
             return np.zeros_like(rhs), 0
         solution, iterations = self._solve(free.restrict_matrix(matrix), reduced_rhs, spd)
         return free.extend(solution), iterations
 
+    @abstractmethod
     def _solve(self, matrix, rhs: np.ndarray, spd: bool) -> tuple[np.ndarray, int]:
-        raise NotImplementedError
+        """Solve the reduced (free-dof) system; (solution, iterations)."""
 
-    def _target(self, rhs: np.ndarray) -> float:
-        return self.tolerance * float(np.linalg.norm(rhs))
+    def _stationary(self, matrix, rhs: np.ndarray, correction) -> tuple[np.ndarray, int]:
+        """p_{k+1} = p_k + C (b - A p_k) from p_0 = 0 until |b - A p|_2 <= tolerance |b|_2; raises
+        LinAlgError once the residual passes DIVERGED_FACTOR |b| (the iteration matrix's radius > 1)."""
+        solution = np.zeros_like(rhs)
+        residual = rhs.copy()
+        target = self._target(rhs)
+        limit = DIVERGED_FACTOR * float(np.linalg.norm(rhs))
+        iterations = 0
+        while iterations < self.max_iterations:
+            norm = float(np.linalg.norm(residual))
+            if norm <= target:
+                break
+            if not norm <= limit:
+                raise np.linalg.LinAlgError(f"{self.name}: the iteration diverges (spectral radius of its iteration matrix > 1)")
+            solution += correction(residual)
+            residual = rhs - matrix @ solution
+            iterations += 1
+        return solution, iterations
 
 
-class DirectSolver(LinearSolver):
+class DirectSolver(ReducedSolver):
     """Sparse LU (SuperLU, MMD ordering; diagonal pivots in symmetric mode for SPD matrices), or
     LAPACK for dense matrices (Cholesky for SPD ones, LU otherwise). Counts one iteration."""
 
@@ -143,7 +172,7 @@ def _check_condition(rcond: float) -> None:
                       scipy.linalg.LinAlgWarning, stacklevel=4)
 
 
-class ConjugateGradient(LinearSolver):
+class ConjugateGradient(ReducedSolver):
     """Conjugate gradients (Hestenes & Stiefel 1952) through scipy.sparse.linalg.cg; SPD matrices.
 
     In exact arithmetic CG ends after at most k iterations on a matrix with k distinct eigenvalues."""
@@ -219,7 +248,7 @@ class ModifiedPCG(LinearSolver):
         return solution, iterations
 
 
-class Jacobi(LinearSolver):
+class Jacobi(ReducedSolver):
     """The Jacobi iteration p_{k+1} = p_k + D^{-1} (b - A p_k), D = diag(A).
 
     Converges iff the spectral radius of I - D^{-1} A is below 1 (e.g. strictly diagonally dominant
@@ -230,24 +259,10 @@ class Jacobi(LinearSolver):
 
     def _solve(self, matrix, rhs, spd):
         inverse = _inverse_diagonal(matrix)
-        solution = np.zeros_like(rhs)
-        residual = rhs.copy()
-        target = self._target(rhs)
-        limit = DIVERGED_FACTOR * float(np.linalg.norm(rhs))
-        iterations = 0
-        while iterations < self.max_iterations:
-            norm = float(np.linalg.norm(residual))
-            if norm <= target:
-                break
-            if not norm <= limit:
-                raise np.linalg.LinAlgError(f"{self.name}: the iteration diverges (spectral radius of its iteration matrix > 1)")
-            solution += inverse * residual
-            residual = rhs - matrix @ solution
-            iterations += 1
-        return solution, iterations
+        return self._stationary(matrix, rhs, lambda residual: inverse * residual)
 
 
-class GaussSeidel(LinearSolver):
+class GaussSeidel(ReducedSolver):
     """Forward Gauss-Seidel p_{k+1} = p_k + (D + L)^{-1} (b - A p_k), L the strictly lower part of A.
 
     Converges for SPD and for strictly diagonally dominant A (Saad, sec. 4.1). Each sweep is one
@@ -271,21 +286,7 @@ class GaussSeidel(LinearSolver):
             def sweep(residual):
                 return scipy.linalg.solve_triangular(lower, residual, lower=True, check_finite=False)
 
-        solution = np.zeros_like(rhs)
-        residual = rhs.copy()
-        target = self._target(rhs)
-        limit = DIVERGED_FACTOR * float(np.linalg.norm(rhs))
-        iterations = 0
-        while iterations < self.max_iterations:
-            norm = float(np.linalg.norm(residual))
-            if norm <= target:
-                break
-            if not norm <= limit:
-                raise np.linalg.LinAlgError(f"{self.name}: the iteration diverges (spectral radius of its iteration matrix > 1)")
-            solution += sweep(residual)
-            residual = rhs - matrix @ solution
-            iterations += 1
-        return solution, iterations
+        return self._stationary(matrix, rhs, sweep)
 
 
 # config name -> class; each is built with (tolerance, max_iterations)

@@ -57,7 +57,7 @@ class System(ABC):
 
     def hessian_data(self, x: np.ndarray, project_spd: bool = False) -> np.ndarray:
         """The Hessian's values in ``hessian_pattern`` (a new array), for systems that have one."""
-        raise NotImplementedError(f"{type(self).__name__} has no fixed Hessian pattern")
+        raise TypeError(f"{type(self).__name__} has no fixed Hessian pattern (its hessian_pattern is None)")
 
     def pattern_matrix(self, data: np.ndarray):
         """The CSR matrix with ``hessian_pattern``'s structure and these values (shares the index arrays)."""
