@@ -29,9 +29,11 @@ from simrun.solvers.base import max_norm
 from simrun.systems import System
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)  # not frozen: a frozen dataclass's __init__ costs 4x more, once per step
 class State:
-    """The changing state: time t (s), positions x (m), velocities v (m/s), and a method's carried arrays."""
+    """The changing state: time t (s), positions x (m), velocities v (m/s), and a method's carried arrays.
+
+    Treated as immutable: a step returns a new State and never writes into the one it was given."""
 
     t: float
     x: np.ndarray

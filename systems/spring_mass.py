@@ -54,6 +54,15 @@ class SpringMass(System):
     def potential_energy(self, x):
         return 0.5 * self.stiffness * float(x[0] * x[0])
 
+    # The step path of the test equation: scalar arithmetic instead of the base class's chain of
+    # one-element array operations (force -> damping -> division), ~3x cheaper per call.
+    def total_energy(self, x, v):
+        q, p = float(x[0]), float(v[0])
+        return 0.5 * (self.params.mass * p * p + self.stiffness * q * q)
+
+    def acceleration(self, x, v):
+        return np.array([(-self.stiffness * float(x[0]) - self.damping * float(v[0])) / self.params.mass])
+
     def gradient(self, x):
         return self.stiffness * x
 

@@ -176,3 +176,22 @@ def test_the_loop_records_what_the_generic_observables_give(integrator, damping)
         assert not any(np.any(values) for values in result.per_step.values())
     else:
         assert np.all(result.per_step["newton_iterations"] >= 1)
+
+
+@pytest.mark.parametrize("params", [
+    SpringMassParams(stiffness=37.0, mass=0.3),
+    SpringMassParams(stiffness=37.0, mass=0.3, damping=1.7),
+    CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3),
+    CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3, dimension=3),
+], ids=["spring", "damped-spring", "circular-linear", "kepler-3d"])
+def test_small_systems_step_path_equals_the_generic_formulas(params):
+    """The systems' own acceleration and total_energy equal the base class's M^-1 (-dP/dx - D v) and KE + P."""
+    from simrun.systems.base import System as GenericSystem
+
+    system = params.build()
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        x = system.x0 + rng.standard_normal(system.dof_count)
+        v = rng.standard_normal(system.dof_count)
+        np.testing.assert_allclose(system.acceleration(x, v), GenericSystem.acceleration(system, x, v), rtol=1e-14, atol=1e-14)
+        assert system.total_energy(x, v) == pytest.approx(GenericSystem.total_energy(system, x, v), rel=1e-14)
