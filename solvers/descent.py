@@ -52,6 +52,13 @@ class _DescentState:
     pairs: deque = field(default_factory=deque)
 
 
+def _secant_pair(problem, state, current, advance) -> tuple[np.ndarray, np.ndarray, float]:
+    """(s, dg, s^T dg) of an accepted step: the secant information of Barzilai-Borwein and L-BFGS."""
+    step = advance.y - current.y
+    change = _gradient_at(problem, state.free, advance) - current.gradient
+    return step, change, float(step @ change)
+
+
 class GradientDescent(NonlinearSolver):
     """Steepest descent p_k = -a_k g_k with the line search; a_0 the Cauchy step, then the
     Barzilai-Borwein length a_k = s^T s / s^T dg (s = y_k - y_{k-1}, dg = g_k - g_{k-1}) as the trial
@@ -75,9 +82,7 @@ class GradientDescent(NonlinearSolver):
     def _advance(self, problem, current, direction, state):
         advance = line_search(problem, state.free, current, direction, self.line_search)
         if advance.ok:
-            step = advance.y - current.y
-            change = _gradient_at(problem, state.free, advance) - current.gradient
-            curvature = float(step @ change)
+            step, change, curvature = _secant_pair(problem, state, current, advance)
             if curvature > 0.0:
                 state.step_length = float(step @ step) / curvature
         return advance
@@ -122,9 +127,7 @@ class LBFGS(NonlinearSolver):
     def _advance(self, problem, current, direction, state):
         advance = line_search(problem, state.free, current, direction, self.line_search)
         if advance.ok:
-            step = advance.y - current.y
-            change = _gradient_at(problem, state.free, advance) - current.gradient
-            curvature = float(step @ change)
+            step, change, curvature = _secant_pair(problem, state, current, advance)
             if curvature > CURVATURE_EPS * float(change @ change) and np.isfinite(curvature):
                 state.pairs.append((step, change, 1.0 / curvature))
         return advance
