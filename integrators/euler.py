@@ -22,8 +22,7 @@ class ForwardEuler(Integrator):
     summary: ClassVar[str] = "explicit Euler; energy grows by (1 + (h w)^2) per step on the spring"
 
     def step(self, system, state, dt, solver):
-        acceleration = system.acceleration(state.x, state.v)
-        return State(state.t + dt, state.x + dt * state.v, state.v + dt * acceleration), EXPLICIT_STEP
+        return State(state.t + dt, state.x + dt * state.v, system.kick(state.x, state.v, dt)), EXPLICIT_STEP
 
 
 class SymplecticEuler(Integrator):
@@ -39,7 +38,7 @@ class SymplecticEuler(Integrator):
     summary: ClassVar[str] = "semi-implicit/symplectic Euler (velocity first); bounded energy for h w < 2"
 
     def step(self, system, state, dt, solver):
-        v = state.v + dt * system.acceleration(state.x, state.v)
+        v = system.kick(state.x, state.v, dt)  # v_n + h M^-1 f(x_n, v_n)
         return State(state.t + dt, state.x + dt * v, v), EXPLICIT_STEP
 
 

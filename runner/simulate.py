@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -31,40 +32,46 @@ class RunResult:
 
 
 class Recorder:
-    """Preallocated arrays for the samples of a run; the observables' shapes are read off the first call.
+    """Preallocated rows for the samples of a run: one float table, one row per sample.
 
-    Small systems keep x and v in every sample; large ones (cloth) keep the vertex positions as
-    ``frames`` (frames x vertices x 3) at their own, sparser cadence.
+    A row holds the observables (``system.observable_layout``, written by ``system.write_observables``
+    without a dictionary), then t and the dissipated energy, then, for small systems, x and v. Large
+    systems (cloth) keep the vertex positions as ``frames`` (frames x vertices x 3) at their own,
+    sparser cadence instead.
     """
 
     def __init__(self, system, sample_count: int, frame_count: int):
-        self.system = system
+        self.write_observables = system.write_observables
         self.with_state = system.records_state_per_sample
+        columns = list(system.observable_layout) + [("t", ()), ("dissipated_energy", ())]
+        if self.with_state:
+            columns += [("positions", (system.dof_count,)), ("velocities", (system.dof_count,))]
+        self.columns: dict[str, tuple[slice, tuple[int, ...]]] = {}
+        start = 0
+        for key, shape in columns:
+            self.columns[key] = (slice(start, start + math.prod(shape)), shape)
+            start += math.prod(shape)
+        self.table = np.empty((sample_count, start))
+        self.t_column = self.columns["t"][0].start
+        self.dissipated_column = self.columns["dissipated_energy"][0].start
+        if self.with_state:
+            self.positions, self.velocities = self.columns["positions"][0], self.columns["velocities"][0]
         self.count = 0
         self.frame_count = 0
-        self.arrays: dict[str, np.ndarray] = {}
-        self.capacity = sample_count
         self.frames = None if self.with_state else np.empty((frame_count, system.dof_count // 3, 3))
         self.frame_t = None if self.with_state else np.empty(frame_count)
 
-    def record(self, t: float, x: np.ndarray, v: np.ndarray, observed: dict, dissipated_energy: float) -> None:
-        """One sample at time t (s) of (x, v), with their ``system.observables`` already computed."""
-        if not self.arrays:
-            values = {"t": t, **observed, "dissipated_energy": dissipated_energy}
-            if self.with_state:
-                values["positions"], values["velocities"] = x, v
-            self.arrays = {key: np.empty((self.capacity,) + np.shape(value)) for key, value in values.items()}
-            self._observed_arrays = [(self.arrays[key], key) for key in observed]
-        row = self.count
-        arrays = self.arrays
-        arrays["t"][row] = t
-        for array, key in self._observed_arrays:
-            array[row] = observed[key]
-        arrays["dissipated_energy"][row] = dissipated_energy
+    def record(self, t: float, x: np.ndarray, v: np.ndarray, dissipated_energy: float) -> float:
+        """One sample at time t (s) of (x, v); returns its total energy (J), for the divergence check."""
+        row = self.table[self.count]
+        energy = self.write_observables(x, v, row)
+        row[self.t_column] = t
+        row[self.dissipated_column] = dissipated_energy
         if self.with_state:
-            arrays["positions"][row] = x
-            arrays["velocities"][row] = v
-        self.count = row + 1
+            row[self.positions] = x
+            row[self.velocities] = v
+        self.count += 1
+        return energy
 
     def record_frame(self, t: float, x: np.ndarray) -> None:
         self.frames[self.frame_count] = x.reshape(-1, 3)
@@ -72,7 +79,11 @@ class Recorder:
         self.frame_count += 1
 
     def result(self) -> dict[str, np.ndarray]:
-        arrays = {key: array[: self.count] for key, array in self.arrays.items()}
+        """The samples by name (t first), each a contiguous array of shape (samples,) + its shape."""
+        count = self.count
+        order = ["t", *(key for key in self.columns if key != "t")]
+        arrays = {key: np.ascontiguousarray(self.table[:count, self.columns[key][0]]).reshape((count,) + self.columns[key][1])
+                  for key in order}
         if self.frames is not None:
             arrays["frames"] = self.frames[: self.frame_count]
             arrays["frame_t"] = self.frame_t[: self.frame_count]
@@ -107,13 +118,17 @@ def simulate(run: Run) -> RunResult:
     newton_iterations, linear_iterations = per_step["newton_iterations"], per_step["linear_iterations"]
     line_search_steps, residuals, solver_index = per_step["line_search_steps"], per_step["residual"], per_step["solver_index"]
 
-    def record(t: float, state: State, observed: dict | None = None, frame: bool = True) -> None:
-        recorder.record(t, state.x, state.v, observed if observed is not None else system.observables(state.x, state.v),
-                        dissipated)
-        if frame and with_frames:
-            recorder.record_frame(t, state.x)
+    record_sample, record_frame, total_energy = recorder.record, recorder.record_frame, system.total_energy
+    step = integrator.step
 
-    record(0.0, state)
+    def record_final(t: float, state: State, sampled: bool, framed: bool) -> None:
+        """The sample (and frame) of the step a run stops at, unless the regular cadence took them already."""
+        if not sampled:
+            record_sample(t, state.x, state.v, dissipated)
+        if with_frames and not framed:
+            record_frame(t, state.x)
+
+    record_final(0.0, state, False, False)
     status, message, t_diverged, not_converged_steps = OK, "", None, 0
     steps = 0
     start = time.perf_counter()
@@ -122,7 +137,7 @@ def simulate(run: Run) -> RunResult:
             state = integrator.start(system, state)
             for n in range(step_count):
                 previous = state
-                state, stats = integrator.step(system, state, dt, solver)
+                state, stats = step(system, state, dt, solver)
                 steps = n + 1
                 t = dt * steps  # the loop owns t: no accumulated round-off, whatever state.t says
                 if damped:
@@ -138,26 +153,27 @@ def simulate(run: Run) -> RunResult:
                     residuals[n] = stats.residual
                     solver_index[n] = stats.solver_index
                 last = steps == step_count
-                sample = steps % stride == 0 or last
-                # one evaluation of the observables serves the energy check and the sample
-                observed = system.observables(state.x, state.v) if sample else None
+                sampled = steps % stride == 0 or last
+                # a sample's row carries the energy, so the check below needs no second evaluation
+                energy = record_sample(t, state.x, state.v, dissipated) if sampled else None
+                framed = with_frames and (steps % frame_stride == 0 or last)
+                if framed:
+                    record_frame(t, state.x)
                 if steps % check_every == 0 or last:
-                    energy = observed["energy"] if sample else system.total_energy(state.x, state.v)
-                    if not np.isfinite(energy) or abs(energy - energy0) > energy_bound:
+                    if energy is None:
+                        energy = total_energy(state.x, state.v)
+                    # math.isfinite: a tenth of np.isfinite's cost on one float
+                    if not math.isfinite(energy) or abs(energy - energy0) > energy_bound:
                         status, t_diverged = DIVERGED, t
                         message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {t:.6g} s"
-                        record(t, state, observed)
+                        record_final(t, state, sampled, framed)
                         break
                 if not stats.converged:
                     not_converged_steps += 1
                     if stop_on_not_converged:
                         message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
-                        record(t, state, observed)
+                        record_final(t, state, sampled, framed)
                         break
-                if sample:
-                    record(t, state, observed, frame=steps % frame_stride == 0 or last)
-                elif with_frames and (steps % frame_stride == 0 or last):
-                    recorder.record_frame(t, state.x)
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start

@@ -59,6 +59,44 @@ class CircularMotion(System):
             return (-self.stiffness / self.params.mass) * x
         return (-self.gm_m / (self.params.mass * math.sqrt(x.dot(x)) ** 3)) * x
 
+    # The recording path: the base class's energies and momenta on scalars (the same products and sums,
+    # to round-off), without the observables dictionary and its one- to three-element arrays.
+    def total_energy(self, x, v):
+        squared_radius = _squared_norm(x.tolist())
+        potential = 0.5 * self.stiffness * squared_radius if self.linear else -self.gm_m / math.sqrt(squared_radius)
+        return 0.5 * self.params.mass * _squared_norm(v.tolist()) + potential
+
+    def write_observables(self, x, v, row):
+        """energy, kinetic_energy, potential_energy, momentum (dim), angular_momentum (3), radius."""
+        m = self.params.mass
+        if self.dim == 2:
+            (qx, qy), (vx, vy) = x.tolist(), v.tolist()
+            px, py = m * vx, m * vy
+            kinetic = 0.5 * (px * vx + py * vy)
+            squared_radius = qx * qx + qy * qy
+        else:
+            (qx, qy, qz), (vx, vy, vz) = x.tolist(), v.tolist()
+            px, py, pz = m * vx, m * vy, m * vz
+            kinetic = 0.5 * (px * vx + py * vy + pz * vz)
+            squared_radius = qx * qx + qy * qy + qz * qz
+        radius = math.sqrt(squared_radius)
+        potential = 0.5 * self.stiffness * squared_radius if self.linear else -self.gm_m / radius
+        energy = kinetic + potential
+        if self.dim == 2:
+            row[:9] = (energy, kinetic, potential, px, py, 0.0, 0.0, qx * py - qy * px, radius)
+        else:
+            row[:10] = (energy, kinetic, potential, px, py, pz,
+                        qy * pz - qz * py, qz * px - qx * pz, qx * py - qy * px, radius)
+        return energy
+
+    def kick(self, x, v, dt):
+        """v + dt a(x) with a(x) = (factor) x: the scalar factor once, then one array operation pair."""
+        if self.linear:
+            factor = dt * (-self.stiffness / self.params.mass)
+        else:
+            factor = dt * (-self.gm_m / (self.params.mass * math.sqrt(_squared_norm(x.tolist())) ** 3))
+        return v + factor * x
+
     def gradient(self, x):
         if self.linear:
             return self.stiffness * x
@@ -87,3 +125,9 @@ class CircularMotion(System):
 
     def extra_observables(self, x, v):
         return {"radius": math.sqrt(x.dot(x))}
+
+
+def _squared_norm(components: list[float]) -> float:
+    """|c|^2 of a 2- or 3-component vector given as floats: cheaper than ndarray.dot on so few numbers."""
+    return components[0] * components[0] + components[1] * components[1] + (
+        components[2] * components[2] if len(components) == 3 else 0.0)

@@ -60,8 +60,22 @@ class SpringMass(System):
         q, p = float(x[0]), float(v[0])
         return 0.5 * (self.params.mass * p * p + self.stiffness * q * q)
 
+    def write_observables(self, x, v, row):
+        """energy, kinetic_energy, potential_energy, momentum: the base class's formulas on scalars, bit for bit."""
+        (q,), (p,) = x.tolist(), v.tolist()
+        momentum = self.params.mass * p
+        kinetic = 0.5 * (momentum * p)
+        potential = 0.5 * self.stiffness * (q * q)
+        energy = kinetic + potential
+        row[:4] = (energy, kinetic, potential, momentum)
+        return energy
+
     def acceleration(self, x, v):
         return np.array([(-self.stiffness * float(x[0]) - self.damping * float(v[0])) / self.params.mass])
+
+    def kick(self, x, v, dt):
+        (q,), (p,) = x.tolist(), v.tolist()
+        return np.array(((p + dt * ((-self.stiffness * q - self.damping * p) / self.params.mass)),))
 
     def gradient(self, x):
         return self.stiffness * x

@@ -131,7 +131,8 @@ def test_cloth_geometry_cache_gives_fresh_results_and_sees_in_place_changes():
 @pytest.mark.parametrize("params", [SpringMassParams(), CircularMotionParams(), CircularMotionParams(dimension=3),
                                     ClothParams(resolution=(4, 3), initial_spin=(0.3, -0.2, 1.0))])
 def test_observables_equal_their_generic_formulas(params):
-    """The shared momenta and the written-out cross product give the textbook sums, bit for bit."""
+    """The shared momenta, the per-component sums and the moment-matrix cross product give the textbook
+    sums: the energies bit for bit, the momenta within round-off of their terms."""
     system = params.build()
     rng = np.random.default_rng(1)
     x = system.x0 + 0.1 * rng.standard_normal(system.dof_count)
@@ -140,13 +141,16 @@ def test_observables_equal_their_generic_formulas(params):
     momenta = (system.mass * v).reshape(-1, system.dim)
     assert observed["kinetic_energy"] == 0.5 * float(np.dot(system.mass * v, v)) == system.kinetic_energy(v)
     assert observed["energy"] == system.total_energy(x, v)
-    np.testing.assert_array_equal(observed["momentum"], momenta.sum(axis=0))
+    round_off = 1e-14 * np.abs(momenta).sum()
+    np.testing.assert_allclose(observed["momentum"], momenta.sum(axis=0), rtol=0, atol=round_off)
     if system.dim == 3:
-        np.testing.assert_array_equal(observed["angular_momentum"], np.cross(x.reshape(-1, 3), momenta).sum(axis=0))
+        moments = np.cross(x.reshape(-1, 3), momenta)
+        np.testing.assert_allclose(observed["angular_momentum"], moments.sum(axis=0), rtol=0,
+                                   atol=1e-14 * np.abs(x).max() * np.abs(momenta).sum())
     elif system.dim == 2:
         positions = x.reshape(-1, 2)
         lz = np.sum(positions[:, 0] * momenta[:, 1] - positions[:, 1] * momenta[:, 0])
-        np.testing.assert_array_equal(observed["angular_momentum"], [0.0, 0.0, lz])
+        np.testing.assert_array_equal(observed["angular_momentum"], [0.0, 0.0, lz])  # one particle: the same products
 
 
 @pytest.mark.parametrize("integrator", ["symplectic_euler", "backward_euler"])
@@ -182,10 +186,13 @@ def test_the_loop_records_what_the_generic_observables_give(integrator, damping)
     SpringMassParams(stiffness=37.0, mass=0.3),
     SpringMassParams(stiffness=37.0, mass=0.3, damping=1.7),
     CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3),
+    CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3, dimension=3),
+    CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3),
     CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3, dimension=3),
-], ids=["spring", "damped-spring", "circular-linear", "kepler-3d"])
+], ids=["spring", "damped-spring", "circular-linear", "circular-linear-3d", "kepler", "kepler-3d"])
 def test_small_systems_step_path_equals_the_generic_formulas(params):
-    """The systems' own acceleration and total_energy equal the base class's M^-1 (-dP/dx - D v) and KE + P."""
+    """The systems' own acceleration, kick and total_energy equal the base class's M^-1 (-dP/dx - D v),
+    v + dt M^-1 f and KE + P."""
     from simrun.systems.base import System as GenericSystem
 
     system = params.build()
@@ -194,4 +201,52 @@ def test_small_systems_step_path_equals_the_generic_formulas(params):
         x = system.x0 + rng.standard_normal(system.dof_count)
         v = rng.standard_normal(system.dof_count)
         np.testing.assert_allclose(system.acceleration(x, v), GenericSystem.acceleration(system, x, v), rtol=1e-14, atol=1e-14)
+        dt = rng.uniform(1e-4, 0.1)
+        np.testing.assert_allclose(system.kick(x, v, dt), v + dt * GenericSystem.acceleration(system, x, v), rtol=1e-14, atol=1e-14)
         assert system.total_energy(x, v) == pytest.approx(GenericSystem.total_energy(system, x, v), rel=1e-14)
+
+
+WRITTEN_OBSERVABLE_SYSTEMS = [
+    SpringMassParams(stiffness=37.0, mass=0.3),
+    SpringMassParams(stiffness=37.0, mass=0.3, damping=1.7),
+    CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3),
+    CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3, dimension=3),
+    CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3),
+    CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3, dimension=3),
+    ClothParams(resolution=(4, 3), initial_spin=(0.3, -0.2, 1.0), damping=0.2,
+                contact={"ground": {"height": -0.02}, "sphere": {"center": (0.5, 0.5, -0.05), "radius": 0.1}}),
+]
+
+
+@pytest.mark.parametrize("params", WRITTEN_OBSERVABLE_SYSTEMS, ids=lambda params: f"{params.type}")
+def test_written_observables_are_the_observables_dictionary_flattened(params):
+    """write_observables fills a row with observables(x, v)'s values, in its key order, to round-off, and
+    returns the energy; the layout names every key with its shape."""
+    system = params.build()
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        x = system.x0 + 0.1 * rng.standard_normal(system.dof_count)
+        v = system.v0 + rng.standard_normal(system.dof_count)
+        observed = system.observables(x, v)
+        assert [(key, np.shape(value)) for key, value in observed.items()] == list(system.observable_layout)
+        expected = np.concatenate([np.ravel(value) for value in observed.values()])
+        row = np.full(system.observable_width + 2, np.nan)  # the two extra cells must stay untouched
+        energy = system.write_observables(x, v, row)
+        np.testing.assert_allclose(row[:-2], expected, rtol=1e-14, atol=1e-14 * np.abs(expected).max())
+        assert np.isnan(row[-2:]).all()
+        assert energy == row[0] and energy == pytest.approx(observed["energy"], rel=1e-14)
+
+
+@pytest.mark.parametrize("system_config", [
+    {"type": "circular_motion", "force": "linear", "angular_velocity": 1.3},
+    {"type": "circular_motion", "force": "gravity", "dimension": 3},
+], ids=["circular-linear", "kepler-3d"])
+def test_the_recorded_rows_of_circular_motion_are_its_observables(system_config):
+    """Samples from the scalar row writer equal system.observables of the recorded states, to round-off."""
+    result = run_one(system_config, "symplectic_euler", 0.01, 3.0, record={"every": 1})
+    assert result.status == "ok"
+    system = CircularMotionParams(**{k: v for k, v in system_config.items() if k != "type"}).build()
+    for row in (0, 1, 123, result.samples["t"].size - 1):
+        observed = system.observables(result.samples["positions"][row], result.samples["velocities"][row])
+        for key, value in observed.items():
+            np.testing.assert_allclose(result.samples[key][row], value, rtol=1e-14, atol=1e-15)
