@@ -272,7 +272,9 @@ def command_list() -> int:
         kind = "explicit" if cls.explicit else "implicit"
         print(f"  {name}  (order {cls.order}, {kind}): {cls.summary}")
         print("\n".join(fields(cls)))
-    print("\nsolvers (solver.type): " + ", ".join(SOLVERS) + "; linear solvers (solver.linear_solver): " + ", ".join(LINEAR_SOLVERS))
+    linear = [name if cls.missing() is None else f"{name} (not installed: make install-cholmod)"
+              for name, cls in LINEAR_SOLVERS.items()]
+    print("\nsolvers (solver.type): " + ", ".join(SOLVERS) + "; linear solvers (solver.linear_solver): " + ", ".join(linear))
     print("\n".join(fields(SolverParams)))
     return 0
 

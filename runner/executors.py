@@ -28,9 +28,13 @@ def run_serial(runs: list[Run]) -> Iterator[tuple[Run, RunResult]]:
         yield run, simulate(run)
 
 
+# Thread-count variables of the BLAS libraries a run may load (CHOLMOD's OpenBLAS; MKL or OpenMP builds)
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResult]]:
     """A local pool of `jobs` processes; pending runs are cancelled when the consumer stops early."""
-    pool = concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=_worker_context())
+    pool = process_pool(jobs)
     finished = False
     try:
         futures = {pool.submit(simulate, run): run for run in runs}
@@ -39,6 +43,22 @@ def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResul
         finished = True
     finally:
         pool.shutdown(wait=finished, cancel_futures=True)
+
+
+def process_pool(jobs: int) -> concurrent.futures.ProcessPoolExecutor:
+    """`jobs` worker processes, each with cores / jobs BLAS threads."""
+    threads = max(1, default_jobs() // jobs)
+    return concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=_worker_context(),
+                                                  initializer=_limit_blas_threads, initargs=(threads,))
+
+
+def _limit_blas_threads(threads: int) -> None:
+    """Give each worker its share of the cores for BLAS: CHOLMOD's multithreaded OpenBLAS in two
+    workers on two cores would run four threads, each waiting on the others. Libraries read these
+    variables when they load, and CHOLMOD's loads with the first `cholesky` solver, after this.
+    A variable the user set is left alone."""
+    for variable in BLAS_THREAD_VARIABLES:
+        os.environ.setdefault(variable, str(threads))
 
 
 def _worker_context():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from .base import EXPLICIT_STEP, ConvergenceTest, NonlinearProblem, NonlinearSolver, SolveStats
 from .descent import LBFGS, GradientDescent, JacobiChebyshev
@@ -38,6 +38,14 @@ class SolverParams(BaseModel):
     linear_max_iterations: int = Field(1000, ge=1, description="iterative linear solvers: iterations per linear solve")
     fallback: list[SolverName] = Field([], description="solvers tried in turn when the previous one does not converge on a step (from its best iterate)")  # type: ignore[valid-type]
     on_not_converged: Literal["continue", "stop"] = Field("continue", description="go on after a step that did not converge (status not_converged at the end), or stop the run there")
+
+    @field_validator("linear_solver")
+    @classmethod
+    def _installed(cls, name: str) -> str:
+        missing = LINEAR_SOLVERS[name].missing()
+        if missing is not None:
+            raise ValueError(missing)
+        return name
 
     @model_validator(mode="after")
     def _consistent(self) -> "SolverParams":

@@ -14,9 +14,11 @@ raises ``numpy.linalg.LinAlgError``, which ends the nonlinear solve as not conve
 
 from __future__ import annotations
 
+import functools
+import importlib
+import warnings
 from abc import ABC, abstractmethod
 
-import warnings
 from typing import ClassVar
 
 import numpy as np
@@ -33,6 +35,9 @@ SPLU_ORDERING = "MMD_AT_PLUS_A"
 # SPD matrices need no pivoting: diagonal pivots in symmetric mode factor a 20x20 cloth's matrix
 # in 5.2 ms instead of 11.9 ms (measured here, scipy 1.17 SuperLU).
 SPLU_SPD_OPTIONS = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+# cholesky on a matrix not known to be SPD: an LDL^T solution whose relative residual exceeds this
+# met a tiny pivot, and the pivoting LU solves again
+INDEFINITE_RESIDUAL = 1e-8
 # A stationary iteration whose residual grows past this factor times |b| diverges (spectral radius > 1).
 DIVERGED_FACTOR = 1e8
 
@@ -58,10 +63,16 @@ class LinearSolver(ABC):
 
     name: ClassVar[str]
     iterative: ClassVar[bool] = True
+    optional: ClassVar[bool] = False  # needs an optional package (see ``missing``)
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 1000):
         self.tolerance = tolerance
         self.max_iterations = max_iterations
+
+    @classmethod
+    def missing(cls) -> str | None:
+        """Why this solver cannot run here (an optional package is not installed), or None."""
+        return None
 
     @abstractmethod
     def solve(self, matrix, rhs: np.ndarray, free: FreeDofs, spd: bool = False) -> tuple[np.ndarray, int]:
@@ -126,16 +137,104 @@ class DirectSolver(ReducedSolver):
             else:
                 factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING)
             return factor.solve(rhs, trans="T"), 1
-        if matrix.shape[0] == 1:
-            return rhs / matrix[0, 0], 1
-        if matrix.dtype == np.float64 and rhs.dtype == np.float64 and rhs.ndim == 1:
-            return _dense_solve(matrix, rhs, spd), 1
-        if spd:
-            try:
-                return scipy.linalg.solve(matrix, rhs, assume_a="pos", check_finite=False), 1
-            except np.linalg.LinAlgError:
-                pass
-        return scipy.linalg.solve(matrix, rhs, check_finite=False), 1
+        return _dense_direct_solve(matrix, rhs, spd), 1
+
+
+class CholeskySolver(ReducedSolver):
+    """Sparse Cholesky through CHOLMOD (SuiteSparse, via scikit-sparse): symbolic analysis (fill-reducing
+    ordering, supernodal structure) once per sparsity pattern, numeric refactorisation per solve.
+
+    A run's Newton matrices share one pattern, so the analysis is done on the first and reused for
+    the rest of the run (the solver object lives as long as its run). CHOLMOD picks a supernodal
+    LL^T for large matrices and a simplicial LDL^T for small ones. A matrix that is not positive
+    definite (plain Newton's raw Hessian of a buckled cloth) is solved by ``direct``'s pivoting LU
+    when LL^T fails or LDL^T leaves a residual above INDEFINITE_RESIDUAL; dense matrices (the small
+    systems) take ``direct``'s LAPACK path. Counts one iteration. Needs the optional extra
+    ``cholmod`` (README, "Optional: the CHOLMOD solver").
+    """
+
+    name = "cholesky"
+    iterative = False
+    optional = True
+
+    @classmethod
+    def missing(cls) -> str | None:
+        try:
+            cholmod_module()
+        except ImportError as error:
+            return str(error)
+        return None
+
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 1000):
+        super().__init__(tolerance, max_iterations)
+        self._cholmod = cholmod_module()
+        self._factor = None
+        self._pattern = None  # (indptr, indices) the factor was analysed for
+
+    def _solve(self, matrix, rhs, spd):
+        if type(matrix) is np.ndarray or not scipy.sparse.issparse(matrix):
+            return _dense_direct_solve(matrix, rhs, spd), 1
+        if not matrix.has_sorted_indices:
+            matrix = matrix.sorted_indices()
+        # the CSR arrays of a symmetric matrix read as CSC are the same matrix: no conversion
+        symmetric = scipy.sparse.csc_matrix((matrix.data, matrix.indices, matrix.indptr), shape=matrix.shape)
+        try:
+            self._analysed_factor(symmetric).cholesky_inplace(symmetric)
+        except self._cholmod.CholmodNotPositiveDefiniteError:  # supernodal LL^T needs a definite matrix
+            self._pattern = None  # the failed numeric factorisation may leave the factor half-built
+            return self._lu_solve(symmetric, rhs), 1
+        solution = self._factor.solve_A(rhs)
+        if not spd:
+            # small matrices get CHOLMOD's simplicial LDL^T, which factors indefinite matrices without
+            # pivoting: accurate unless a pivot is (nearly) zero, which the residual tells
+            residual = float(np.linalg.norm(rhs - symmetric @ solution))
+            if not residual <= INDEFINITE_RESIDUAL * float(np.linalg.norm(rhs)):
+                return self._lu_solve(symmetric, rhs), 1
+        return solution, 1
+
+    @staticmethod
+    def _lu_solve(matrix, rhs):
+        return scipy.sparse.linalg.splu(matrix, permc_spec=SPLU_ORDERING).solve(rhs)
+
+    def _analysed_factor(self, matrix):
+        pattern = self._pattern
+        if pattern is None or not (_same_array(pattern[0], matrix.indptr) and _same_array(pattern[1], matrix.indices)):
+            self._factor = self._cholmod.analyze(matrix)
+            # copies: the caller may refill its index arrays with another pattern later
+            self._pattern = (matrix.indptr.copy(), matrix.indices.copy())
+        return self._factor
+
+
+def _same_array(cached: np.ndarray, current: np.ndarray) -> bool:
+    return cached.shape == current.shape and np.array_equal(cached, current)
+
+
+@functools.cache
+def cholmod_module():
+    """scikit-sparse's CHOLMOD module; ImportError with the installation steps when it is missing."""
+    try:
+        return importlib.import_module("sksparse.cholmod")
+    except ImportError as error:
+        raise ImportError(CHOLMOD_MISSING) from error
+
+
+CHOLMOD_MISSING = ("cholesky needs CHOLMOD through scikit-sparse, which is not installed: "
+                   "`make install-cholmod` (Debian: apt-get install libsuitesparse-dev libopenblas0-pthread, "
+                   "then pip install -e '.[cholmod]')")
+
+
+def _dense_direct_solve(matrix, rhs: np.ndarray, spd: bool) -> np.ndarray:
+    """A dense solve: LAPACK Cholesky for SPD matrices (LU when that fails), LU otherwise."""
+    if matrix.shape[0] == 1:
+        return rhs / matrix[0, 0]
+    if matrix.dtype == np.float64 and rhs.dtype == np.float64 and rhs.ndim == 1:
+        return _dense_solve(matrix, rhs, spd)
+    if spd:
+        try:
+            return scipy.linalg.solve(matrix, rhs, assume_a="pos", check_finite=False)
+        except np.linalg.LinAlgError:
+            pass
+    return scipy.linalg.solve(matrix, rhs, check_finite=False)
 
 
 def _dense_solve(matrix: np.ndarray, rhs: np.ndarray, spd: bool) -> np.ndarray:
@@ -291,5 +390,7 @@ class GaussSeidel(ReducedSolver):
 
 # config name -> class; each is built with (tolerance, max_iterations)
 LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
-    cls.name: cls for cls in (DirectSolver, ConjugateGradient, JacobiPCG, ModifiedPCG, Jacobi, GaussSeidel)
+    cls.name: cls for cls in (DirectSolver, CholeskySolver, ConjugateGradient, JacobiPCG, ModifiedPCG, Jacobi,
+                              GaussSeidel)
 }
+

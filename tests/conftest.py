@@ -2,10 +2,33 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from simrun.config import expand_runs, validate_experiment
 from simrun.simulate import simulate
+from simrun.solvers import LINEAR_SOLVERS
+
+# CI installs the optional CHOLMOD solver and sets this, so a broken install fails instead of skipping
+REQUIRE_OPTIONAL_SOLVERS = os.environ.get("SIMRUN_REQUIRE_CHOLMOD") == "1"
+
+
+def needs_linear_solver(name: str):
+    """A mark for tests of linear solver ``name``: skip when its optional package is missing (unless
+    SIMRUN_REQUIRE_CHOLMOD=1: then the test runs and fails)."""
+    missing = LINEAR_SOLVERS[name].missing()
+    return pytest.mark.skipif(missing is not None and not REQUIRE_OPTIONAL_SOLVERS, reason=str(missing))
+
+
+def linear_solver_params(names=None) -> list:
+    """pytest params of linear solver names, each with its needs_linear_solver marks."""
+    return [pytest.param(name, marks=needs_linear_solver(name), id=name) for name in (names or sorted(LINEAR_SOLVERS))]
+
+
+def always_available_linear_solvers() -> set[str]:
+    """The linear solvers that need no optional package."""
+    return {name for name, cls in LINEAR_SOLVERS.items() if not cls.optional}
 
 
 def make_runs(system: dict, integrators: list, dt: list[float], duration: float = 1.0, **extra):

@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 from simrun.cli import main
 from simrun.config import ConfigError, parse_yaml, validate_experiment, expand_runs
+from simrun.executors import BLAS_THREAD_VARIABLES, _limit_blas_threads, default_jobs, process_pool
 from simrun.lock import OutputLock
 
 SIMRUN = [sys.executable, "-m", "simrun.cli"]
@@ -73,6 +74,30 @@ def test_process_pool_and_dask_give_the_serial_results(tmp_path):
     assert len(serial) == 24
     assert_same_runs(serial, run_data(files["pool"]))
     assert_same_runs(serial, run_data(files["dask"]))
+
+
+def _blas_thread_settings() -> dict:
+    return {variable: os.environ.get(variable) for variable in BLAS_THREAD_VARIABLES}
+
+
+def test_pool_workers_share_the_cores_for_blas():
+    """-j N gives each worker cores // N BLAS threads (CHOLMOD's OpenBLAS would otherwise start one
+    thread per core in every worker), unless the user's environment already sets a count."""
+    jobs = 2
+    with process_pool(jobs) as pool:
+        settings = pool.submit(_blas_thread_settings).result()
+    share = str(max(1, default_jobs() // jobs))
+    # workers inherit the environment this process had when its pool server started: pytest's own
+    assert settings == {variable: os.environ.get(variable, share) for variable in BLAS_THREAD_VARIABLES}
+
+
+def test_a_blas_thread_count_the_user_set_is_kept(monkeypatch):
+    for variable in BLAS_THREAD_VARIABLES:
+        monkeypatch.setenv(variable, "0")  # recorded, so that monkeypatch restores the original state
+        monkeypatch.delenv(variable)
+    monkeypatch.setenv("MKL_NUM_THREADS", "3")
+    _limit_blas_threads(1)
+    assert _blas_thread_settings() == {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "3"}
 
 
 def test_unchanged_config_resumes_and_changed_config_is_refused(tmp_path, capsys):
