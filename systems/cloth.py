@@ -15,6 +15,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from .base import System
 
+_ONES3 = np.ones(3)  # sums the three components of each row in one matrix-vector product
+
 PIN_NAMES = ("top_left", "top_right", "bottom_left", "bottom_right", "top", "bottom", "left", "right")
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -93,6 +95,33 @@ def grid_springs(nx: int, ny: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
             for kind, items in pairs.items()}
 
 
+class SpringGeometry:
+    """All springs at one x: x_i - x_j (m), lengths L (m), stretches L - l0 (m), tensions k (L - l0) (N);
+    the unit directions and the spring energy on first use (an explicit step needs neither).
+    Shared by every evaluation at the same x: read it only."""
+
+    __slots__ = ("x", "delta", "length", "stretch", "tension", "_direction", "_energy")
+
+    def __init__(self, x: np.ndarray, delta: np.ndarray, length: np.ndarray, stretch: np.ndarray, tension: np.ndarray):
+        self.x, self.delta, self.length, self.stretch, self.tension = x, delta, length, stretch, tension
+        self._direction = None
+        self._energy = None
+
+    @property
+    def direction(self) -> np.ndarray:
+        """(x_i - x_j) / L, shape (springs, 3)."""
+        if self._direction is None:
+            self._direction = self.delta / self.length[:, None]
+        return self._direction
+
+    @property
+    def energy(self) -> float:
+        """sum_springs k/2 (L - l0)^2 (J)."""
+        if self._energy is None:
+            self._energy = 0.5 * float(np.dot(self.tension, self.stretch))
+        return self._energy
+
+
 class Cloth(System):
     """P(x) = sum_springs k/2 (|x_i - x_j| - l0)^2 - sum_i m_i g . x_i + contact penalties.
 
@@ -136,8 +165,7 @@ class Cloth(System):
         self.v0[self.fixed_dofs] = 0.0  # pinned vertices never move
         self._gravity_force = np.tile(self.vertex_mass * self.gravity, self.vertex_count)
         self._build_pattern()
-        self._spring_cache = None  # (x, length, direction) of the last _springs call
-        self._spring_energy_cache = None  # (length array of that geometry, its spring energy)
+        self._geometry: SpringGeometry | None = None  # of the last x the springs were evaluated at
 
     # -- setup ----------------------------------------------------------------------------------
     def _pinned_vertices(self, pinned) -> np.ndarray:
@@ -175,27 +203,36 @@ class Cloth(System):
         self.hessian_pattern = pattern  # every Hessian and damping matrix shares its index arrays
         diagonal_keys = np.arange(n, dtype=np.int64) * (n + 1)
         self.diagonal_positions = np.searchsorted(keys, diagonal_keys)  # where M enters the data array
-        # gradient scatter: spring force components onto 3 i + c and 3 j + c
-        self._gradient_index = np.concatenate([3 * i[:, None] + offsets, 3 * j[:, None] + offsets]).ravel()
+        # gradient scatter: the incidence matrix (+1 at vertex i, -1 at vertex j of each spring) times the
+        # springs' forces, one sparse product for all three components: half the time of the equivalent
+        # np.bincount over 3 i + c and 3 j + c, which needs the concatenated (force, -force) first
+        self._first_dofs = (3 * i[:, None] + offsets).ravel()
+        self._second_dofs = (3 * j[:, None] + offsets).ravel()
+        springs = np.arange(self.spring_count)
+        self._incidence = scipy.sparse.csr_matrix(
+            (np.concatenate([np.ones(self.spring_count), -np.ones(self.spring_count)]),
+             (np.concatenate([i, j]), np.concatenate([springs, springs]))),
+            shape=(self.vertex_count, self.spring_count))
 
     def _matrix(self, data: np.ndarray) -> scipy.sparse.csr_matrix:
         return self.pattern_matrix(data)
 
     # -- geometry of all springs at once ---------------------------------------------------------
-    def _springs(self, x: np.ndarray):
-        """(vertex positions, spring lengths, unit directions); the last x's geometry is kept, since a
-        step evaluates the same x several times (the energy check and the samples at the end of a
-        step, the force at the start of the next). The arrays returned are shared: read them only."""
-        positions = x.reshape(-1, 3)
-        cached = self._spring_cache
-        if cached is not None and np.array_equal(cached[0], x):  # an O(n) compare, far below the O(springs) geometry
-            return positions, cached[1], cached[2]
-        # np.take along axis 0 gathers the same rows as positions[self.first], ~3x faster (numpy 2.4, 64x64)
-        delta = np.take(positions, self.first, axis=0) - np.take(positions, self.second, axis=0)
-        length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
-        direction = delta / length[:, None]
-        self._spring_cache = (x.copy(), length, direction)  # one assignment: a reader sees the old or the new entry whole
-        return positions, length, direction
+    def _springs(self, x: np.ndarray) -> SpringGeometry:
+        """The springs' geometry at x. The last x's is kept, since a step evaluates the same x several
+        times (the energy check and the samples at the end of a step, the force at the start of the next)."""
+        geometry = self._geometry
+        if geometry is not None and np.array_equal(geometry.x, x):  # an O(n) compare, far below the O(springs) geometry
+            return geometry
+        # a flat gather of the dofs 3 i + c: the same numbers as positions[self.first], ~5x faster than
+        # that fancy index and ~1.4x faster than np.take along axis 0 (numpy 2.4, 64x64)
+        delta = (np.take(x, self._first_dofs) - np.take(x, self._second_dofs)).reshape(-1, 3)
+        # |delta|^2 as a matrix-vector product with (1, 1, 1): ~2.5x faster than einsum("ij,ij->i")
+        length = np.sqrt(np.square(delta) @ _ONES3)
+        stretch = length - self.rest_length
+        geometry = SpringGeometry(x.copy(), delta, length, stretch, self.stiffness * stretch)
+        self._geometry = geometry  # one assignment: a reader sees the old or the new geometry whole
+        return geometry
 
     def _penetration(self, positions: np.ndarray):
         """Per contact: (penetration depth >= 0 per vertex, outward normal per vertex, stiffness)."""
@@ -216,14 +253,7 @@ class Cloth(System):
 
     # -- energy, gradient, Hessian ---------------------------------------------------------------
     def spring_energy(self, x: np.ndarray) -> float:
-        _, length, _ = self._springs(x)
-        cached = self._spring_energy_cache
-        if cached is not None and cached[0] is length:  # the same geometry: the energy (P and its part) is known
-            return cached[1]
-        stretch = length - self.rest_length
-        energy = 0.5 * float(np.dot(self.stiffness * stretch, stretch))
-        self._spring_energy_cache = (length, energy)
-        return energy
+        return self._springs(x).energy
 
     def gravity_energy(self, x: np.ndarray) -> float:
         return -float(np.dot(self._gravity_force, x))
@@ -236,12 +266,14 @@ class Cloth(System):
         return self.spring_energy(x) + self.gravity_energy(x) + self.contact_energy(x)
 
     def gradient(self, x):
-        positions, length, direction = self._springs(x)
-        force = (self.stiffness * (length - self.rest_length))[:, None] * direction  # dP/dx_i of each spring
-        weights = np.concatenate([force, -force]).ravel()
-        gradient = np.bincount(self._gradient_index, weights=weights, minlength=self.dof_count)
+        geometry = self._springs(x)
+        # dP/dx_i of each spring, k (L - l0) (x_i - x_j) / L: the one division on the springs' scalars;
+        # the rows scaled through the transposed view, whose inner loop runs along the springs (~1.2x
+        # faster than broadcasting a (springs, 1) column over 3 components); the result is C-ordered
+        spring_gradient = (geometry.delta.T * (geometry.tension / geometry.length)).T
+        gradient = (self._incidence @ spring_gradient).ravel()
         gradient -= self._gravity_force
-        for depth, normal, stiffness, _ in self._penetration(positions):
+        for depth, normal, stiffness, _ in self._penetration(x.reshape(-1, 3)):
             gradient -= (stiffness * depth[:, None] * normal).ravel()
         return gradient
 
@@ -250,9 +282,10 @@ class Cloth(System):
 
     def hessian_data(self, x: np.ndarray, project_spd: bool = False) -> np.ndarray:
         """The Hessian's values in the fixed CSR pattern (the data array of ``hessian``)."""
-        positions, length, direction = self._springs(x)
+        geometry = self._springs(x)
+        positions, direction = x.reshape(-1, 3), geometry.direction
         outer = direction[:, :, None] * direction[:, None, :]
-        transverse = 1.0 - self.rest_length / length
+        transverse = 1.0 - self.rest_length / geometry.length
         if project_spd:
             transverse = np.maximum(transverse, 0.0)
         eye = np.eye(3)
@@ -275,18 +308,18 @@ class Cloth(System):
     def damping_matrix(self, x):
         if self.params.damping == 0.0:
             return None
-        _, _, direction = self._springs(x)
+        direction = self._springs(x).direction
         block = self.params.damping * direction[:, :, None] * direction[:, None, :]
         values = np.concatenate([block.ravel(), block.ravel(), -block.ravel(), -block.ravel(),
                                  np.zeros(9 * self.vertex_count)])
         return self._matrix(np.bincount(self._scatter, weights=values, minlength=self._nnz))
 
-    def extra_observables(self, x, v):
-        return {
-            "spring_energy": self.spring_energy(x),
-            "gravity_energy": self.gravity_energy(x),
-            "contact_energy": self.contact_energy(x),
-        }
+    def observables(self, x, v):
+        """The base class's energies and momenta, then the parts of P: each part evaluated once."""
+        spring, gravity, contact = self.spring_energy(x), self.gravity_energy(x), self.contact_energy(x)
+        values = self._mechanical_observables(x, v, spring + gravity + contact)  # = potential_energy(x), bit for bit
+        values.update(spring_energy=spring, gravity_energy=gravity, contact_energy=contact)
+        return values
 
     def energy_scale(self) -> float:
         """Energy of lifting the cloth by its longest side, M |g| L, or |KE0| + |PE0| if larger (J)."""

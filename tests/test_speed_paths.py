@@ -250,3 +250,44 @@ def test_the_recorded_rows_of_circular_motion_are_its_observables(system_config)
         observed = system.observables(result.samples["positions"][row], result.samples["velocities"][row])
         for key, value in observed.items():
             np.testing.assert_allclose(result.samples[key][row], value, rtol=1e-14, atol=1e-15)
+
+
+@pytest.mark.parametrize("contact", [False, True])
+def test_cloth_gradient_is_the_per_spring_formula_scattered(contact):
+    """The flat gather, the |delta|^2 product and the incidence-matrix scatter give the textbook
+    dP/dx = sum_springs k (L - l0) u (+ at i, - at j) - m g (+ contact), within round-off."""
+    system, x, v = _deformed_cloth(0.0, contact=contact)
+    positions = x.reshape(-1, 3)
+    delta = positions[system.first] - positions[system.second]
+    length = np.linalg.norm(delta, axis=1)
+    spring_force = (system.stiffness * (length - system.rest_length))[:, None] * (delta / length[:, None])
+    expected = np.zeros_like(positions)
+    np.add.at(expected, system.first, spring_force)
+    np.add.at(expected, system.second, -spring_force)
+    expected = expected.ravel() - np.tile(system.vertex_mass * system.gravity, system.vertex_count)
+    for depth, normal, stiffness, _ in system._penetration(positions):
+        expected -= (stiffness * depth[:, None] * normal).ravel()
+    if contact:
+        assert any(depth.any() for depth, *_ in system._penetration(positions)), "no vertex touches: the test shows nothing"
+    gradient = system.gradient(x)
+    np.testing.assert_allclose(gradient, expected, rtol=0, atol=1e-14 * 16 * np.abs(spring_force).max())
+    geometry = system._springs(x)
+    np.testing.assert_allclose(geometry.length, length, rtol=1e-15)
+    np.testing.assert_array_equal(geometry.direction, delta / geometry.length[:, None])
+    assert geometry.energy == 0.5 * float(np.dot(system.stiffness * (geometry.length - system.rest_length),
+                                                 geometry.length - system.rest_length))
+
+
+def test_cloth_observables_are_the_generic_ones_with_the_parts_of_the_potential():
+    """Energies and momenta as the base class computes them, and the three parts that sum to P(x), bit for bit."""
+    from simrun.systems.base import System as GenericSystem
+
+    system, x, v = _deformed_cloth(0.2, contact=True)
+    observed = system.observables(x, v)
+    generic = GenericSystem.observables(system, x, v)
+    for key, value in generic.items():
+        np.testing.assert_array_equal(observed[key], value)
+    assert observed["spring_energy"] == system.spring_energy(x)
+    assert observed["gravity_energy"] == system.gravity_energy(x)
+    assert observed["contact_energy"] == system.contact_energy(x) > 0.0
+    assert observed["potential_energy"] == system.potential_energy(x)
