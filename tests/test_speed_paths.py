@@ -291,3 +291,22 @@ def test_cloth_observables_are_the_generic_ones_with_the_parts_of_the_potential(
     assert observed["gravity_energy"] == system.gravity_energy(x)
     assert observed["contact_energy"] == system.contact_energy(x) > 0.0
     assert observed["potential_energy"] == system.potential_energy(x)
+
+
+@pytest.mark.parametrize("every", [1, 2, 3])
+def test_a_run_that_stops_records_its_last_step_once(every):
+    """A diverged run keeps the regular samples and frames and the step it stopped at, each once.
+    Forward Euler at h w = 5 multiplies the spring's energy by 26 per step: past 1e6 at step 5."""
+    dt = 0.5
+    result = run_one({"type": "spring_mass", "stiffness": 100.0}, "forward_euler", dt, 100.0, record={"every": every})
+    assert result.status == "diverged" and result.steps == 5 and result.t_diverged == 5 * dt
+    expected = sorted(set(range(0, 6, every)) | {5})
+    np.testing.assert_array_equal(result.samples["t"], dt * np.array(expected))
+    np.testing.assert_allclose(result.samples["energy"], 0.5 * 100.0 * (1 + 25.0) ** np.array(expected), rtol=1e-14)
+
+    cloth = run_one({"type": "cloth", "resolution": [4, 3]}, "symplectic_euler", 0.05, 10.0,
+                    record={"every": every, "frames_every": 2})
+    assert cloth.status == "diverged"
+    steps = cloth.steps
+    np.testing.assert_allclose(cloth.samples["t"], 0.05 * np.array(sorted(set(range(0, steps + 1, every)) | {steps})), rtol=1e-15)
+    np.testing.assert_allclose(cloth.samples["frame_t"], 0.05 * np.array(sorted(set(range(0, steps + 1, 2)) | {steps})), rtol=1e-15)
