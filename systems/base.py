@@ -193,12 +193,19 @@ class System(ABC):
         return the total energy (J): the recorder's per-sample call. Small systems override it with
         scalar arithmetic that builds no dictionary; an override writes the same numbers (to round-off)."""
         values = self.observables(x, v)
-        start = 0
-        for value in values.values():
-            size = np.size(value)
-            row[start:start + size] = np.ravel(value)
-            start += size
+        for (columns, flatten), value in zip(self._observable_columns, values.values()):
+            row[columns] = np.ravel(value) if flatten else value
         return values["energy"]
+
+    @functools.cached_property
+    def _observable_columns(self) -> list[tuple[slice, bool]]:
+        """Per observable: its columns in a row, and whether it must be flattened (more than one axis)."""
+        columns, start = [], 0
+        for _, shape in self.observable_layout:
+            size = math.prod(shape)
+            columns.append((slice(start, start + size), len(shape) > 1))
+            start += size
+        return columns
 
     def energy_scale(self) -> float:
         """A characteristic energy (J) against which energy growth is judged: |KE0| + |PE0|, else 1."""
