@@ -121,14 +121,16 @@ def simulate(run: Run) -> RunResult:
     record_sample, record_frame, total_energy = recorder.record, recorder.record_frame, system.total_energy
     step = integrator.step
 
-    def record_final(t: float, state: State, sampled: bool, framed: bool) -> None:
+    def record_stop(t: float, state: State, sampled: bool, framed: bool) -> None:
         """The sample (and frame) of the step a run stops at, unless the regular cadence took them already."""
         if not sampled:
             record_sample(t, state.x, state.v, dissipated)
         if with_frames and not framed:
             record_frame(t, state.x)
 
-    record_final(0.0, state, False, False)
+    record_sample(0.0, state.x, state.v, dissipated)
+    if with_frames:
+        record_frame(0.0, state.x)
     status, message, t_diverged, not_converged_steps = OK, "", None, 0
     steps = 0
     start = time.perf_counter()
@@ -166,13 +168,13 @@ def simulate(run: Run) -> RunResult:
                     if not math.isfinite(energy) or abs(energy - energy0) > energy_bound:
                         status, t_diverged = DIVERGED, t
                         message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {t:.6g} s"
-                        record_final(t, state, sampled, framed)
+                        record_stop(t, state, sampled, framed)
                         break
                 if not stats.converged:
                     not_converged_steps += 1
                     if stop_on_not_converged:
                         message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
-                        record_final(t, state, sampled, framed)
+                        record_stop(t, state, sampled, framed)
                         break
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = FAILED, f"{type(error).__name__}: {error}"

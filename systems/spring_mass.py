@@ -54,8 +54,8 @@ class SpringMass(System):
     def potential_energy(self, x):
         return 0.5 * self.stiffness * float(x[0] * x[0])
 
-    # The step path of the test equation: scalar arithmetic instead of the base class's chain of
-    # one-element array operations (force -> damping -> division), ~3x cheaper per call.
+    # The step path of the test equation (energy check, samples, acceleration, velocity update): scalar
+    # arithmetic instead of the base class's chains of one-element array operations, ~3x cheaper per call.
     def total_energy(self, x, v):
         q, p = float(x[0]), float(v[0])
         return 0.5 * (self.params.mass * p * p + self.stiffness * q * q)
