@@ -30,46 +30,61 @@ ITERATIONS = 4
 TARGET = {"direct": {64: 1.3}, "cholesky": {64: 0.6}}
 
 
-def measure(resolution: int) -> dict[str, float]:
+def cloth_step_problem(resolution: int):
     system = ClothParams(resolution=(resolution, resolution)).build()
     x, v = deformed_state(system)
     problem = IncrementalPotential(system, x + DT * v, DT * DT, velocity_origin=x, velocity_divisor=DT, damping_at=x)
-    repeats = 3 if resolution <= 64 else 1
-    measured = {}
-    for linear_solver in TARGET:
-        if LINEAR_SOLVERS[linear_solver].missing() is not None:
-            continue
-        solver = SolverParams(type="projected_newton", linear_solver=linear_solver, tolerance=1e-300,
-                              max_iterations=ITERATIONS).build()
+    return system, problem, x
 
-        def newton():
-            start = time.perf_counter()
-            _, stats = solver.minimize(problem, x)
-            return (time.perf_counter() - start) / max(stats.iterations, 1), stats.iterations
 
-        newton()  # warm what every run has after its first step (restriction map, CHOLMOD's analysis)
-        measured[linear_solver] = min(newton() for _ in range(repeats))
+def repeats(resolution: int) -> int:
+    return 3 if resolution <= 64 else 1
 
+
+def newton_iteration(resolution: int, linear_solver: str) -> tuple[float, int]:
+    """(best wall time per projected Newton iteration, iterations per solve) with ``linear_solver``."""
+    _, problem, x = cloth_step_problem(resolution)
+    solver = SolverParams(type="projected_newton", linear_solver=linear_solver, tolerance=1e-300,
+                          max_iterations=ITERATIONS).build()
+
+    def newton():
+        start = time.perf_counter()
+        _, stats = solver.minimize(problem, x)
+        return (time.perf_counter() - start) / max(stats.iterations, 1), stats.iterations
+
+    newton()  # warm what every run has after its first step (restriction map, CHOLMOD's analysis)
+    return min(newton() for _ in range(repeats(resolution)))
+
+
+def splu_factorisation(resolution: int) -> float:
+    """Best wall time of one splu of the reduced Newton matrix, with the direct solver's options."""
+    system, problem, x = cloth_step_problem(resolution)
     free = np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
     reduced = problem.hessian(x, project_spd=True)[free][:, free].tocsc()
-    factorisation = best_of(lambda: scipy.sparse.linalg.splu(reduced, permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS),
-                            repeats)
-    return {"dof": system.dof_count, "iterations": measured, "factorisation": factorisation}
+    return best_of(lambda: scipy.sparse.linalg.splu(reduced, permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS),
+                   repeats(resolution))
 
 
 def rows() -> list[tuple[str, float, str, str]]:
+    # splu and the direct iterations first: loading CHOLMOD holds numpy's BLAS at one thread
+    # (solvers.linear.cholmod_module), which would slow the reference and flatter cholesky's ratio
+    references = {resolution: splu_factorisation(resolution) for resolution in RESOLUTIONS}
+    measured = {("direct", resolution): newton_iteration(resolution, "direct") for resolution in RESOLUTIONS}
+    missing = LINEAR_SOLVERS["cholesky"].missing()
+    if missing is None:
+        measured.update({("cholesky", resolution): newton_iteration(resolution, "cholesky") for resolution in RESOLUTIONS})
     table = []
     for resolution in RESOLUTIONS:
-        m = measure(resolution)
+        dof = 3 * resolution * resolution
         for linear_solver, targets in TARGET.items():
-            label = f"cloth {resolution}x{resolution} ({m['dof']} DOF): projected Newton iteration ({linear_solver}) / splu"
+            label = f"cloth {resolution}x{resolution} ({dof} DOF): projected Newton iteration ({linear_solver}) / splu"
             target = f"<= {targets[resolution]:g}" if resolution in targets else "-"
-            if linear_solver not in m["iterations"]:
-                table.append((label, float("nan"), target, LINEAR_SOLVERS[linear_solver].missing()))
+            if (linear_solver, resolution) not in measured:
+                table.append((label, float("nan"), target, missing))
                 continue
-            per_iteration, iterations = m["iterations"][linear_solver]
+            per_iteration, iterations = measured[linear_solver, resolution]
             table.append((
-                label, per_iteration / m["factorisation"], target,
-                f"iteration {per_iteration * 1e3:.1f} ms (mean of {iterations}), splu {m['factorisation'] * 1e3:.1f} ms",
+                label, per_iteration / references[resolution], target,
+                f"iteration {per_iteration * 1e3:.1f} ms (mean of {iterations}), splu {references[resolution] * 1e3:.1f} ms",
             ))
     return table

@@ -13,6 +13,8 @@ import multiprocessing
 import os
 from collections.abc import Iterator
 
+import threadpoolctl
+
 from simrun.config import ConfigError, Run
 from simrun.simulate import RunResult, simulate
 
@@ -53,10 +55,12 @@ def process_pool(jobs: int) -> concurrent.futures.ProcessPoolExecutor:
 
 
 def _limit_blas_threads(threads: int) -> None:
-    """Give each worker its share of the cores for BLAS: CHOLMOD's multithreaded OpenBLAS in two
-    workers on two cores would run four threads, each waiting on the others. Libraries read these
-    variables when they load, and CHOLMOD's loads with the first `cholesky` solver, after this.
-    A variable the user set is left alone."""
+    """Give each worker its share of the cores for BLAS: multithreaded BLAS in two workers on two
+    cores would run four threads, each waiting on the others. The libraries already loaded (numpy's)
+    are limited now; the ones loaded later (CHOLMOD's, with the first `cholesky` solver) read these
+    variables when they load. A count the user set is left alone."""
+    if not any(variable in os.environ for variable in BLAS_THREAD_VARIABLES):
+        threadpoolctl.threadpool_limits(limits=threads, user_api="blas")
     for variable in BLAS_THREAD_VARIABLES:
         os.environ.setdefault(variable, str(threads))
 

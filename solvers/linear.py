@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+import os
 import warnings
 from abc import ABC, abstractmethod
 
@@ -26,6 +27,7 @@ import scipy.linalg
 import scipy.linalg.lapack
 import scipy.sparse
 import scipy.sparse.linalg
+import threadpoolctl
 
 from .dofs import FreeDofs
 
@@ -211,11 +213,24 @@ def _same_array(cached: np.ndarray, current: np.ndarray) -> bool:
 
 @functools.cache
 def cholmod_module():
-    """scikit-sparse's CHOLMOD module; ImportError with the installation steps when it is missing."""
+    """scikit-sparse's CHOLMOD module; ImportError with the installation steps when it is missing.
+
+    CHOLMOD brings its own BLAS (the system's OpenBLAS) beside numpy's bundled one. An OpenBLAS
+    thread spins for a while after each parallel call, and numpy parallelises the dot products of
+    the cloth's vectors (n > 10^4), so numpy's idle threads took the cores CHOLMOD's threads needed:
+    a 64x64 refactorisation right after an assembly took 150-210 ms instead of 70-80 ms. The BLAS
+    libraries loaded before CHOLMOD (numpy's, scipy's) are therefore held at one thread; vector
+    operations of this size are memory-bound and lose nothing by it. For the same reason CHOLMOD's
+    OpenMP threads wait passively (sleep, not spin) unless the user chose a policy: 55-59 ms
+    instead of 70-80 ms per 64x64 refactorisation here."""
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read once, when libgomp loads with CHOLMOD
+    before = threadpoolctl.ThreadpoolController()
     try:
-        return importlib.import_module("sksparse.cholmod")
+        module = importlib.import_module("sksparse.cholmod")
     except ImportError as error:
         raise ImportError(CHOLMOD_MISSING) from error
+    before.select(user_api="blas").limit(limits=1)
+    return module
 
 
 CHOLMOD_MISSING = ("cholesky needs CHOLMOD through scikit-sparse, which is not installed: "

@@ -10,6 +10,8 @@ which sets SIMRUN_REQUIRE_CHOLMOD=1).
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -20,6 +22,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from conftest import needs_linear_solver, run_one
+from simrun.executors import BLAS_THREAD_VARIABLES
 from simrun.solvers import LINEAR_SOLVERS, SolverParams
 from simrun.solvers.dofs import free_dofs
 from simrun.systems import ClothParams
@@ -185,3 +188,23 @@ def test_a_missing_cholmod_is_refused_before_anything_runs(tmp_path):
                             "from simrun.solvers import LINEAR_SOLVERS; LINEAR_SOLVERS['cholesky']()"],
                            capture_output=True, text=True, timeout=60)  # the solver itself says the same
     assert built.returncode != 0 and "ImportError: cholesky needs CHOLMOD" in built.stderr
+
+
+@needs_cholmod
+def test_loading_cholmod_holds_the_earlier_blas_libraries_at_one_thread():
+    """numpy's bundled OpenBLAS (loaded first) gets one thread, so that its spinning idle threads
+    leave the cores to CHOLMOD's BLAS, which keeps its default thread count (one per core)."""
+    script = ("import json, numpy, threadpoolctl\n"
+              "from simrun.solvers.linear import cholmod_module\n"
+              "before = [lib['filepath'] for lib in threadpoolctl.threadpool_info() if lib['user_api'] == 'blas']\n"
+              "cholmod_module()\n"
+              "print(json.dumps([before, threadpoolctl.threadpool_info()]))\n")
+    environment = {key: value for key, value in os.environ.items() if key not in BLAS_THREAD_VARIABLES}
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                            env=environment, check=True)
+    before, after = json.loads(result.stdout)
+    blas = {lib["filepath"]: lib["num_threads"] for lib in after if lib["user_api"] == "blas"}
+    assert before and all(blas[path] == 1 for path in before)
+    cholmod_blas = set(blas) - set(before)
+    assert cholmod_blas, "CHOLMOD's BLAS should be a library of its own"
+    assert all(blas[path] == len(os.sched_getaffinity(0)) for path in cholmod_blas)
