@@ -1,7 +1,7 @@
 """``--jobs 2`` against ``--jobs 1`` on a sweep of 16 independent runs of about a second each.
 
 Both go through the real command line (``simrun.cli.main``) into a temporary folder, without
-figures; the ratio is the serial wall time over the parallel one (issue 8 target: at least 1.8
+figures, twice each, interleaved; the ratio is the best serial wall time over the best parallel one (issue 8 target: at least 1.8
 with two jobs on a machine with two free cores). Also: the shipped configs/damping_curves.yaml
 end to end, figures included, with ``--jobs 2`` (target: under 30 s); ``SIMRUN_BENCH_QUICK=1``
 skips it.
@@ -19,6 +19,7 @@ from pathlib import Path
 from simrun.cli import main as cli
 
 RUNS = 16
+REPEATS = 2
 # backward Euler with Newton on the spring: about 38 k steps, ~1 s per run at ~25 us a step
 CONFIG = f"""\
 name: parallel_bench
@@ -46,8 +47,13 @@ def rows() -> list[tuple[str, float, str, str]]:
     with tempfile.TemporaryDirectory() as folder:
         config = Path(folder) / "parallel_bench.yaml"
         config.write_text(CONFIG)
-        serial = _timed_cli([str(config), "--output", f"{folder}/serial", "-j", "1", "--no-plots", "-q"])
-        parallel = _timed_cli([str(config), "--output", f"{folder}/parallel", "-j", "2", "--no-plots", "-q"])
+        # interleaved, best of REPEATS each: a slow spell of this shared machine hits both alike
+        timings = {1: [], 2: []}
+        for repeat in range(REPEATS):
+            for jobs in timings:
+                output = f"{folder}/jobs{jobs}-{repeat}"
+                timings[jobs].append(_timed_cli([str(config), "--output", output, "-j", str(jobs), "--no-plots", "-q"]))
+        serial, parallel = min(timings[1]), min(timings[2])
         table.append((
             f"sweep of {RUNS} runs through the CLI: --jobs 1 / --jobs 2 wall time",
             serial / parallel, ">= 1.8",

@@ -12,11 +12,12 @@ import sys
 import tempfile
 from pathlib import Path
 
+# Light imports only: `main` starts the pool's fork server before the simulation's own imports
+# (numpy, scipy, pydantic, h5py: ~0.5 s), so that the two run side by side.
 from simrun import __version__
-from simrun.config import ConfigError
-from simrun.executors import EXECUTORS, execute
+from simrun.errors import ConfigError
 from simrun.lock import OutputLock, OutputLocked
-from simrun.store import RESULTS_NAME
+from simrun.workers import EXECUTORS, may_use_local_pool, start_worker_server
 
 SUBCOMMANDS = ("run", "plot", "animate", "list", "report", "show", "analyze")
 EXIT_CONFIG_ERROR = 2
@@ -78,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] not in SUBCOMMANDS and not argv[0].startswith("-"):
         argv.insert(0, "run")  # `simrun CONFIG.yaml`
+    if argv and argv[0] == "run" and may_use_local_pool(argv):
+        start_worker_server()
     args = build_parser().parse_args(argv)
     if args.command is None:
         build_parser().print_help()
@@ -99,13 +102,15 @@ def main(argv: list[str] | None = None) -> int:
 
 def command_run(args) -> int:
     from simrun.config import config_hash, expand_runs, load_experiment
+    from simrun.executors import execute
+    from simrun.store import RESULTS_NAME
 
-    experiment, config_text = load_experiment(args.config, args.overrides)
-    runs = expand_runs(experiment)
-    output = Path(args.output) if args.output else experiment.output_dir
     jobs = args.jobs if args.jobs is not None else _default_jobs()
     if jobs < 1:
         raise ConfigError(f"--jobs: must be >= 1, got {jobs}")
+    experiment, config_text = load_experiment(args.config, args.overrides)
+    runs = expand_runs(experiment)
+    output = Path(args.output) if args.output else experiment.output_dir
     _check_writable(output)
     _check_size(runs, output, jobs, args.max_size)
     quiet = args.quiet
@@ -156,7 +161,7 @@ def command_run(args) -> int:
 
 
 def _default_jobs() -> int:
-    from simrun.executors import default_jobs
+    from simrun.workers import default_jobs
 
     return default_jobs()
 

@@ -18,16 +18,13 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator
 
+from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS, Integrator
 from simrun.solvers import SolverParams
 from simrun.systems import SYSTEMS
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
 MAX_RUNS = 100_000
-
-
-class ConfigError(Exception):
-    """A config that cannot be run; the message is one line naming the field and what is allowed."""
 
 
 # -- integrators: a name, or a mapping with `type` and the method's parameters --------------------

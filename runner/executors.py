@@ -9,29 +9,18 @@ from __future__ import annotations
 
 import concurrent.futures
 import logging
-import multiprocessing
-import os
 from collections.abc import Iterator
-
-import threadpoolctl
 
 from simrun.config import ConfigError, Run
 from simrun.simulate import RunResult, simulate
+from simrun.workers import EXECUTORS, process_pool
 
-EXECUTORS = ("local", "dask")
-
-
-def default_jobs() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+__all__ = ["EXECUTORS", "execute", "run_serial", "run_process_pool", "run_dask"]
 
 
 def run_serial(runs: list[Run]) -> Iterator[tuple[Run, RunResult]]:
     for run in runs:
         yield run, simulate(run)
-
-
-# Thread-count variables of the BLAS libraries a run may load (CHOLMOD's OpenBLAS; MKL or OpenMP builds)
-BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResult]]:
@@ -45,34 +34,6 @@ def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResul
         finished = True
     finally:
         pool.shutdown(wait=finished, cancel_futures=True)
-
-
-def process_pool(jobs: int) -> concurrent.futures.ProcessPoolExecutor:
-    """`jobs` worker processes, each with cores / jobs BLAS threads."""
-    threads = max(1, default_jobs() // jobs)
-    return concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=_worker_context(),
-                                                  initializer=_limit_blas_threads, initargs=(threads,))
-
-
-def _limit_blas_threads(threads: int) -> None:
-    """Give each worker its share of the cores for BLAS: multithreaded BLAS in two workers on two
-    cores would run four threads, each waiting on the others. The libraries already loaded (numpy's)
-    are limited now; the ones loaded later (CHOLMOD's, with the first `cholesky` solver) read these
-    variables when they load. A count the user set is left alone."""
-    if not any(variable in os.environ for variable in BLAS_THREAD_VARIABLES):
-        threadpoolctl.threadpool_limits(limits=threads, user_api="blas")
-    for variable in BLAS_THREAD_VARIABLES:
-        os.environ.setdefault(variable, str(threads))
-
-
-def _worker_context():
-    """Workers forked from a clean server process: a plain fork would inherit the open results file
-    (and the HDF5 lock on it); the server imports the simulation once, so each fork starts at once."""
-    if "forkserver" not in multiprocessing.get_all_start_methods():
-        return multiprocessing.get_context("spawn")
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["simrun.simulate"])
-    return context
 
 
 def run_dask(runs: list[Run], jobs: int, scheduler: str | None) -> Iterator[tuple[Run, RunResult]]:

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from simrun.cli import main
 from simrun.config import ConfigError, parse_yaml, validate_experiment, expand_runs
-from simrun.executors import BLAS_THREAD_VARIABLES, _limit_blas_threads, default_jobs, process_pool
+from simrun.workers import BLAS_THREAD_VARIABLES, _limit_blas_threads, default_jobs, may_use_local_pool, process_pool
 from simrun.lock import OutputLock
 
 SIMRUN = [sys.executable, "-m", "simrun.cli"]
@@ -89,6 +89,21 @@ def test_pool_workers_share_the_cores_for_blas():
     share = str(max(1, default_jobs() // jobs))
     # workers inherit the environment this process had when its pool server started: pytest's own
     assert settings == {variable: os.environ.get(variable, share) for variable in BLAS_THREAD_VARIABLES}
+
+
+@pytest.mark.parametrize("options, expected", [
+    ([], True), (["-j", "2"], True), (["--jobs=3"], True), (["-j", "1"], False), (["-j1"], False),
+    (["--jobs", "1"], False), (["--executor", "dask"], False), (["--executor=local", "-j", "2"], True),
+    (["-j", "two"], False),  # left to the real parser, which names the option
+])
+def test_the_worker_server_starts_early_only_when_the_pool_may_be_used(options, expected):
+    argv = ["run", "configs/quickstart.yaml", "--no-plots", *options]
+    assert may_use_local_pool(argv) == (expected and default_jobs() > 1)
+
+
+def test_python_dash_m_simrun_is_the_command():
+    result = subprocess.run([sys.executable, "-m", "simrun", "--version"], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and result.stdout.strip().startswith("simrun ")
 
 
 def test_a_blas_thread_count_the_user_set_is_kept(monkeypatch):
