@@ -182,14 +182,18 @@ def test_the_loop_records_what_the_generic_observables_give(integrator, damping)
         assert np.all(result.per_step["newton_iterations"] >= 1)
 
 
-@pytest.mark.parametrize("params", [
+SMALL_SYSTEMS = [
     SpringMassParams(stiffness=37.0, mass=0.3),
     SpringMassParams(stiffness=37.0, mass=0.3, damping=1.7),
     CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3),
     CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3, dimension=3),
     CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3),
     CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3, dimension=3),
-], ids=["spring", "damped-spring", "circular-linear", "circular-linear-3d", "kepler", "kepler-3d"])
+]
+
+
+@pytest.mark.parametrize("params", SMALL_SYSTEMS,
+                         ids=["spring", "damped-spring", "circular-linear", "circular-linear-3d", "kepler", "kepler-3d"])
 def test_small_systems_step_path_equals_the_generic_formulas(params):
     """The systems' own acceleration, kick and total_energy equal the base class's M^-1 (-dP/dx - D v),
     v + dt M^-1 f and KE + P."""
@@ -207,12 +211,7 @@ def test_small_systems_step_path_equals_the_generic_formulas(params):
 
 
 WRITTEN_OBSERVABLE_SYSTEMS = [
-    SpringMassParams(stiffness=37.0, mass=0.3),
-    SpringMassParams(stiffness=37.0, mass=0.3, damping=1.7),
-    CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3),
-    CircularMotionParams(force="linear", mass=2.0, angular_velocity=1.3, dimension=3),
-    CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3),
-    CircularMotionParams(force="gravity", mass=2.0, angular_velocity=1.3, dimension=3),
+    *SMALL_SYSTEMS,
     ClothParams(resolution=(4, 3), initial_spin=(0.3, -0.2, 1.0), damping=0.2,
                 contact={"ground": {"height": -0.02}, "sphere": {"center": (0.5, 0.5, -0.05), "radius": 0.1}}),
 ]
