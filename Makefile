@@ -35,16 +35,17 @@ install-test: $(VENV)/.installed-test  ## the same, with the test extras
 # reference BLAS makes it ~3.5x slower than OpenBLAS (64x64 cloth: 208 ms instead of 59 ms).
 SUITESPARSE_PACKAGES := libsuitesparse-dev libopenblas0-pthread
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+CHOLMOD_HELP := install SuiteSparse's headers and OpenBLAS yourself (Debian: $(SUITESPARSE_PACKAGES), and python3-dev for a Debian system Python), then run make install-cholmod again
 
 install-cholmod: $(VENV)/.installed-cholmod  ## the optional CHOLMOD solver (Debian packages, then the extra)
 
 $(VENV)/.installed-cholmod: pyproject.toml $(VENV)/.installed
 	@if ! dpkg -s $(SUITESPARSE_PACKAGES) >/dev/null 2>&1; then \
-	  if command -v apt-get >/dev/null 2>&1; then \
+	  if command -v apt-get >/dev/null 2>&1 && { [ -z "$(SUDO)" ] || command -v sudo >/dev/null 2>&1; }; then \
 	    $(SUDO) apt-get install -y -q $(SUITESPARSE_PACKAGES) || \
 	      { $(SUDO) apt-get update -q && $(SUDO) apt-get install -y -q $(SUITESPARSE_PACKAGES); }; \
 	  elif [ ! -f /usr/include/suitesparse/cholmod.h ]; then \
-	    echo "install-cholmod: needs SuiteSparse's headers and OpenBLAS (Debian: $(SUITESPARSE_PACKAGES))"; exit 1; \
+	    echo "install-cholmod: cannot install system packages here: $(CHOLMOD_HELP)"; exit 1; \
 	  fi; \
 	fi
 	$(BIN)/python -m pip install --quiet -e '.[cholmod]'

@@ -17,7 +17,7 @@ from pathlib import Path
 from simrun import __version__
 from simrun.errors import ConfigError
 from simrun.lock import OutputLock, OutputLocked
-from simrun.workers import EXECUTORS, may_use_local_pool, start_worker_server
+from simrun.workers import EXECUTORS, default_jobs, may_use_local_pool, start_worker_server
 
 SUBCOMMANDS = ("run", "plot", "animate", "list", "report", "show", "analyze")
 EXIT_CONFIG_ERROR = 2
@@ -105,7 +105,7 @@ def command_run(args) -> int:
     from simrun.executors import execute
     from simrun.store import RESULTS_NAME
 
-    jobs = args.jobs if args.jobs is not None else _default_jobs()
+    jobs = args.jobs if args.jobs is not None else default_jobs()
     if jobs < 1:
         raise ConfigError(f"--jobs: must be >= 1, got {jobs}")
     experiment, config_text = load_experiment(args.config, args.overrides)
@@ -158,12 +158,6 @@ def command_run(args) -> int:
         figures = draw_figures(results_path, output / "figures")
         print(f"figures: {output / 'figures'}  ({len(figures)} files)")
     return 0
-
-
-def _default_jobs() -> int:
-    from simrun.workers import default_jobs
-
-    return default_jobs()
 
 
 def _open_writer(path: Path, config_text: str, digest: str, name: str, force: bool):

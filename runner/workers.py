@@ -11,6 +11,9 @@ import concurrent.futures
 import multiprocessing
 import multiprocessing.forkserver
 import os
+import select
+import threading
+import time
 
 import threadpoolctl
 
@@ -24,21 +27,56 @@ def default_jobs() -> int:
 
 
 def process_pool(jobs: int) -> concurrent.futures.ProcessPoolExecutor:
-    """`jobs` worker processes, each with cores / jobs BLAS threads."""
+    """`jobs` worker processes, each with cores / jobs BLAS threads, each ending with this process."""
     threads = max(1, default_jobs() // jobs)
     return concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=_worker_context(),
-                                                  initializer=_limit_blas_threads, initargs=(threads,))
+                                                  initializer=_start_worker, initargs=(threads, os.getpid()))
+
+
+def _start_worker(threads: int, owner: int) -> None:
+    _limit_blas_threads(threads)
+    _exit_with(owner)
+
+
+def _exit_with(owner: int) -> None:
+    """End this worker when process ``owner`` (the simrun that made the pool) ends, however it ends.
+
+    After a kill -9 of simrun nothing else would: a worker's parent is the fork server, which
+    outlives simrun while the workers hold its liveness pipe, and a worker blocked on its result
+    pipe waits forever. A daemon thread waits on a pidfd of the owner (no polling)."""
+    def wait_for_owner() -> None:
+        try:
+            descriptor = os.pidfd_open(owner)
+        except (AttributeError, OSError):  # no pidfd (not Linux >= 5.3): poll once a second
+            while _alive(owner):
+                time.sleep(1.0)
+        else:
+            select.select([descriptor], [], [])  # readable once the owner has ended
+        os._exit(1)
+
+    threading.Thread(target=wait_for_owner, name="simrun-exit-with-owner", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _limit_blas_threads(threads: int) -> None:
     """Give each worker its share of the cores for BLAS: multithreaded BLAS in two workers on two
     cores would run four threads, each waiting on the others. The libraries already loaded (numpy's)
     are limited now; the ones loaded later (CHOLMOD's, with the first `cholesky` solver) read these
-    variables when they load. A count the user set is left alone."""
-    if not any(variable in os.environ for variable in BLAS_THREAD_VARIABLES):
-        threadpoolctl.threadpool_limits(limits=threads, user_api="blas")
+    variables when they load. A user who set any of them chose the thread counts: nothing is changed."""
+    if any(variable in os.environ for variable in BLAS_THREAD_VARIABLES):
+        return
+    threadpoolctl.threadpool_limits(limits=threads, user_api="blas")
     for variable in BLAS_THREAD_VARIABLES:
-        os.environ.setdefault(variable, str(threads))
+        os.environ[variable] = str(threads)
 
 
 def start_worker_server() -> None:
@@ -60,7 +98,9 @@ def _worker_context():
 
 def may_use_local_pool(argv: list[str]) -> bool:
     """Whether a `simrun run` command line may run on the local pool (not -j 1, not --executor dask);
-    a guess from the options alone, before the full parser (which needs the heavy imports) runs."""
+    a guess from the options alone, before the full parser (which needs the heavy imports) runs.
+    A wrong yes (--help, a sweep with one pending run, combined short options such as -qj1) costs
+    one idle server process and ~0.5 s of imports on another core, nothing of the caller's time."""
     guess = argparse.ArgumentParser(add_help=False, exit_on_error=False)
     guess.add_argument("-j", "--jobs", type=int)
     guess.add_argument("--executor")

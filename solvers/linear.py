@@ -19,7 +19,6 @@ import importlib
 import os
 import warnings
 from abc import ABC, abstractmethod
-
 from typing import ClassVar
 
 import numpy as np
@@ -152,8 +151,10 @@ class CholeskySolver(ReducedSolver):
     LL^T for large matrices and a simplicial LDL^T for small ones. A matrix that is not positive
     definite (plain Newton's raw Hessian of a buckled cloth) is solved by ``direct``'s pivoting LU
     when LL^T fails or LDL^T leaves a residual above INDEFINITE_RESIDUAL; dense matrices (the small
-    systems) take ``direct``'s LAPACK path. Counts one iteration. Needs the optional extra
-    ``cholmod`` (README, "Optional: the CHOLMOD solver").
+    systems) take ``direct``'s LAPACK path. Counts one iteration. CHOLMOD takes the matrix as
+    symmetric and reads one triangle: every Newton matrix here (the Hessian of an incremental or
+    segment potential) is. Needs the optional extra ``cholmod`` (README, "Optional: the CHOLMOD
+    solver").
     """
 
     name = "cholesky"
@@ -179,25 +180,27 @@ class CholeskySolver(ReducedSolver):
             return _dense_direct_solve(matrix, rhs, spd), 1
         if not matrix.has_sorted_indices:
             matrix = matrix.sorted_indices()
-        # the CSR arrays of a symmetric matrix read as CSC are the same matrix: no conversion
-        symmetric = scipy.sparse.csc_matrix((matrix.data, matrix.indices, matrix.indptr), shape=matrix.shape)
+        # the CSR arrays read as CSC are A^T, which for the symmetric Newton matrices is A itself
+        # (CHOLMOD reads one triangle of a matrix it takes as symmetric); no conversion
+        transposed = scipy.sparse.csc_matrix((matrix.data, matrix.indices, matrix.indptr), shape=matrix.shape)
+        factor = self._analysed_factor(transposed)
         try:
-            self._analysed_factor(symmetric).cholesky_inplace(symmetric)
-        except self._cholmod.CholmodNotPositiveDefiniteError:  # supernodal LL^T needs a definite matrix
-            self._pattern = None  # the failed numeric factorisation may leave the factor half-built
-            return self._lu_solve(symmetric, rhs), 1
-        solution = self._factor.solve_A(rhs)
+            factor.cholesky_inplace(transposed)
+        except self._cholmod.CholmodNotPositiveDefiniteError:  # supernodal LL^T needs a definite matrix;
+            return self._lu_solve(transposed, rhs), 1  # its analysis stays valid for the next matrix
+        solution = factor.solve_A(rhs)
         if not spd:
             # small matrices get CHOLMOD's simplicial LDL^T, which factors indefinite matrices without
             # pivoting: accurate unless a pivot is (nearly) zero, which the residual tells
-            residual = float(np.linalg.norm(rhs - symmetric @ solution))
+            residual = float(np.linalg.norm(rhs - matrix @ solution))
             if not residual <= INDEFINITE_RESIDUAL * float(np.linalg.norm(rhs)):
-                return self._lu_solve(symmetric, rhs), 1
+                return self._lu_solve(transposed, rhs), 1
         return solution, 1
 
     @staticmethod
-    def _lu_solve(matrix, rhs):
-        return scipy.sparse.linalg.splu(matrix, permc_spec=SPLU_ORDERING).solve(rhs)
+    def _lu_solve(transposed, rhs):
+        """A p = b by SuperLU with pivoting, from A^T in CSC form (as ``direct`` does)."""
+        return scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING).solve(rhs, trans="T")
 
     def _analysed_factor(self, matrix):
         pattern = self._pattern
@@ -409,4 +412,3 @@ LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
     cls.name: cls for cls in (DirectSolver, CholeskySolver, ConjugateGradient, JacobiPCG, ModifiedPCG, Jacobi,
                               GaussSeidel)
 }
-

@@ -135,10 +135,24 @@ def test_an_indefinite_matrix_is_solved_exactly(resolution):
     indefinite = (matrix - shift * scipy.sparse.identity(matrix.shape[0])).tocsr()
     free = free_dofs(system.dof_count, [])
     solver = cholesky_solver()
+    counting = solver._cholmod = CountingCholmod(solver._cholmod)
     for _ in range(2):
         solution, iterations = solver.solve(indefinite, rhs, free, spd=False)
         assert iterations == 1
         assert np.linalg.norm(indefinite @ solution - rhs) <= 1e-9 * np.linalg.norm(rhs)
+    # the definite matrix of the same pattern afterwards: exact, and the analysis was kept
+    solution, _ = solver.solve(matrix, rhs, free, spd=True)
+    assert np.linalg.norm(matrix @ solution - rhs) <= 1e-12 * np.linalg.norm(rhs)
+    assert (counting.analyses, counting.factorisations) == (1, 3)
+
+
+@needs_cholmod
+def test_a_non_symmetric_matrix_falling_back_to_lu_is_not_transposed():
+    """The LU fallback solves A p = b, not A^T p = b (the CSR arrays read as CSC are A^T):
+    [[0, 1], [2, 0]] p = (2, 3) gives p = (1.5, 2)."""
+    matrix = scipy.sparse.csr_matrix(np.array([[0.0, 1.0], [2.0, 0.0]]))
+    solution, _ = cholesky_solver().solve(matrix, np.array([2.0, 3.0]), free_dofs(2, []), spd=False)
+    assert np.allclose(solution, [1.5, 2.0], rtol=1e-15, atol=0)
 
 
 @needs_cholmod

@@ -15,6 +15,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+import threadpoolctl
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -80,15 +81,45 @@ def _blas_thread_settings() -> dict:
     return {variable: os.environ.get(variable) for variable in BLAS_THREAD_VARIABLES}
 
 
+def _worker_blas() -> tuple[dict, list[int]]:
+    """In a worker: the thread variables, and the thread counts of the BLAS libraries loaded."""
+    return _blas_thread_settings(), [lib["num_threads"] for lib in threadpoolctl.threadpool_info()
+                                     if lib["user_api"] == "blas"]
+
+
+@pytest.mark.skipif(any(variable in os.environ for variable in BLAS_THREAD_VARIABLES),
+                    reason="the environment sets BLAS thread counts, which the workers keep")
 def test_pool_workers_share_the_cores_for_blas():
-    """-j N gives each worker cores // N BLAS threads (CHOLMOD's OpenBLAS would otherwise start one
-    thread per core in every worker), unless the user's environment already sets a count."""
+    """-j N gives each worker cores // N BLAS threads: numpy's BLAS, loaded already, at once; CHOLMOD's
+    OpenBLAS, loaded later, through the variables (it would otherwise start one thread per core in
+    every worker)."""
     jobs = 2
     with process_pool(jobs) as pool:
-        settings = pool.submit(_blas_thread_settings).result()
-    share = str(max(1, default_jobs() // jobs))
-    # workers inherit the environment this process had when its pool server started: pytest's own
-    assert settings == {variable: os.environ.get(variable, share) for variable in BLAS_THREAD_VARIABLES}
+        settings, loaded = pool.submit(_worker_blas).result()
+    share = max(1, default_jobs() // jobs)
+    assert settings == {variable: str(share) for variable in BLAS_THREAD_VARIABLES}
+    assert loaded and all(threads == share for threads in loaded)
+
+
+def test_a_blas_thread_count_the_user_set_is_kept(monkeypatch):
+    """One variable set by the user: the worker changes none of them (OpenBLAS would read a forced
+    OPENBLAS_NUM_THREADS before the user's OMP_NUM_THREADS)."""
+    for variable in BLAS_THREAD_VARIABLES:
+        monkeypatch.setenv(variable, "0")  # recorded, so that monkeypatch restores the original state
+        monkeypatch.delenv(variable)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    _limit_blas_threads(1)
+    assert _blas_thread_settings() == {"OPENBLAS_NUM_THREADS": None, "OMP_NUM_THREADS": "3", "MKL_NUM_THREADS": None}
+
+
+@pytest.mark.parametrize("jobs, executor, started", [("2", "local", True), ("1", "local", False), ("2", "dask", False)])
+def test_the_command_line_starts_the_worker_server_before_its_imports_only_for_the_pool(monkeypatch, tmp_path,
+                                                                                      jobs, executor, started):
+    calls = []
+    monkeypatch.setattr("simrun.cli.start_worker_server", lambda: calls.append(True))
+    code = main(["run", str(tmp_path / "missing.yaml"), "-j", jobs, "--executor", executor])
+    assert code == 2  # the missing config ends the command after the decision
+    assert calls == ([True] if started and default_jobs() > 1 else [])
 
 
 @pytest.mark.parametrize("options, expected", [
@@ -104,15 +135,6 @@ def test_the_worker_server_starts_early_only_when_the_pool_may_be_used(options, 
 def test_python_dash_m_simrun_is_the_command():
     result = subprocess.run([sys.executable, "-m", "simrun", "--version"], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0 and result.stdout.strip().startswith("simrun ")
-
-
-def test_a_blas_thread_count_the_user_set_is_kept(monkeypatch):
-    for variable in BLAS_THREAD_VARIABLES:
-        monkeypatch.setenv(variable, "0")  # recorded, so that monkeypatch restores the original state
-        monkeypatch.delenv(variable)
-    monkeypatch.setenv("MKL_NUM_THREADS", "3")
-    _limit_blas_threads(1)
-    assert _blas_thread_settings() == {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "3"}
 
 
 def test_unchanged_config_resumes_and_changed_config_is_refused(tmp_path, capsys):
@@ -141,11 +163,26 @@ SLOW_SWEEP = """\
     """
 
 
+def _group_ends(group: int, timeout: float) -> bool:
+    """Whether every process of process group ``group`` ends within ``timeout`` s (killed if not)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(group, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.1)
+    os.killpg(group, signal.SIGKILL)  # leave no orphans behind, even when the test fails
+    return False
+
+
 def test_kill_9_keeps_every_finished_run_and_the_rerun_resumes(tmp_path):
     """A real subprocess killed with SIGKILL mid-sweep: the file opens, holds only complete runs, and the
     same command runs exactly the missing ones."""
     config = write_config(tmp_path, SLOW_SWEEP, tmp_path / "out")
-    process = subprocess.Popen([*SIMRUN, str(config), "--no-plots", "-j", "2"], stdout=subprocess.PIPE, text=True)
+    # a session of its own: its process group then holds simrun, the pool's fork server and workers
+    process = subprocess.Popen([*SIMRUN, str(config), "--no-plots", "-j", "2"], stdout=subprocess.PIPE, text=True,
+                               start_new_session=True)
     finished = 0
     deadline = time.monotonic() + 120
     for line in process.stdout:  # each "[k/N]" line is printed after its run was committed
@@ -156,6 +193,8 @@ def test_kill_9_keeps_every_finished_run_and_the_rerun_resumes(tmp_path):
     process.kill()
     process.wait()
     assert finished == 3
+    # the workers and their fork server end with simrun (they would otherwise wait forever)
+    assert _group_ends(process.pid, timeout=20), "pool processes outlived the killed simrun"
     with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
         kept = {run_id for run_id, group in file["runs"].items() if group.attrs.get("complete")}
         assert len(kept) >= 3
