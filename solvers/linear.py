@@ -39,6 +39,7 @@ SPLU_SPD_OPTIONS = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
 # cholesky on a matrix not known to be SPD: an LDL^T solution whose relative residual exceeds this
 # met a tiny pivot, and the pivoting LU solves again
 INDEFINITE_RESIDUAL = 1e-8
+FLOAT64 = np.dtype(np.float64)  # the one native float64 dtype object: `dtype is FLOAT64` is the cheapest test
 EPSILON = float(np.finfo(float).eps)  # np.finfo per call cost ~1 us, 4 % of an implicit spring step
 # A stationary iteration whose residual grows past this factor times |b| diverges (spectral radius > 1).
 DIVERGED_FACTOR = 1e8
@@ -88,6 +89,8 @@ class ReducedSolver(LinearSolver):
     """Restrict to the free dofs, solve the reduced system with ``_solve``, extend with zeros."""
 
     def solve(self, matrix, rhs: np.ndarray, free: FreeDofs, spd: bool = False) -> tuple[np.ndarray, int]:
+        if free.all_free and type(matrix) is np.ndarray and matrix.dtype is FLOAT64 and rhs.size:
+            return self._solve(matrix, rhs, spd)  # restrict and extend would return these very arrays
         reduced_rhs = free.restrict(rhs)
         if reduced_rhs.size == 0:
             return np.zeros_like(rhs), 0
@@ -246,7 +249,7 @@ def _dense_direct_solve(matrix, rhs: np.ndarray, spd: bool) -> np.ndarray:
     """A dense solve: LAPACK Cholesky for SPD matrices (LU when that fails), LU otherwise."""
     if matrix.shape[0] == 1:
         return rhs / matrix[0, 0]
-    if matrix.dtype == np.float64 and rhs.dtype == np.float64 and rhs.ndim == 1:
+    if matrix.dtype is FLOAT64 and rhs.dtype is FLOAT64 and rhs.ndim == 1:
         return _dense_solve(matrix, rhs, spd)
     if spd:
         try:
@@ -259,30 +262,36 @@ def _dense_direct_solve(matrix, rhs: np.ndarray, spd: bool) -> np.ndarray:
 def _dense_solve(matrix: np.ndarray, rhs: np.ndarray, spd: bool) -> np.ndarray:
     """scipy.linalg.solve(matrix, rhs) (assume_a="pos" first when spd) through the LAPACK drivers it
     uses, called directly: on the 2x2 and 3x3 matrices of the small systems its argument checks cost
-    20x the solve. The same checks of the result: LinAlgError for a singular matrix, LinAlgWarning
-    when the reciprocal condition number is below eps."""
+    20x the solve. The same checks of the result, with |A|_1 from dlange("1") as scipy takes it:
+    LinAlgError for a singular matrix, LinAlgWarning when the reciprocal condition number is below eps."""
     if spd:
-        factor, solution, info = scipy.linalg.lapack.dposv(matrix, rhs)
+        factor, solution, info = _dposv(matrix, rhs)
         if info == 0:
-            _check_condition(scipy.linalg.lapack.dpocon(factor, _one_norm(matrix))[0])
+            rcond = _dpocon(factor, _dlange("1", matrix))[0]
+            if not rcond >= EPSILON:  # `rcond < eps` would miss NaN
+                _check_condition(rcond)
             return solution
         if info < 0:
             raise ValueError(f"LAPACK reported an illegal value in {-info}-th argument.")
-    factor, _, solution, info = scipy.linalg.lapack.dgesv(matrix, rhs)
+    factor, _, solution, info = _dgesv(matrix, rhs)
     if info < 0:
         raise ValueError(f"LAPACK reported an illegal value in {-info}-th argument.")
     if info > 0:
         raise np.linalg.LinAlgError("Matrix is singular.")
-    _check_condition(scipy.linalg.lapack.dgecon(factor, _one_norm(matrix))[0])
+    rcond = _dgecon(factor, _dlange("1", matrix))[0]
+    if not rcond >= EPSILON:
+        _check_condition(rcond)
     return solution
 
 
-def _one_norm(matrix: np.ndarray) -> float:
-    """|A|_1 through LAPACK's dlange, as scipy.linalg.solve computes it."""
-    return float(scipy.linalg.lapack.dlange("1", matrix))
+# the LAPACK wrappers bound once: three attribute lookups per call are 5 % of a 2x2 solve
+_dposv, _dpocon, _dgesv, _dgecon, _dlange = (scipy.linalg.lapack.dposv, scipy.linalg.lapack.dpocon,
+                                             scipy.linalg.lapack.dgesv, scipy.linalg.lapack.dgecon,
+                                             scipy.linalg.lapack.dlange)
 
 
 def _check_condition(rcond: float) -> None:
+    """Called when rcond < eps or NaN: LinAlgError for a singular matrix, else scipy's LinAlgWarning."""
     if rcond == 0:
         raise np.linalg.LinAlgError("Matrix is singular.")
     if not rcond >= EPSILON:  # `rcond < eps` would miss NaN

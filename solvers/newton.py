@@ -34,7 +34,7 @@ def project_eigen(matrix: np.ndarray, fixed: np.ndarray) -> np.ndarray:
     return symmetric
 
 
-@dataclass
+@dataclass(slots=True)
 class _NewtonState:
     free: FreeDofs
     sparse_hessian: bool = False  # eigen projection: the problem's Hessian turned out sparse (use clamp)

@@ -16,7 +16,7 @@ from simrun.integrators import IncrementalPotential
 from simrun.integrators.base import add_diagonal
 from simrun.solvers.base import SMALL_VECTOR, _free_dofs, max_norm
 from simrun.solvers.dofs import free_dofs
-from simrun.solvers.linear import _dense_solve
+from simrun.solvers.linear import LINEAR_SOLVERS, _dense_solve
 from simrun.systems import CircularMotionParams, ClothParams, SpringMassParams
 
 
@@ -56,6 +56,28 @@ def test_dense_solve_is_scipy_solve(size):
         indefinite = matrix + matrix.T
         np.testing.assert_allclose(indefinite @ _dense_solve(indefinite, rhs, True), rhs, rtol=0, atol=1e-8 * np.abs(rhs).max()
                                    * np.linalg.cond(indefinite))
+
+
+@pytest.mark.parametrize("name", ["direct", "cg"])
+@pytest.mark.parametrize("size", [1, 2, 3])
+def test_reduced_solve_without_fixed_dofs_equals_the_restricted_path(name, size):
+    """The shortcut for a float64 array with every dof free gives what restrict -> _solve -> extend gives."""
+    rng = np.random.default_rng(size)
+    solver = LINEAR_SOLVERS[name]()
+    free = _free_dofs(size, None)
+    for _ in range(10):
+        matrix = rng.standard_normal((size, size))
+        matrix = matrix @ matrix.T + size * np.eye(size)
+        rhs = rng.standard_normal(size)
+        generic = solver._solve(free.restrict_matrix(matrix), free.restrict(rhs), True)
+        fast = solver.solve(matrix, rhs, free, spd=True)
+        np.testing.assert_array_equal(fast[0], free.extend(generic[0]))
+        assert fast[1] == generic[1]
+    # not float64 or fixed dofs: the restricted path, which converts and drops the fixed rows
+    np.testing.assert_array_equal(solver.solve(np.eye(size, dtype=np.float32) * 2, np.ones(size), free)[0], np.full(size, 0.5))
+    if size > 1:
+        pinned = solver.solve(2 * np.eye(size), np.ones(size), free_dofs(size, [0]))[0]
+        np.testing.assert_array_equal(pinned, np.r_[0.0, np.full(size - 1, 0.5)])
 
 
 def test_dense_solve_raises_and_warns_as_scipy_does():
