@@ -26,10 +26,8 @@ import scipy.sparse
 from pydantic import BaseModel, ConfigDict
 
 from simrun.solvers import SolveStats
-from simrun.solvers.base import SMALL_VECTOR, max_norm
+from simrun.solvers.base import FLOAT64, SMALL_VECTOR, max_norm
 from simrun.systems import System
-
-FLOAT64 = np.dtype(np.float64)  # the one native float64 dtype object: `dtype is FLOAT64` is the cheapest test
 
 
 @dataclass(slots=True)  # not frozen: a frozen dataclass's __init__ costs 4x more, once per step

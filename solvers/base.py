@@ -34,14 +34,13 @@ from typing import Callable, ClassVar, NamedTuple, Protocol
 import numpy as np
 
 from .dofs import FreeDofs, free_dofs
-from .linear import LINEAR_SOLVERS, LinearSolver
+from .linear import FLOAT64, LINEAR_SOLVERS, LinearSolver
 
 # A search direction this small relative to |y| changes y only in its last bits: the iterate is as
 # good as floating point allows, whatever the residual's own round-off says.
 ROUNDOFF_STEP = 16 * np.finfo(float).eps
 # Up to this many entries, |v|_inf is taken over Python floats (one particle in 3-D has 3 dofs).
 SMALL_VECTOR = 8
-FLOAT64 = np.dtype(np.float64)  # the one native float64 dtype object: `dtype is FLOAT64` is the cheapest test
 # A failing linear solve (exactly singular factor, non-finite matrix) ends the nonlinear solve as not converged.
 LINEAR_FAILURES = (np.linalg.LinAlgError, RuntimeError, ValueError, FloatingPointError)
 
