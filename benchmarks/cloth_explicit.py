@@ -16,7 +16,7 @@ import scipy.sparse
 from simrun.config import DivergenceParams, RecordParams, Run
 from simrun.integrators import INTEGRATORS
 from simrun.simulate import simulate
-from simrun.solvers import SolverParams
+from simrun.solvers import solver_params
 from simrun.systems import ClothParams
 
 from .timing import best_of
@@ -66,7 +66,7 @@ def rows() -> list[tuple[str, float, str, str]]:
     params = ClothParams(resolution=(RESOLUTION, RESOLUTION))
     system = params.build()
     run = Run(run_id="bench", index=0, system=params, integrator=INTEGRATORS["symplectic_euler"](),
-              solver=SolverParams(), dt=DT, duration=STEPS * DT, record=RecordParams(),
+              solver=solver_params(), dt=DT, duration=STEPS * DT, record=RecordParams(),
               divergence=DivergenceParams(), swept={})
     # interleaved, best of REPEATS each: a slow spell of this shared machine then hits both alike
     full = bare = float("inf")

@@ -1,6 +1,6 @@
 """One projected Newton iteration of backward Euler on the cloth, over one SuperLU factorisation.
 
-The real solver (``SolverParams(type="projected_newton").build()``: clamped Hessian, backtracking
+The real solver (``solver_params(type="projected_newton").build()``: clamped Hessian, backtracking
 line search, direct solve) minimises one incremental potential of a deformed, moving cloth for a
 fixed number of iterations (tolerance 0, so none ends early); the time per iteration (assembly,
 restriction to the free dofs, factorisation and solve, line search, bookkeeping) is divided by the
@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse.linalg
 
 from simrun.integrators import IncrementalPotential
-from simrun.solvers import LINEAR_SOLVERS, SolverParams
+from simrun.solvers import LINEAR_SOLVERS, solver_params
 from simrun.solvers.linear import SPLU_ORDERING, SPLU_SPD_OPTIONS
 from simrun.systems import ClothParams
 
@@ -44,8 +44,8 @@ def repeats(resolution: int) -> int:
 def newton_iteration(resolution: int, linear_solver: str) -> tuple[float, int]:
     """(best wall time per projected Newton iteration, iterations per solve) with ``linear_solver``."""
     _, problem, x = cloth_step_problem(resolution)
-    solver = SolverParams(type="projected_newton", linear_solver=linear_solver, tolerance=1e-300,
-                          max_iterations=ITERATIONS).build()
+    solver = solver_params(type="projected_newton", linear_solver=linear_solver, tolerance=1e-300,
+                           max_iterations=ITERATIONS).build()
 
     def newton():
         start = time.perf_counter()

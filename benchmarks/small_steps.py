@@ -15,7 +15,7 @@ import numpy as np
 from simrun.config import DivergenceParams, RecordParams, Run
 from simrun.integrators import INTEGRATORS
 from simrun.simulate import simulate
-from simrun.solvers import SolverParams
+from simrun.solvers import solver_params
 from simrun.systems import CircularMotionParams, SpringMassParams
 
 from .timing import best_of
@@ -28,7 +28,7 @@ REPEATS = 7
 
 def make_run(system, integrator: str, steps: int = STEPS, record: RecordParams | None = None) -> Run:
     return Run(run_id="bench", index=0, system=system, integrator=INTEGRATORS[integrator](),
-               solver=SolverParams(type="newton", linear_solver="direct"), dt=DT, duration=steps * DT,
+               solver=solver_params(type="newton", linear_solver="direct"), dt=DT, duration=steps * DT,
                record=record or RecordParams(), divergence=DivergenceParams(), swept={})
 
 

@@ -1,3 +1,26 @@
-"""simrun: a batch experiment runner for the time integrators of physics-based animation."""
+"""simrun (folder runner/): a batch experiment runner for the time integrators of physics-based animation.
+
+    import simrun
+    results = simrun.run("configs/quickstart.yaml", output="/tmp/quickstart")   # the pipeline: simrun.pipeline
+    results = simrun.load("results/quickstart/results.h5")                      # the reader: simrun.results
+
+The design card's folders are installed as one package: runner/ is `simrun` (the application),
+systems/ is `simrun.systems`, integrators/ is `simrun.integrators`, solvers/ is `simrun.solvers`.
+`run` and `load` are imported on first use, so that `import simrun` stays light for the command line.
+"""
 
 __version__ = "0.1.0"
+
+__all__ = ["__version__", "load", "run"]
+
+
+def __getattr__(name: str):
+    if name == "run":
+        from simrun.pipeline import run
+
+        return run
+    if name == "load":
+        from simrun.results import load
+
+        return load
+    raise AttributeError(f"module 'simrun' has no attribute {name!r}")

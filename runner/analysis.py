@@ -15,10 +15,11 @@ formula is used. From A:
 
 Measured (from recorded series, as arrays): the damping from a run's energy decay, the period from
 its zero crossings, the observed order from errors against dt. Reference solutions for systems
-without an exact one (cloth) are computed here from the system's parameters, only on request.
+without an exact one are in ``simrun.reference``.
 
-This module never reads the results file and never imports the config, simulation or store
-modules: plots and reports call it with what they read from the file.
+Throughout, hw is the dimensionless step h w (time step times the test frequency). This module never
+reads the results file and never imports the config, simulation or store modules: figures and
+reports call it with what they read through ``simrun.results``.
 """
 
 from __future__ import annotations
@@ -30,14 +31,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from simrun.integrators import INTEGRATORS, Integrator, State
-from simrun.solvers import SolverParams
+from simrun.solvers import solver_params
 from simrun.systems import SYSTEMS, SpringMassParams
 
 # The probe's Newton solves a linear problem in one iteration; the tight tolerance only makes the
 # convergence test insist on round-off (the problem's residual floor ends it there).
-PROBE_SOLVER = SolverParams(tolerance=1e-12).build()
+PROBE_SOLVER = solver_params(tolerance=1e-12).build()
 # The h w range (and resolution) of the predicted curves: two decades either side of h w = 1.
-X_RANGE = (1e-2, 1e2)
+HW_RANGE = (1e-2, 1e2)
 POINTS_PER_DECADE = 40
 # rho above 1 + this counts as growth: below it the probe's round-off (about 1e-12 at h w = 1e3)
 # could not be told from growth, and a growth of 1e-8 per step doubles the energy only after
@@ -49,7 +50,7 @@ RESOLVED_DEVIATION = 1e-13
 BISECTION_STEPS = 60
 # Eigenvalues with |Im| below this fraction of their modulus are real: no oscillation, no period.
 REAL_EIGENVALUE = 1e-9
-PERIOD_X_MAX = math.pi
+PERIOD_HW_MAX = math.pi
 
 # -- measured damping -------------------------------------------------------------------------------
 # Energy below this fraction of E0 is near underflow (positions ~ 1e-150 of their start); not fitted.
@@ -81,10 +82,6 @@ ROUND_OFF_ERROR, SATURATED_ERROR = 1e-10, 0.1
 # and at least ORDER_MIN_POINTS of them (two points give a secant, not a fit).
 ORDER_FIT_POINTS, ORDER_MIN_POINTS = 4, 3
 
-# -- reference solutions ----------------------------------------------------------------------------
-REFERENCE_METHODS = ("DOP853", "Radau", "BDF", "LSODA", "RK45")
-REFERENCE_RTOL = 1e-10
-REFERENCE_ATOL = 1e-12
 
 
 # ==================================================================================================
@@ -173,58 +170,58 @@ def spectral_radius(matrix: np.ndarray) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(matrix))))
 
 
-def damping_over_frequency(rho, x):
+def damping_over_frequency(rho, hw):
     """d_method / w = -2 ln(rho) / (h w): the energy of the test spring decays like exp(-d_method t)."""
-    rho, x = np.asarray(rho, dtype=float), np.asarray(x, dtype=float)
+    rho, hw = np.asarray(rho, dtype=float), np.asarray(hw, dtype=float)
     with np.errstate(divide="ignore"):
-        return -2.0 * np.log(rho) / x
+        return -2.0 * np.log(rho) / hw
 
 
 @dataclass(frozen=True, eq=False)
 class Prediction:
-    """The predicted curves of one integrator on the test spring, against x = h w (dimensionless)."""
+    """The predicted curves of one integrator on the test spring, against hw = h w (dimensionless)."""
 
     integrator: Integrator
-    x: np.ndarray  # (points,) h w
+    hw: np.ndarray  # (points,) h w
     rho: np.ndarray  # (points,) spectral radius
     damping: np.ndarray  # (points,) d_method / w
-    period_error: np.ndarray  # (points,) T_method / T - 1; NaN for x >= pi or where the root is real
+    period_error: np.ndarray  # (points,) T_method / T - 1; NaN for hw >= pi or where the root is real
     stability_limit: float  # h w where rho first exceeds 1 + GROWTH_TOLERANCE; 0: never stable; inf: none in range
 
     @property
     def label(self) -> str:
         return self.integrator.label
 
-    def at(self, x: float) -> tuple[float, float]:
-        """(rho, d_method / w) at one x, probed exactly (not interpolated)."""
-        rho = spectral_radius(amplification_matrix(self.integrator, x))
-        return rho, float(damping_over_frequency(rho, x))
+    def at(self, hw: float) -> tuple[float, float]:
+        """(rho, d_method / w) at one hw, probed exactly (not interpolated)."""
+        rho = spectral_radius(amplification_matrix(self.integrator, hw))
+        return rho, float(damping_over_frequency(rho, hw))
 
 
-def x_grid(low: float = X_RANGE[0], high: float = X_RANGE[1], per_decade: int = POINTS_PER_DECADE) -> np.ndarray:
+def hw_grid(low: float = HW_RANGE[0], high: float = HW_RANGE[1], per_decade: int = POINTS_PER_DECADE) -> np.ndarray:
     decades = math.log10(high) - math.log10(low)
     return np.logspace(math.log10(low), math.log10(high), max(2, int(round(decades * per_decade)) + 1))
 
 
 @functools.lru_cache(maxsize=256)
 def _predict_cached(integrator: Integrator, low: float, high: float, per_decade: int) -> Prediction:
-    x = x_grid(low, high, per_decade)
-    matrices = [amplification_matrix(integrator, value) for value in x]
+    hw = hw_grid(low, high, per_decade)
+    matrices = [amplification_matrix(integrator, value) for value in hw]
     eigenvalues = [np.linalg.eigvals(matrix) for matrix in matrices]
     rho = np.array([float(np.max(np.abs(values))) for values in eigenvalues])
-    principal = _principal_eigenvalues(x, eigenvalues)
+    principal = _principal_eigenvalues(hw, eigenvalues)
     phase = np.abs(np.angle(principal))
     real = np.abs(principal.imag) <= REAL_EIGENVALUE * np.abs(principal)
     with np.errstate(divide="ignore", invalid="ignore"):
-        period_error = np.where(real | (x >= PERIOD_X_MAX) | (phase == 0), np.nan, x / phase - 1.0)
-    for array in (x, rho, period_error):
+        period_error = np.where(real | (hw >= PERIOD_HW_MAX) | (phase == 0), np.nan, hw / phase - 1.0)
+    for array in (hw, rho, period_error):
         array.setflags(write=False)
-    damping = damping_over_frequency(rho, x)
+    damping = damping_over_frequency(rho, hw)
     damping.setflags(write=False)
-    return Prediction(integrator, x, rho, damping, period_error, _stability_limit(integrator, x, rho))
+    return Prediction(integrator, hw, rho, damping, period_error, _stability_limit(integrator, hw, rho))
 
 
-def predict(integrator: Integrator, low: float = X_RANGE[0], high: float = X_RANGE[1],
+def predict(integrator: Integrator, low: float = HW_RANGE[0], high: float = HW_RANGE[1],
             per_decade: int = POINTS_PER_DECADE) -> Prediction:
     """Spectral radius, damping, period error and stability limit of one integrator over h w in [low, high]."""
     if not 0 < low < high:
@@ -232,27 +229,27 @@ def predict(integrator: Integrator, low: float = X_RANGE[0], high: float = X_RAN
     return _predict_cached(integrator, float(low), float(high), int(per_decade))
 
 
-def _principal_eigenvalues(x: np.ndarray, eigenvalues: list[np.ndarray]) -> np.ndarray:
-    """The eigenvalue that approximates e^{i h w}, followed by continuation along the (increasing) x grid.
+def _principal_eigenvalues(hw: np.ndarray, eigenvalues: list[np.ndarray]) -> np.ndarray:
+    """The eigenvalue that approximates e^{i h w}, followed by continuation along the (increasing) hw grid.
 
-    At the smallest x it is the one nearest e^{i x}; after that the one nearest the previous
-    principal eigenvalue turned by the step in x, so spurious roots of multistep methods (and the
+    At the smallest hw it is the one nearest e^{i hw}; after that the one nearest the previous
+    principal eigenvalue turned by the step in hw, so spurious roots of multistep methods (and the
     conjugate) are never picked up where the roots do not collide.
     """
-    principal = np.empty(len(x), dtype=complex)
-    guess = np.exp(1j * x[0])
+    principal = np.empty(len(hw), dtype=complex)
+    guess = np.exp(1j * hw[0])
     for number, values in enumerate(eigenvalues):
         if number:
-            guess = principal[number - 1] * np.exp(1j * (x[number] - x[number - 1]))
+            guess = principal[number - 1] * np.exp(1j * (hw[number] - hw[number - 1]))
         principal[number] = values[np.argmin(np.abs(values - guess))]
     return principal
 
 
-def _stability_limit(integrator: Integrator, x: np.ndarray, rho: np.ndarray) -> float:
+def _stability_limit(integrator: Integrator, hw: np.ndarray, rho: np.ndarray) -> float:
     """The h w at which rho first exceeds 1 + GROWTH_TOLERANCE, refined by bisection.
 
-    0 when the method grows at every step size: rho > 1 already at the smallest x, or the resolved
-    deviations below the crossing are growth that shrinks like a power of x (forward Euler, RK2).
+    0 when the method grows at every step size: rho > 1 already at the smallest hw, or the resolved
+    deviations below the crossing are growth that shrinks like a power of hw (forward Euler, RK2).
     inf when rho stays <= 1 + GROWTH_TOLERANCE over the whole grid.
     """
     growing = np.nonzero(rho > 1.0 + GROWTH_TOLERANCE)[0]
@@ -261,7 +258,7 @@ def _stability_limit(integrator: Integrator, x: np.ndarray, rho: np.ndarray) -> 
     first = int(growing[0])
     if first == 0:
         return 0.0
-    low, high = math.log(x[first - 1]), math.log(x[first])
+    low, high = math.log(hw[first - 1]), math.log(hw[first])
     for _ in range(BISECTION_STEPS):
         middle = 0.5 * (low + high)
         if spectral_radius(amplification_matrix(integrator, math.exp(middle))) > 1.0 + GROWTH_TOLERANCE:
@@ -276,7 +273,7 @@ def _stability_limit(integrator: Integrator, x: np.ndarray, rho: np.ndarray) -> 
 
 
 # h w at which the one-step map equals its limit h w -> infinity in double precision (its terms in 1/(h w)^2 are below round-off).
-X_INFINITY = 1e9
+HW_INFINITY = 1e9
 # Eigenvalues of the limit map closer than this belong to one cluster (a multiple root).
 CLUSTER_DISTANCE = 1e-3
 
@@ -290,7 +287,7 @@ def high_frequency_radius(integrator: Integrator) -> float:
     cluster's invariant subspace over its dimension; Golub & Van Loan, Matrix Computations, sec.
     7.2). So the eigenvalues are grouped into clusters and the radius is the largest |cluster mean|.
     """
-    eigenvalues = list(np.linalg.eigvals(amplification_matrix(integrator, X_INFINITY)))
+    eigenvalues = list(np.linalg.eigvals(amplification_matrix(integrator, HW_INFINITY)))
     radius = 0.0
     while eigenvalues:
         seed = eigenvalues.pop(0)
@@ -306,46 +303,13 @@ def determinant(integrator: Integrator, dt: float, system) -> float:
 
 
 # ==================================================================================================
-# Systems: the test frequency of a run, and reference solutions
+# Systems: a run's system rebuilt from its stored parameters
 # ==================================================================================================
-def test_frequency(system_type: str, system_params: dict) -> float | None:
-    """w (rad/s) when the run is the undamped test equation (or uncoupled copies of it), else None.
-
-    spring_mass without damping: sqrt(k/m); circular_motion with the linear force: its angular
-    velocity. Damped, nonlinear or large systems have no single w on which the predictions hold.
-    """
-    if system_type == "spring_mass" and float(system_params.get("damping", 0.0)) == 0.0:
-        return math.sqrt(float(system_params.get("stiffness", 100.0)) / float(system_params.get("mass", 1.0)))
-    if system_type == "circular_motion" and system_params.get("force", "linear") == "linear":
-        return float(system_params.get("angular_velocity", 1.0))
-    return None
-
-
 def build_system(system_type: str, system_params: dict):
     """Rebuild a run's system from its stored parameters (``system_params`` in the results file)."""
     if system_type not in SYSTEMS:
         raise ValueError(f"unknown system {system_type!r}; valid: " + ", ".join(SYSTEMS))
     return SYSTEMS[system_type].model_validate({**system_params, "type": system_type}).build()
-
-
-def reference_positions(system, times, method: str = "DOP853", rtol: float = REFERENCE_RTOL,
-                        atol: float = REFERENCE_ATOL) -> dict[float, np.ndarray]:
-    """x(t) (m, shape (dof_count,)) at each of the given times (s), from scipy's solve_ivp on u = (x, v), u' = (v, M^-1 f(x, v))."""
-    import scipy.integrate
-
-    if method not in REFERENCE_METHODS:
-        raise ValueError(f"unknown reference method {method!r}; valid: " + ", ".join(REFERENCE_METHODS))
-    times = np.asarray(sorted(set(float(t) for t in times)))
-    n = system.dof_count
-
-    def rate(_, u):
-        return np.concatenate([u[n:], system.acceleration(u[:n], u[n:])])
-
-    solution = scipy.integrate.solve_ivp(rate, (0.0, float(times[-1])), np.concatenate([system.x0, system.v0]),
-                                         method=method, t_eval=times, rtol=rtol, atol=atol)
-    if not solution.success:
-        raise RuntimeError(f"reference solution ({method}) failed: {solution.message}")
-    return {float(t): solution.y[:n, column] for column, t in enumerate(solution.t)}
 
 
 # ==================================================================================================

@@ -20,7 +20,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 
 from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS, Integrator
-from simrun.solvers import SolverParams
+from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError, SolverParams
 from simrun.systems import SYSTEMS
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
@@ -111,7 +111,7 @@ class Experiment(BaseModel):
     name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$", max_length=100, description="names the output folder")
     system: SystemField
     integrators: list[IntegratorField] = Field(min_length=1, description="names, or mappings with 'type' and parameters")
-    solver: SolverParams = SolverParams()
+    solver: SolverField = NewtonParams()
     duration: float = Field(10.0, gt=0, allow_inf_nan=False, description="simulated time per run (s)")
     sweep: dict[str, SweepValues] = Field(description="dt (s) and any other dotted key, each a list of values")
     record: RecordParams = RecordParams()
@@ -141,7 +141,7 @@ class Run(BaseModel):
     index: int
     system: SystemField
     integrator: IntegratorField
-    solver: SolverParams
+    solver: SolverField
     dt: float
     duration: float
     record: RecordParams
@@ -219,9 +219,19 @@ def validate_experiment(raw: dict) -> Experiment:
         raise ConfigError(_describe_error(error, raw)) from None
 
 
-def load_experiment(path: str | Path, overrides: list[str] = ()) -> tuple[Experiment, str]:
-    """Load, override and validate a config; returns the experiment and its resolved YAML text."""
-    raw, text = load_yaml(path)
+def load_experiment(source: str | Path | dict, overrides: list[str] = ()) -> tuple[Experiment, str]:
+    """Load, override and validate a config; returns the experiment and its resolved YAML text.
+
+    source: a path to a YAML file, YAML text (a string with a line break or a ``key: value``), or a
+    dict of the same content (as ``simrun.run`` accepts)."""
+    if isinstance(source, dict):
+        raw, text = copy.deepcopy(source), yaml.safe_dump(source, sort_keys=False)
+    elif isinstance(source, str) and ("\n" in source or ": " in source):
+        raw, text = parse_yaml(source), source
+    elif isinstance(source, (str, Path)):
+        raw, text = load_yaml(source)
+    else:
+        raise ConfigError(f"config: expected a path, YAML text or a dict, got {type(source).__name__}")
     if overrides:
         for assignment in overrides:
             apply_override(raw, assignment)
@@ -237,6 +247,9 @@ def expand_runs(experiment: Experiment) -> list[Run]:
     if total > MAX_RUNS:
         raise ConfigError(f"sweep: {total} runs exceed the limit of {MAX_RUNS}; shorten the sweep")
     base = experiment.model_dump(exclude={"sweep", "output", "name"}, mode="python")
+    # the solver as written (its defaults filled in again per run), so that sweeping solver.type does not
+    # carry the base solver's own options to a solver that does not take them
+    base["solver"] = experiment.solver.model_dump(exclude_unset=True, mode="python")
     base["integrators"] = list(experiment.integrators)
     runs = []
     for assignment in combinations:
@@ -318,6 +331,10 @@ def _describe_error(error: ValidationError, raw: dict) -> str:
     # pydantic puts the discriminator's tag into the path (system.spring_mass.mass); drop it
     if len(location) >= 2 and location[0] == "system" and location[1] in SYSTEMS:
         location.pop(1)
+    cause = first.get("ctx", {}).get("error")
+    if isinstance(cause, SolverOptionError):  # it names the option inside the field: solver.history, not solver
+        location += list(cause.path)
+        first = {**first, "msg": cause.reason}
     first = {**first, "loc": tuple(location)}
     if first["type"] == "union_tag_invalid":
         tag = first.get("ctx", {}).get("tag")
@@ -336,6 +353,10 @@ def _fields_at(location: list, raw: dict) -> dict:
         if part == "system":
             system_type = raw.get("system", {}).get("type") if isinstance(raw.get("system"), dict) else None
             model = SYSTEMS.get(system_type)
+            continue
+        if part == "solver":
+            solver_type = raw["solver"].get("type", "newton") if isinstance(raw.get("solver"), dict) else None
+            model = SOLVER_PARAMS.get(solver_type) if isinstance(solver_type, str) else None
             continue
         field = model.model_fields.get(str(part))
         annotation = getattr(field, "annotation", None)

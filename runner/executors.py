@@ -11,11 +11,12 @@ import concurrent.futures
 import logging
 from collections.abc import Iterator
 
-from simrun.config import ConfigError, Run
+from simrun.config import Run
+from simrun.errors import ConfigError
 from simrun.simulate import RunResult, simulate
 from simrun.workers import EXECUTORS, process_pool
 
-__all__ = ["EXECUTORS", "execute", "run_serial", "run_process_pool", "run_dask"]
+__all__ = ["EXECUTORS", "EXECUTOR_FUNCTIONS", "execute", "run_serial", "run_process_pool", "run_dask"]
 
 
 def run_serial(runs: list[Run]) -> Iterator[tuple[Run, RunResult]]:
@@ -66,10 +67,24 @@ def run_dask(runs: list[Run], jobs: int, scheduler: str | None) -> Iterator[tupl
             cluster.close()
 
 
-def execute(runs: list[Run], executor: str = "local", jobs: int = 1,
-            scheduler: str | None = None) -> Iterator[tuple[Run, RunResult]]:
-    if executor == "dask":
-        return run_dask(runs, jobs, scheduler)
+def run_local(runs: list[Run], jobs: int, scheduler: str | None = None) -> Iterator[tuple[Run, RunResult]]:
+    """This machine: serially for one job or one run, else a pool of ``jobs`` processes."""
     if jobs <= 1 or len(runs) <= 1:
         return run_serial(runs)
     return run_process_pool(runs, min(jobs, len(runs)))
+
+
+# executor name -> function(runs, jobs, scheduler) yielding (run, result) as runs finish
+EXECUTOR_FUNCTIONS = {
+    "process": run_local,
+    "dask": run_dask,
+}
+assert set(EXECUTOR_FUNCTIONS) == set(EXECUTORS), "simrun.workers.EXECUTORS names what the command line offers"
+
+
+def execute(runs: list[Run], executor: str = "process", jobs: int = 1,
+            scheduler: str | None = None) -> Iterator[tuple[Run, RunResult]]:
+    """Every run on the named executor; yields (run, result) as each finishes."""
+    if executor not in EXECUTOR_FUNCTIONS:
+        raise ConfigError(f"executor: unknown {executor!r}; valid: " + ", ".join(EXECUTOR_FUNCTIONS))
+    return EXECUTOR_FUNCTIONS[executor](runs, jobs, scheduler)

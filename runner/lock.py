@@ -10,11 +10,9 @@ import fcntl
 import os
 from pathlib import Path
 
+from simrun.errors import OutputLocked
+
 LOCK_NAME = ".simrun.lock"
-
-
-class OutputLocked(Exception):
-    """Another process holds the output folder."""
 
 
 class OutputLock:

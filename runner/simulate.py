@@ -10,10 +10,8 @@ import numpy as np
 
 from simrun.config import Run
 from simrun.integrators import State
+from simrun.results import Status
 from simrun.solvers import EXPLICIT_STEP
-
-OK, DIVERGED, NOT_CONVERGED, FAILED = "ok", "diverged", "not_converged", "failed"
-STATUSES = (OK, DIVERGED, NOT_CONVERGED, FAILED)
 
 
 @dataclass
@@ -21,7 +19,7 @@ class RunResult:
     """Everything one run produced: outcome, recorded samples and per-step solver statistics."""
 
     run_id: str
-    status: str
+    status: Status
     steps: int  # steps taken (fewer than planned when the run stopped early)
     wall_time: float  # s, the stepping loop alone
     samples: dict[str, np.ndarray]  # one row per recorded sample: t, energies, positions, ...
@@ -131,7 +129,7 @@ def simulate(run: Run) -> RunResult:
     record_sample(0.0, state.x, state.v, dissipated)
     if with_frames:
         record_frame(0.0, state.x)
-    status, message, t_diverged, not_converged_steps = OK, "", None, 0
+    status, message, t_diverged, not_converged_steps = Status.OK, "", None, 0
     steps = 0
     start = time.perf_counter()
     try:
@@ -166,7 +164,7 @@ def simulate(run: Run) -> RunResult:
                         energy = total_energy(state.x, state.v)
                     # math.isfinite: a tenth of np.isfinite's cost on one float
                     if not math.isfinite(energy) or abs(energy - energy0) > energy_bound:
-                        status, t_diverged = DIVERGED, t
+                        status, t_diverged = Status.DIVERGED, t
                         message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {t:.6g} s"
                         record_stop(t, state, sampled, framed)
                         break
@@ -177,14 +175,15 @@ def simulate(run: Run) -> RunResult:
                         record_stop(t, state, sampled, framed)
                         break
     except Exception as error:  # a failing run is a result, never the end of the sweep
-        status, message = FAILED, f"{type(error).__name__}: {error}"
+        status, message = Status.FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start
-    if status == OK and not_converged_steps:
-        status = NOT_CONVERGED
+    if status is Status.OK and not_converged_steps:
+        status = Status.NOT_CONVERGED
         if not message:
             message = f"{not_converged_steps} of {steps} steps did not converge within max_iterations"
     samples = recorder.result()
-    attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps}
+    attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps,
+             **system.capabilities.as_attrs()}
     return RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
         per_step={key: value[:steps] for key, value in per_step.items()},

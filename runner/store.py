@@ -1,14 +1,19 @@
-"""The results file: one HDF5 file per experiment (layout documented in docs/results-format.md).
+"""The writing half of the results file (layout in docs/results-format.md; ``simrun.results`` reads it).
 
 Each finished run is committed at once (group written, summary row appended, file flushed), so the
-file always opens and holds every run that finished.
+file always opens and holds every run that finished. The policies around the writer live here too:
+whether a sweep may write where it is asked to, whether it fits, and whether an existing file is
+resumed or refused.
 """
 
 from __future__ import annotations
 
 import datetime
 import json
+import os
 import platform
+import shutil
+import tempfile
 from importlib import metadata
 from pathlib import Path
 
@@ -17,26 +22,14 @@ import numpy as np
 
 from simrun import __version__
 from simrun.config import Run
+from simrun.errors import ConfigError, ResultsFileError
+from simrun.results import FORMAT_VERSION, SUMMARY_DTYPE, summary_row
+from simrun.results import load_summary  # noqa: F401  (deprecated alias, one version: simrun.load(path).summary)
 from simrun.simulate import RunResult
 
-FORMAT_VERSION = 1
-RESULTS_NAME = "results.h5"
 # per-step arrays are mostly constant (0 or 1 iteration): gzip shrinks them by orders of magnitude
 COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
-
-SUMMARY_DTYPE = np.dtype([
-    ("run_id", h5py.string_dtype()),
-    ("integrator", h5py.string_dtype()),
-    ("dt", "f8"),
-    ("status", h5py.string_dtype()),
-    ("steps", "i8"),
-    ("max_rel_energy_drift", "f8"),
-    ("final_rel_energy_drift", "f8"),
-    ("final_error", "f8"),
-    ("mean_newton_iterations", "f8"),
-    ("mean_linear_iterations", "f8"),
-    ("wall_time", "f8"),
-])
+DEFAULT_MAX_SIZE_GB = 50.0
 
 
 # bytes per step of the per-step datasets (int32 x 3, float64, int8) and per sample scalar
@@ -51,16 +44,16 @@ def estimate_run_bytes(run: Run) -> int:
     samples = steps // run.record.stride(steps) + 2
     per_sample = SAMPLE_SCALARS
     total = steps * PER_STEP_BYTES
-    if run.system.type == "cloth":
-        total += (steps // run.record.frame_stride(steps) + 2) * dof * 8
-    else:
+    if run.system.system_class.records_state_per_sample:
         per_sample += 2 * dof
+    else:  # frames of the vertex positions, at their own cadence
+        total += (steps // run.record.frame_stride(steps) + 2) * dof * 8
     return total + samples * per_sample * 8
 
 
 def package_versions() -> dict[str, str]:
     versions = {"python": platform.python_version()}
-    for name in ("numpy", "scipy", "h5py", "matplotlib", "pydantic", "pyyaml"):
+    for name in ("numpy", "scipy", "h5py", "matplotlib", "pydantic", "pyyaml", "pandas"):
         try:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
@@ -68,33 +61,58 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
-def energy_drift(energy: np.ndarray, scale: float) -> tuple[float, float]:
-    """(max |E - E0|, final E - E0), both relative to the energy scale (|E0|, or |KE0| + |PE0| when E0 = 0)."""
-    if energy.size == 0:
-        return float("nan"), float("nan")
-    drift = (energy - energy[0]) / scale
-    return float(np.max(np.abs(drift))), float(drift[-1])
-
-
-def drift_scale(samples: dict[str, np.ndarray]) -> float:
-    energy0 = abs(float(samples["energy"][0]))
-    if energy0 > 0:
-        return energy0
-    scale = abs(float(samples["kinetic_energy"][0])) + abs(float(samples["potential_energy"][0]))
-    return scale if scale > 0 else 1.0
-
-
-class ResultsFileError(Exception):
-    """An existing results file that cannot be resumed (another config, or unreadable)."""
-
-
-def stored_config_hash(path: Path) -> str | None:
-    """The config hash of an existing results file; raises ResultsFileError if it cannot be read."""
+# -- before a sweep starts: may it write there, does it fit, is it a resume? ----------------------
+def check_writable(output: Path) -> None:
+    """Refuse an output folder we cannot write before any run starts (and before creating anything)."""
+    existing = _existing_ancestor(output)
+    if not existing.is_dir():
+        raise ConfigError(f"output: {str(existing)!r} is a file, not a folder")
     try:
-        with h5py.File(path, "r") as file:
-            return str(file.attrs.get("config_hash", "")) or None
-    except OSError as error:
-        raise ResultsFileError(f"cannot be opened ({error.__class__.__name__}); start over with --force") from None
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError:
+        raise ConfigError(f"output: cannot write in {str(existing)!r}; choose another --output") from None
+
+
+def admit_size(runs: list[Run], output: Path, jobs: int, max_size_gb: float = DEFAULT_MAX_SIZE_GB) -> None:
+    """Refuse a sweep whose results would not fit on the disk, under the limit, or (jobs at once) in memory."""
+    sizes = [estimate_run_bytes(run) for run in runs]
+    total = sum(sizes)
+    free = shutil.disk_usage(_existing_ancestor(output)).free
+    limit = min(max_size_gb * 1e9, free)
+    if total > limit:
+        reason = f"the --max-size limit of {max_size_gb:g} GB" if max_size_gb * 1e9 <= free else f"the {free / 1e9:.3g} GB free"
+        raise ConfigError(f"sweep: the results would take about {total / 1e9:.3g} GB, more than {reason}; "
+                          "record fewer samples (record.max_samples, record.max_frames) or shorten the sweep")
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    in_flight = sum(sorted(sizes)[-jobs:])
+    if in_flight > 0.8 * memory:
+        raise ConfigError(f"sweep: {jobs} runs at once would hold about {in_flight / 1e9:.3g} GB in memory, "
+                          f"more than 80 % of the {memory / 1e9:.3g} GB here; use fewer --jobs or record fewer samples")
+
+
+def _existing_ancestor(path: Path) -> Path:
+    while not path.exists():
+        path = path.parent
+    return path
+
+
+def open_writer(path: Path, config_text: str, digest: str, name: str, force: bool) -> "ResultsWriter":
+    """The resume policy: a new file; the existing one when it holds the same config (resume); else a refusal.
+
+    ``force`` starts over whatever the file holds."""
+    if path.exists() and not force:
+        try:
+            with h5py.File(path, "r") as file:
+                existing = str(file.attrs.get("config_hash", "")) or None
+        except OSError as error:
+            raise ResultsFileError(f"output: {str(path)!r} cannot be opened ({error.__class__.__name__}); "
+                                   "start over with --force") from None
+        if existing != digest:
+            raise ConfigError(f"output: {str(path)!r} holds the results of a different config; "
+                              "start over with --force, or choose another --output")
+        return ResultsWriter.resume(path)
+    return ResultsWriter.create(path, config_text, digest, name)
 
 
 class ResultsWriter:
@@ -132,7 +150,7 @@ class ResultsWriter:
         runs = writer.file["runs"]
         for run_id in [run_id for run_id, group in runs.items() if not group.attrs.get("complete", False)]:
             del runs[run_id]
-        rows = [_summary_row(run_id, runs[run_id]) for run_id in sorted(runs, key=lambda key: runs[key].attrs["index"])]
+        rows = [summary_row(run_id, runs[run_id]) for run_id in sorted(runs, key=lambda key: runs[key].attrs["index"])]
         del writer.file["summary"]
         writer.file.create_dataset("summary", data=np.array(rows, dtype=SUMMARY_DTYPE), maxshape=(None,), chunks=True)
         writer.file.flush()
@@ -154,7 +172,7 @@ class ResultsWriter:
         attrs["solver"] = json.dumps(run.solver.model_dump(mode="json"))
         attrs["dt"] = run.dt
         attrs["duration"] = run.duration
-        attrs["status"] = result.status
+        attrs["status"] = str(result.status)
         attrs["steps"] = result.steps
         attrs["planned_steps"] = run.step_count
         attrs["wall_time"] = result.wall_time
@@ -162,7 +180,7 @@ class ResultsWriter:
         attrs["message"] = result.message
         if result.t_diverged is not None:
             attrs["t_diverged"] = result.t_diverged
-        for key, value in result.attrs.items():
+        for key, value in result.attrs.items():  # final error, solver counts, the system's capabilities
             attrs[key] = value
         for key, array in result.samples.items():
             group.create_dataset(key, data=array)
@@ -171,7 +189,7 @@ class ResultsWriter:
         attrs["complete"] = True
         summary = self.file["summary"]
         summary.resize((summary.shape[0] + 1,))
-        summary[-1] = np.array([_summary_row(run.run_id, group)], dtype=SUMMARY_DTYPE)[0]
+        summary[-1] = np.array([summary_row(run.run_id, group)], dtype=SUMMARY_DTYPE)[0]
         self.file.flush()
 
     def close(self) -> None:
@@ -182,33 +200,3 @@ class ResultsWriter:
 
     def __exit__(self, *exc):
         self.close()
-
-
-def _summary_row(run_id: str, group: h5py.Group) -> tuple:
-    """One summary row, computed from the run's group alone (so a resumed file can rebuild it)."""
-    attrs = group.attrs
-    if "energy" in group and group["energy"].shape[0]:
-        samples = {key: group[key][()] for key in ("energy", "kinetic_energy", "potential_energy")}
-        max_drift, final_drift = energy_drift(samples["energy"], drift_scale(samples))
-    else:
-        max_drift = final_drift = float("nan")
-    newton = group["newton_iterations"][()]
-    linear = group["linear_iterations"][()]
-    return (
-        run_id, str(attrs["integrator_label"]), float(attrs["dt"]), str(attrs["status"]), int(attrs["steps"]),
-        max_drift, final_drift, float(attrs.get("final_error", float("nan"))),
-        float(newton.mean()) if newton.size else 0.0, float(linear.mean()) if linear.size else 0.0,
-        float(attrs["wall_time"]),
-    )
-
-
-def load_summary(path: str | Path) -> np.ndarray:
-    """The summary table, one row per run, as a numpy structured array with str fields decoded."""
-    with h5py.File(path, "r") as file:
-        table = file["summary"][()]
-    decoded = np.empty(table.shape, dtype=[(name, object if table.dtype[name].kind == "O" else table.dtype[name])
-                                           for name in table.dtype.names])
-    for name in table.dtype.names:
-        column = table[name]
-        decoded[name] = [item.decode() if isinstance(item, bytes) else item for item in column] if column.dtype.kind == "O" else column
-    return decoded

@@ -17,7 +17,9 @@ import time
 
 import threadpoolctl
 
-EXECUTORS = ("local", "dask")
+EXECUTORS = ("process", "dask")  # the names of simrun.executors.EXECUTOR_FUNCTIONS, light for the command line
+# what the command line also accepts: `--executor local` (the name before the pipeline API) is the process pool
+EXECUTOR_ALIASES = {"local": "process"}
 # Thread-count variables of the BLAS libraries a run may load (CHOLMOD's OpenBLAS; MKL or OpenMP builds)
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -108,4 +110,4 @@ def may_use_local_pool(argv: list[str]) -> bool:
         known, _ = guess.parse_known_args(argv)
     except (argparse.ArgumentError, SystemExit):
         return False  # the real parser will report it
-    return known.executor in (None, "local") and (known.jobs is None or known.jobs > 1) and default_jobs() > 1
+    return known.executor in (None, "local", "process") and (known.jobs is None or known.jobs > 1) and default_jobs() > 1

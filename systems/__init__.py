@@ -1,6 +1,13 @@
-"""Mechanical systems, found by their config name."""
+"""simrun.systems (folder systems/): mechanical systems, found by their config name.
 
-from .base import System
+``SYSTEMS`` maps each config name (``system.type``) to its parameter model, a ``SystemParams``;
+``params.build()`` gives the ``System`` and ``system.capabilities`` what it declares about itself.
+A new system joins with a params model + a System subclass + an entry in SYSTEMS; the tests in
+tests/test_systems.py then check it (derivatives, damping, pins, observables, capabilities) without
+anyone writing a test.
+"""
+
+from .base import Capabilities, System, SystemParams
 from .circular_motion import CircularMotion, CircularMotionParams
 from .cloth import Cloth, ClothParams
 from .spring_mass import SpringMass, SpringMassParams
@@ -12,4 +19,5 @@ SYSTEMS = {
     "cloth": ClothParams,
 }
 
-__all__ = ["SYSTEMS", "System", "SpringMass", "SpringMassParams", "CircularMotion", "CircularMotionParams", "Cloth", "ClothParams"]
+__all__ = ["SYSTEMS", "Capabilities", "System", "SystemParams", "SpringMass", "SpringMassParams", "CircularMotion",
+           "CircularMotionParams", "Cloth", "ClothParams"]

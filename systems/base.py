@@ -16,7 +16,11 @@ Implementers supply
 - optionally, for large sparse systems, ``hessian_pattern`` (a CSR matrix whose pattern holds every
   entry of the Hessian and of D, and the whole diagonal), ``diagonal_positions`` (where the diagonal
   sits in its data array) and ``hessian_data(x, project_spd)`` (the Hessian's values in that pattern):
-  implicit methods then assemble M + s K + ... in one data array instead of adding sparse matrices.
+  implicit methods then assemble M + s K + ... in one data array instead of adding sparse matrices;
+- optionally, what it declares about itself (``capabilities``, stored with every run): ``test_frequency``,
+  ``length_scale``, ``energy_scale()``, ``frame_shape`` and ``planar``, each with a neutral default.
+
+A system's config is a ``SystemParams`` model whose ``system_class`` is the System subclass it builds.
 """
 
 from __future__ import annotations
@@ -24,9 +28,37 @@ from __future__ import annotations
 import functools
 import math
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import scipy.sparse
+from pydantic import BaseModel, ConfigDict
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a system tells the runner and the figures about itself; stored as attributes of every run (results format 2)."""
+
+    test_frequency: float | None  # w (rad/s) when the system is the undamped test equation q'' + w^2 q = 0 (or uncoupled copies of it), else None
+    length_scale: float  # m, the scale of position errors: max |x0| (1 when x0 = 0)
+    energy_scale: float  # J, what energy growth is judged against (System.energy_scale())
+    frame_shape: tuple[int, ...] | None  # the vertex grid of one stored frame, e.g. (ny, nx) for the cloth (rows of the grid, vertices per row, as frames reshape to (ny, nx, 3)); None for systems that record x and v in every sample
+    planar: bool  # one body whose motion stays in the x-y plane: its trajectory is drawn as an orbit
+    dof_count: int
+
+    def as_attrs(self) -> dict:
+        """The capabilities as HDF5 attributes, under the field names: test_frequency (float, NaN for None),
+        length_scale and energy_scale (floats), frame_shape (int64 array, empty for None), planar (bool),
+        dof_count (int)."""
+        return {
+            "test_frequency": math.nan if self.test_frequency is None else float(self.test_frequency),
+            "length_scale": float(self.length_scale),
+            "energy_scale": float(self.energy_scale),
+            "frame_shape": np.array(self.frame_shape or (), dtype=np.int64),
+            "planar": bool(self.planar),
+            "dof_count": int(self.dof_count),
+        }
 
 
 class System(ABC):
@@ -211,6 +243,63 @@ class System(ABC):
         """A characteristic energy (J) against which energy growth is judged: |KE0| + |PE0|, else 1."""
         scale = abs(self.kinetic_energy(self.v0)) + abs(self.potential_energy(self.x0))
         return scale if scale > 0.0 else 1.0
+
+    # -- what the system declares about itself (neutral defaults; subclasses override the parts) -------
+    @property
+    def test_frequency(self) -> float | None:
+        """w (rad/s) when the system is the undamped test equation q'' + w^2 q = 0 (or uncoupled copies of
+        it: hessian(x) = w^2 M at every x, no damping), else None: the damping and stability predictions hold on it."""
+        return None
+
+    @property
+    def length_scale(self) -> float:
+        """The scale of position errors (m): max_i |x0_i|, or 1 when that is 0 or not finite."""
+        scale = float(np.max(np.abs(self.x0))) if self.x0.size else 0.0
+        return scale if math.isfinite(scale) and scale > 0.0 else 1.0
+
+    @property
+    def frame_shape(self) -> tuple[int, ...] | None:
+        """The vertex grid of one stored frame (a frame holds prod(frame_shape) vertices of 3 coordinates),
+        or None when x and v are recorded in every sample instead. Default: a plain list of the vertices."""
+        return None if self.records_state_per_sample else (self.dof_count // 3,)
+
+    planar: bool = False  # one body whose motion stays in the x-y plane (its trajectory is drawn as an orbit)
+
+    @functools.cached_property
+    def capabilities(self) -> Capabilities:
+        """What the runner stores about this system with every run, so that figures never test a type name."""
+        frame_shape = self.frame_shape
+        if frame_shape is not None:
+            frame_shape = tuple(int(size) for size in frame_shape)
+            if 3 * math.prod(frame_shape) != self.dof_count:
+                raise ValueError(f"{type(self).__name__}.frame_shape {frame_shape} holds {math.prod(frame_shape)} vertices, "
+                                 f"but a frame holds dof_count / 3 = {self.dof_count / 3:g}")
+        test_frequency = self.test_frequency
+        return Capabilities(
+            test_frequency=None if test_frequency is None else float(test_frequency),
+            length_scale=float(self.length_scale),
+            energy_scale=float(self.energy_scale()),
+            frame_shape=frame_shape,
+            planar=bool(self.planar),
+            dof_count=int(self.dof_count),
+        )
+
+
+class SystemParams(BaseModel):
+    """Base of the systems' config models: validated parameters that build their system.
+
+    A subclass declares its fields (with a ``type: Literal["<config name>"]`` tag), a ``dof_count``
+    property, and, once its System subclass exists, ``system_class`` (``MyParams.system_class = My``).
+    Code that needs a class-level fact asks ``params.system_class`` (e.g. ``records_state_per_sample``)
+    instead of building the system or comparing a type name.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    system_class: ClassVar[type[System]]
+
+    def build(self) -> System:
+        """The system these parameters describe."""
+        return self.system_class(self)
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:

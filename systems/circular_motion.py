@@ -6,12 +6,12 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
-from .base import System
+from .base import System, SystemParams
 
 
-class CircularMotionParams(BaseModel):
+class CircularMotionParams(SystemParams):
     """Config of `circular_motion`: starts at (radius, 0), velocity (0, radius w): the exact motion is the circle."""
 
     model_config = ConfigDict(extra="forbid")
@@ -26,12 +26,11 @@ class CircularMotionParams(BaseModel):
     def dof_count(self) -> int:
         return self.dimension
 
-    def build(self) -> "CircularMotion":
-        return CircularMotion(self)
-
 
 class CircularMotion(System):
     """Uniform circular motion x(t) = r (cos wt, sin wt), for both force laws (GM = w^2 r^3)."""
+
+    planar = True  # x0 and v0 lie in the x-y plane and the force is central: the orbit stays there
 
     def __init__(self, params: CircularMotionParams):
         self.params = params
@@ -47,6 +46,11 @@ class CircularMotion(System):
         self.stiffness = m * w * w  # linear law: P = m w^2 |x|^2 / 2
         self.gm_m = w * w * r ** 3 * m  # gravity: P = -GMm / |x|
         self._linear_hessian = np.eye(self.dof_count) * self.stiffness
+
+    @property
+    def test_frequency(self) -> float | None:
+        """w (rad/s) with the linear force (P = m w^2 |x|^2 / 2: uncoupled copies of q'' + w^2 q = 0); None with gravity."""
+        return float(self.params.angular_velocity) if self.linear else None
 
     def potential_energy(self, x):
         if self.linear:
@@ -131,6 +135,9 @@ class CircularMotion(System):
 
     def extra_observables(self, x, v):
         return {"radius": math.sqrt(x.dot(x))}
+
+
+CircularMotionParams.system_class = CircularMotion
 
 
 def _squared_norm(components: list[float]) -> float:

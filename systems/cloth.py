@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from .base import System
+from .base import System, SystemParams
 
 _ONES3 = np.ones(3)  # sums the three components of each row in one matrix-vector product
 
@@ -46,7 +46,7 @@ class ContactParams(BaseModel):
     sphere: SphereContact | None = None
 
 
-class ClothParams(BaseModel):
+class ClothParams(SystemParams):
     """Config of `cloth`: an N x M grid of vertices, flat in the plane z = height at the start."""
 
     model_config = ConfigDict(extra="forbid")
@@ -78,9 +78,6 @@ class ClothParams(BaseModel):
     @property
     def dof_count(self) -> int:
         return 3 * self.resolution[0] * self.resolution[1]
-
-    def build(self) -> "Cloth":
-        return Cloth(self)
 
 
 def grid_springs(nx: int, ny: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -326,6 +323,15 @@ class Cloth(System):
         lift = self.params.mass * float(np.linalg.norm(self.gravity)) * max(self.params.size)
         return max(super().energy_scale(), lift) if lift > 0 else super().energy_scale()
 
+    @property
+    def frame_shape(self) -> tuple[int, int]:
+        """(ny, nx): a frame's vertices are row-major (vertex = row * nx + col), so it reshapes to (ny, nx, 3)."""
+        nx, ny = self.shape
+        return (ny, nx)
+
     def frame(self, x: np.ndarray) -> np.ndarray:
         """Vertex positions as (vertices, 3) (m)."""
         return x.reshape(-1, 3)
+
+
+ClothParams.system_class = Cloth

@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
 import scipy.linalg
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
-from .base import System
+from .base import System, SystemParams
 
 
-class SpringMassParams(BaseModel):
+class SpringMassParams(SystemParams):
     """Config of `spring_mass`: a 1-D mass on a linear spring with optional viscous damping."""
 
     model_config = ConfigDict(extra="forbid")
@@ -25,9 +26,6 @@ class SpringMassParams(BaseModel):
     @property
     def dof_count(self) -> int:
         return 1
-
-    def build(self) -> "SpringMass":
-        return SpringMass(self)
 
 
 class SpringMass(System):
@@ -50,6 +48,11 @@ class SpringMass(System):
     def angular_frequency(self) -> float:
         """w = sqrt(k/m) (rad/s), the undamped natural frequency."""
         return float(np.sqrt(self.stiffness / self.mass[0]))
+
+    @property
+    def test_frequency(self) -> float | None:
+        """w = sqrt(k/m) (rad/s) when undamped (d = 0): then this is the test equation itself; None when damped."""
+        return math.sqrt(self.stiffness / self.params.mass) if self.damping == 0.0 else None
 
     def potential_energy(self, x):
         return 0.5 * self.stiffness * float(x[0] * x[0])
@@ -93,3 +96,6 @@ class SpringMass(System):
         propagators = scipy.linalg.expm(t[:, None, None] * generator)  # batched over t
         states = propagators @ np.array([self.x0[0], self.v0[0]])
         return states[:, :1], states[:, 1:]
+
+
+SpringMassParams.system_class = SpringMass

@@ -15,6 +15,7 @@ import pytest
 
 from simrun import analysis
 from simrun.integrators import INTEGRATORS
+from simrun.reference import reference_positions
 from simrun.simulate import simulate
 from simrun.systems import SpringMassParams
 
@@ -41,9 +42,9 @@ CLOSED_FORM_RADII = {
 def test_probed_spectral_radius_equals_the_closed_form(name):
     """rho(x) on the prediction grid (x in [1e-2, 1e2]) equals the closed form to 1e-12 (relative above 1)."""
     prediction = analysis.predict(INTEGRATORS[name]())
-    expected = np.array([CLOSED_FORM_RADII[name](x) for x in prediction.x])
+    expected = np.array([CLOSED_FORM_RADII[name](x) for x in prediction.hw])
     # the leapfrog's double root at x = 2 is defective: its eigenvalues are good to sqrt(eps) only there
-    away = np.abs(prediction.x - 2.0) > 1e-2 if name == "leapfrog" else np.ones(prediction.x.size, bool)
+    away = np.abs(prediction.hw - 2.0) > 1e-2 if name == "leapfrog" else np.ones(prediction.hw.size, bool)
     assert np.all(np.abs(prediction.rho - expected)[away] <= 1e-12 * np.maximum(1.0, expected[away]))
 
 
@@ -85,7 +86,7 @@ def test_predicted_stability_limit(name, limit):
 def test_backward_euler_damping_curve():
     """d_method / w = -2 ln(rho) / x = ln(1 + x^2) / x for backward Euler: ~ x at small x, largest near x = 2."""
     prediction = analysis.predict(INTEGRATORS["backward_euler"]())
-    x = prediction.x
+    x = prediction.hw
     assert np.allclose(prediction.damping, np.log1p(x * x) / x, rtol=1e-10, atol=1e-14)
     assert 1.8 < x[np.argmax(prediction.damping)] < 2.2  # the maximum of ln(1 + x^2)/x is at x = 1.98
 
@@ -99,10 +100,10 @@ def test_backward_euler_damping_curve():
 ])
 def test_predicted_relative_period_error(name, period):
     prediction = analysis.predict(INTEGRATORS[name]())
-    shown = prediction.x < math.pi
-    expected = np.array([period(x) for x in prediction.x[shown]])
+    shown = prediction.hw < math.pi
+    expected = np.array([period(x) for x in prediction.hw[shown]])
     assert np.all(np.isnan(prediction.period_error[~shown]))
-    finite = np.isfinite(expected) & (np.abs(prediction.x[shown] - 2.0) > 1e-2)
+    finite = np.isfinite(expected) & (np.abs(prediction.hw[shown] - 2.0) > 1e-2)
     assert np.allclose(prediction.period_error[shown][finite], expected[finite], rtol=1e-9, atol=1e-11)
 
 
@@ -163,7 +164,7 @@ def test_measured_period_agrees_with_the_prediction(measured_runs, name):
     for x in (0.1, 0.5, 1.0):
         samples = measured_runs[(method.label, x)].samples
         measured = analysis.measure_period_error(samples["t"], samples["positions"][:, 0], 1.0)
-        expected = float(np.interp(x, prediction.x, prediction.period_error))
+        expected = float(np.interp(x, prediction.hw, prediction.period_error))
         assert measured == pytest.approx(expected, abs=0.01)
 
 
@@ -228,20 +229,12 @@ def test_integrator_from_stored_params():
     assert method.label == "bdf2_midpoint_mix[theta=1]"
 
 
-def test_test_frequency_only_for_the_undamped_test_equation():
-    assert analysis.test_frequency("spring_mass", {"stiffness": 100.0, "mass": 4.0, "damping": 0.0}) == 5.0
-    assert analysis.test_frequency("spring_mass", {"stiffness": 100.0, "mass": 4.0, "damping": 0.1}) is None
-    assert analysis.test_frequency("circular_motion", {"force": "linear", "angular_velocity": 2.0}) == 2.0
-    assert analysis.test_frequency("circular_motion", {"force": "gravity"}) is None
-    assert analysis.test_frequency("cloth", {}) is None
-
-
 def test_reference_solution_on_the_spring():
     """solve_ivp (DOP853, rtol 1e-10) on the rebuilt damped spring matches its exact solution to 1e-8."""
     params = {"stiffness": 4.0, "mass": 1.0, "damping": 0.3, "x0": 1.0, "v0": 0.2}
     system = analysis.build_system("spring_mass", params)
-    reference = analysis.reference_positions(system, [0.5, 2.0])
+    reference = reference_positions(system, [0.5, 2.0])
     exact, _ = system.exact_solution(np.array([0.5, 2.0]))
     assert np.allclose([reference[0.5][0], reference[2.0][0]], exact[:, 0], atol=1e-8)
     with pytest.raises(ValueError, match="valid: DOP853"):
-        analysis.reference_positions(system, [1.0], method="Euler")
+        reference_positions(system, [1.0], method="Euler")

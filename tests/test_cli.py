@@ -165,7 +165,7 @@ def test_bad_config_is_one_line_exit_2_and_no_file(tmp_path, capsys, text, field
     (["CONFIG", "--set", "system.stiffness"], "--set system.stiffness: expected key.path=value"),
     (["CONFIG", "--set", "system.mass=[1"], "malformed YAML"),
     (["CONFIG", "--set", "system.mass=-1"], "system.mass: Input should be greater than 0"),
-    (["plot", "nothing.h5"], "is not a results file"),
+    (["plot", "nothing.h5"], "nothing.h5' does not exist"),
 ])
 def test_bad_command_line_is_one_line_exit_2(tmp_path, capsys, argv, message):
     config = write(tmp_path, SPRING_CONFIG + f"output: {tmp_path / 'never'}\n")

@@ -23,12 +23,12 @@ import scipy.sparse
 from pydantic_core import PydanticUndefined
 
 from simrun.integrators import INTEGRATORS, State
-from simrun.solvers import SolverParams
+from simrun.solvers import solver_params
 from simrun.systems import CircularMotionParams, SpringMassParams, System
 
-SOLVER = SolverParams(tolerance=1e-12).build()
+SOLVER = solver_params(tolerance=1e-12).build()
 # conservation tests solve to round-off: the residual floor of the problem ends Newton there
-TIGHT_SOLVER = SolverParams(tolerance=1e-14).build()
+TIGHT_SOLVER = solver_params(tolerance=1e-14).build()
 
 # parameter values tested beside the defaults (more in the cheap spectral-radius test)
 VARIANTS = {

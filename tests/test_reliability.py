@@ -290,7 +290,7 @@ BAD_INPUTS = [
     (BASE.replace("{type: spring_mass}", "{type: cloth, pinned: [middle]}"), "system.pinned.0"),
     (BASE.replace("{type: spring_mass}", "{type: circular_motion, force: magnetic}"), "system.force: Input should be 'linear' or 'gravity'"),
     (BASE.replace("{type: spring_mass}", "{}"), "system.type: missing"),
-    (BASE + "solver: {type: magic}\n", "solver.type: Input should be"),
+    (BASE + "solver: {type: magic}\n", "solver.type: unknown solver 'magic'; valid: newton"),
     (BASE + "record: {every: 0}\n", "record.every: Input should be greater than or equal to 1"),
     (BASE + "divergence: {energy_factor: 0.5}\n", "divergence.energy_factor: Input should be greater than 1"),
     (BASE + "nmae: typo\n", "nmae: unknown key (did you mean 'name'?)"),

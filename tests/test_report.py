@@ -1,6 +1,6 @@
 """`simrun report`, `show` and `analyze` (issue 6), on results files the real pipeline wrote into tmp_path.
 
-The handlers are called directly (simrun.report.command_*), with the arguments their parsers give.
+The handlers are called directly (simrun.commands.<name>.handle), with the arguments their parsers give.
 """
 
 from __future__ import annotations
@@ -18,7 +18,13 @@ import numpy as np
 import pytest
 import yaml
 
-from simrun import plots, report
+from simrun import tables
+from simrun.commands import analyze as analyze_command
+from simrun.commands import report as report_command
+from simrun.commands import show as show_command
+from simrun.figures import FIGURES, figure_data, render_figures
+from simrun.reference import reference_errors
+from simrun.results import load
 from simrun.cli import main
 from simrun.config import ConfigError, expand_runs, load_experiment
 
@@ -71,7 +77,7 @@ def orders(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def orders_report(orders) -> str:
-    assert report.command_report(report_args(orders)) == 0
+    assert report_command.handle(report_args(orders)) == 0
     return (orders.parent / "report.html").read_text()
 
 
@@ -121,9 +127,9 @@ def test_report_is_one_self_contained_html_page(orders, orders_report):
     images = [attributes for tag, attributes in page.tags if tag == "img"]
     assert len(images) == len(embedded)
     # a spring with implicit methods and exact errors: every figure but the orbits
-    assert embedded == set(plots.FIGURES) - {"orbits"}
+    assert embedded == set(FIGURES) - {"orbits", "snapshots"}
     text = " ".join(" ".join(part) for part in page.sections.values())
-    for caption in (report.FIGURE_CAPTIONS[name] for name in embedded):
+    for caption in (FIGURES[name].caption for name in embedded):
         assert caption.split(".")[0] in text
     with h5py.File(orders, "r") as file:  # config and provenance are on the page
         assert file.attrs["config_hash"] in orders_report
@@ -133,7 +139,7 @@ def test_report_is_one_self_contained_html_page(orders, orders_report):
 def test_observed_orders_in_the_report_equal_the_methods_orders(orders, orders_report):
     """Least-squares slope of the end-time error against dt: each method's order within 0.15
     (the exponential Rosenbrock-Euler method is exact on the linear spring: errors at round-off)."""
-    rows = {row.integrator: row for row in report.order_rows(plots.load_results(orders))}
+    rows = {row.integrator: row for row in tables.order_rows(figure_data(load(orders)))}
     assert len(rows) == len(ORDERS["integrators"])
     for label, row in rows.items():
         if label == "exponential_rosenbrock_euler":
@@ -153,8 +159,8 @@ def test_spring_stability_config_checks_the_lecture_determinants(tmp_path):
     """configs/spring_stability.yaml: det A = 1 + k h^2, 1, 1/(1 + k h^2) for the three Euler methods
     (m = 1), from the probed matrices; the predicted limits match the runs that diverged."""
     results_path = run_pipeline(tmp_path, "spring_stability", CONFIGS / "spring_stability.yaml")
-    results = plots.load_results(results_path)
-    rows = report.determinant_rows(results)
+    results = figure_data(load(results_path))
+    rows = tables.determinant_rows(results)
     assert {row.integrator for row in rows} == {"forward_euler", "symplectic_euler", "backward_euler"}
     assert len(rows) == len(results.runs)
     for row in rows:
@@ -162,14 +168,14 @@ def test_spring_stability_config_checks_the_lecture_determinants(tmp_path):
         expected = {"forward_euler": 1 + k_h2, "symplectic_euler": 1.0, "backward_euler": 1 / (1 + k_h2)}[row.integrator]
         assert row.closed_form == pytest.approx(expected, rel=1e-15)
         assert row.verdict == "agrees" and row.difference <= 1e-12
-    stability = {row.integrator: row for row in report.stability_rows(results)}
-    assert stability["forward_euler"].limit_x == 0.0
+    stability = {row.integrator: row for row in tables.stability_rows(results)}
+    assert stability["forward_euler"].limit_hw == 0.0
     assert stability["symplectic_euler"].limit_dt == pytest.approx(0.2, rel=1e-6)  # h w < 2, w = 10 rad/s
-    assert math.isinf(stability["backward_euler"].limit_x)
+    assert math.isinf(stability["backward_euler"].limit_hw)
     assert stability["symplectic_euler"].verdict == "consistent"
     assert stability["symplectic_euler"].smallest_diverged_dt == 0.21 and stability["symplectic_euler"].largest_ok_dt == 0.19
     output = tmp_path / "elsewhere" / "stability.html"
-    assert report.command_report(report_args(results_path, output=str(output))) == 0
+    assert report_command.handle(report_args(results_path, output=str(output))) == 0
     section = " ".join(parse(output.read_text()).sections["determinants"])
     assert section.count("agrees") == len(rows) and "differs" not in section
     assert "1 + k h²/m" in section
@@ -186,11 +192,11 @@ def test_damping_curves_config_measures_the_predicted_damping(tmp_path):
     assert sum(label.startswith("generalized_alpha") for label in labels) == 5
     assert sum(label.startswith("bdf2_midpoint_mix") for label in labels) == 5
     results_path = run_pipeline(tmp_path, "damping", CONFIGS / "damping_curves.yaml", "--set", "sweep.dt=[0.1,0.5,2.0]")
-    rows = report.summary_rows(plots.load_results(results_path))
+    rows = tables.summary_rows(figure_data(load(results_path)))
     assert len(rows) == 3 * len(labels)
     for row in rows:
-        assert row.measured_resolved, (row.integrator, row.h_w)
-        assert abs(row.damping_difference) <= 0.02, (row.integrator, row.h_w, row.measured_damping, row.predicted_damping)
+        assert row.measured_resolved, (row.integrator, row.hw)
+        assert abs(row.damping_difference) <= 0.02, (row.integrator, row.hw, row.measured_damping, row.predicted_damping)
 
 
 def test_the_shipped_configs_are_valid():
@@ -202,28 +208,28 @@ def test_the_shipped_configs_are_valid():
 
 
 def test_show_prints_the_summary_and_writes_csv(orders, capsys, tmp_path):
-    assert report.command_show(argparse.Namespace(results=str(orders), csv=None)) == 0
+    assert show_command.handle(argparse.Namespace(results=str(orders), csv=None)) == 0
     table = capsys.readouterr().out
     count = len(ORDERS["integrators"]) * 5
     assert f"orders: {count} runs" in table and "rk4" in table and "d/w meas." in table
-    assert report.command_show(argparse.Namespace(results=str(orders), csv="-")) == 0
+    assert show_command.handle(argparse.Namespace(results=str(orders), csv="-")) == 0
     rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
     assert len(rows) == count
     assert {"run_id", "integrator", "dt", "status", "max_rel_energy_drift", "measured_damping", "predicted_damping"} <= set(rows[0])
     be = next(row for row in rows if row["integrator"] == "backward_euler")
     # backward Euler on the undamped spring: d/w = ln(1 + x^2)/x exactly, measured and predicted
-    x = float(be["h_w"])
+    x = float(be["hw"])
     assert float(be["predicted_damping"]) == pytest.approx(math.log1p(x * x) / x, rel=1e-10)
     assert float(be["measured_damping"]) == pytest.approx(math.log1p(x * x) / x, rel=1e-6)
     target = tmp_path / "table" / "summary.csv"
-    assert report.command_show(argparse.Namespace(results=str(orders), csv=str(target))) == 0
+    assert show_command.handle(argparse.Namespace(results=str(orders), csv=str(target))) == 0
     assert len(list(csv.DictReader(target.open()))) == count
 
 
 def test_analyze_draws_the_predicted_curves_without_runs(tmp_path, capsys):
     args = argparse.Namespace(integrators=["backward_euler", "implicit_midpoint", "generalized_alpha:rho_inf=0.5", "leapfrog"],
                               range=[0.01, 100.0], output=str(tmp_path / "curves"))
-    assert report.command_analyze(args) == 0
+    assert analyze_command.handle(args) == 0
     out = capsys.readouterr().out
     assert "leapfrog" in out and "unstable" not in out.split("leapfrog")[1].splitlines()[0]
     names = {path.name for path in (tmp_path / "curves").iterdir()}
@@ -233,7 +239,7 @@ def test_analyze_draws_the_predicted_curves_without_runs(tmp_path, capsys):
     assert {row["integrator"] for row in rows} == {"backward_euler", "implicit_midpoint", "generalized_alpha", "leapfrog"}
     for row in rows:
         if row["integrator"] == "backward_euler":
-            x = float(row["h_w"])
+            x = float(row["hw"])
             assert float(row["spectral_radius"]) == pytest.approx(1 / math.sqrt(1 + x * x), rel=1e-12)
 
 
@@ -246,7 +252,7 @@ def test_analyze_draws_the_predicted_curves_without_runs(tmp_path, capsys):
 def test_analyze_rejects_bad_input_in_one_line(tmp_path, options, message):
     args = argparse.Namespace(**{"integrators": None, "range": None, "output": str(tmp_path), **options})
     with pytest.raises(ConfigError, match=message.replace("[", r"\[")) as error:
-        report.command_analyze(args)
+        analyze_command.handle(args)
     assert "\n" not in str(error.value)
 
 
@@ -256,23 +262,23 @@ def test_report_and_show_refuse_what_is_not_a_results_file(tmp_path):
         pass
     for path in (tmp_path / "missing.h5", tmp_path / "notes.txt", tmp_path / "empty.h5"):
         with pytest.raises(ConfigError, match="results"):
-            report.command_report(report_args(path))
+            report_command.handle(report_args(path))
         with pytest.raises(ConfigError, match="results"):
-            report.command_show(argparse.Namespace(results=str(path), csv=None))
+            show_command.handle(argparse.Namespace(results=str(path), csv=None))
 
 
 def test_parsers_register_their_handlers():
     parser = argparse.ArgumentParser(prog="simrun")
     commands = parser.add_subparsers(dest="command")
-    report.add_report_parser(commands)
-    report.add_show_parser(commands)
-    report.add_analyze_parser(commands)
+    report_command.add_parser(commands)
+    show_command.add_parser(commands)
+    analyze_command.add_parser(commands)
     args = parser.parse_args(["report", "r.h5", "--reference", "none"])
-    assert args.handler is report.command_report and args.reference == "none"
+    assert args.handler is report_command.handle and args.reference == "none"
     assert parser.parse_args(["report", "r.h5"]).reference == "dop853"
     assert parser.parse_args(["show", "r.h5", "--csv"]).csv == "-"
     args = parser.parse_args(["analyze", "--integrators", "backward_euler", "generalized_alpha:rho_inf=0.5", "--output", "d"])
-    assert args.handler is report.command_analyze and args.integrators == ["backward_euler", "generalized_alpha:rho_inf=0.5"]
+    assert args.handler is analyze_command.handle and args.integrators == ["backward_euler", "generalized_alpha:rho_inf=0.5"]
 
 
 @pytest.fixture(scope="module")
@@ -283,27 +289,27 @@ def cloth(tmp_path_factory) -> Path:
 def test_cloth_convergence_against_a_reference_solution(cloth):
     """No exact solution: DOP853 (rtol 1e-10) on the cloth rebuilt from system_params; implicit
     midpoint and BDF2 (undamped, so second order) show slope 2 within 0.15."""
-    results = plots.load_results(cloth)
-    assert all(not np.isfinite(run.final_error) for run in results.runs)
-    errors = report.reference_errors(cloth, results, "dop853")
-    assert set(errors) == {run.run_id for run in results.runs}
-    rows = report.order_rows(plots.with_reference_errors(results, errors))
+    results = load(cloth)
+    assert all(not np.isfinite(run.final_error) for run in results.runs.values())
+    errors = reference_errors(results, "dop853")
+    assert set(errors) == set(results.runs)
+    rows = tables.order_rows(figure_data(results, errors))
     assert {row.integrator for row in rows} == {"implicit_midpoint", "bdf2"}
     for row in rows:
         assert abs(row.observed - 2.0) <= 0.15, (row.integrator, row.observed)
-    assert "convergence" in {name for name, _ in _closed(plots.render_figures(cloth, errors))}
-    assert "convergence" not in {name for name, _ in _closed(plots.render_figures(cloth))}  # not without a reference
+    assert "convergence" in {name for name, _ in _closed(render_figures(cloth, errors))}
+    assert "convergence" not in {name for name, _ in _closed(render_figures(cloth))}  # not without a reference
     # another run as the reference: the smallest dt of implicit midpoint; every other run is compared with it
-    anchor = results.runs[0].run_id
-    against_run = report.reference_errors(cloth, results, anchor)
-    assert set(against_run) == {run.run_id for run in results.runs} - {anchor}
+    anchor = next(iter(results.runs))
+    against_run = reference_errors(results, anchor)
+    assert set(against_run) == set(results.runs) - {anchor}
     with pytest.raises(ConfigError, match="--reference"):
-        report.reference_errors(cloth, results, "no_such_method")
+        reference_errors(results, "no_such_method")
 
 
 def _closed(figures):
     import matplotlib.pyplot as plt
 
-    for name, figure in figures:
+    for _, name, figure in figures:
         plt.close(figure)
         yield name, figure

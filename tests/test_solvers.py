@@ -12,22 +12,26 @@ the reduced system, Ascher & Boxerman 2003). Tests are parametrised over SOLVERS
 
 from __future__ import annotations
 
+import inspect
 import textwrap
+import typing
 from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.sparse
+import yaml
 
 from conftest import always_available_linear_solvers, linear_solver_params, needs_linear_solver, run_one
 from simrun.cli import main
-from simrun.config import ConfigError, expand_runs, load_experiment, validate_experiment
+from simrun.config import ConfigError, _fields_at, expand_runs, load_experiment, validate_experiment
 from simrun.integrators import INTEGRATORS, State
-from simrun.solvers import LINEAR_SOLVERS, SOLVERS, Newton, SolverParams, SolveStats
+from simrun.solvers import (LINEAR_SOLVERS, SOLVER_PARAMS, SOLVERS, FallbackChain, Newton, NonlinearSolver, SolveStats,
+                            SolverOptionError, SolverParams, solver_params)
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.newton import EIGEN_FLOOR, project_eigen
-from simrun.store import load_summary
+from simrun.results import load_summary
 from simrun.systems import CircularMotionParams, ClothParams
 
 CORNERS = ["top_left", "top_right", "bottom_left", "bottom_right"]
@@ -85,7 +89,7 @@ def free_block(matrix, fixed):
 @pytest.fixture(scope="module")
 def cloth_step():
     system, problem, start = stretched_cloth_step()
-    reference, stats = SolverParams(type="projected_newton", tolerance=1e-14).build().minimize(problem, start)
+    reference, stats = solver_params(type="projected_newton", tolerance=1e-14).build().minimize(problem, start)
     assert stats.converged and stats.iterations >= 3, "the step must be nonlinear"
     hessian, free = free_block(problem.hessian(reference), system.fixed_dofs)
     mu = np.linalg.eigvalsh(hessian).min()
@@ -109,7 +113,7 @@ def combinations():
 def test_every_solver_reaches_the_minimiser_of_a_cloth_step(cloth_step, name, options):
     """|y - y*|_2 <= |g(y)|_2 / mu (strong convexity), and the residual meets the shared convergence test."""
     system, problem, start, reference, mu, free = cloth_step
-    params = SolverParams(type=name, tolerance=TOLERANCE, max_iterations=500, linear_max_iterations=5000, **options)
+    params = solver_params(type=name, tolerance=TOLERANCE, max_iterations=500, linear_max_iterations=5000, **options)
     y, stats = params.build().minimize(problem, start)
     assert stats.converged, stats
     assert np.array_equal(y[system.fixed_dofs], start[system.fixed_dofs])
@@ -165,7 +169,7 @@ def test_line_search_solvers_never_increase_the_incremental_potential(name, line
     Newton(tolerance=1e-10, max_iterations=10, callback=lambda y, g: newton_energies.append(problem.value(y))).minimize(problem, start)
     assert np.max(np.diff(newton_energies)) > 0.1 * newton_energies[0], "the start must make plain Newton overshoot"
     energies = []
-    solver = SolverParams(type=name, line_search=line_search, max_iterations=30).build()
+    solver = solver_params(type=name, line_search=line_search, max_iterations=30).build()
     solver.callback = lambda y, g: energies.append(problem.value(y))
     solver.minimize(problem, start)
     energies = np.array(energies)
@@ -390,6 +394,14 @@ def test_solver_parameters_sweep_like_any_other_key():
     ({"type": "newton", "fallback": ["lbfgs", "newton"]}, "appear once"),
     ({"type": "newton", "fallback": ["bfgs"]}, "solver.fallback"),
     ({"type": "jacobi_chebyshev", "chebyshev_rho": 1.0}, "solver.chebyshev_rho"),
+    ({"type": "newton", "fallback": [{"type": "lbfgs", "tolerance": 1e-3}]},
+     "solver.fallback.0.tolerance: a fallback takes tolerance from the main solver; its entry takes: type, line_search, history"),
+    ({"type": "newton", "fallback": [{"type": "lbfgs", "histroy": 4}]}, "solver.fallback.0.histroy: lbfgs does not use 'histroy' \\(did you mean 'history'\\?\\)"),
+    ({"type": "newton", "fallback": [{"type": "lbfgs", "history": 0}]}, "solver.fallback.0.history: Input should be greater than or equal to 1"),
+    ({"type": "newton", "fallback": [{"history": 4}]}, "solver.fallback.0: a mapping needs 'type'"),
+    ({"type": "newton", "fallback": [{"type": "bfgs"}]}, "solver.fallback.0.type: unknown solver 'bfgs'"),
+    ({"type": "bfgs"}, "solver.type: unknown solver 'bfgs' \\(did you mean 'lbfgs'\\?\\); valid: " + ", ".join(SOLVERS)),
+    ({"type": "newton", "tolerence": 1e-3}, "solver.tolerence: newton does not use 'tolerence' \\(did you mean 'tolerance'\\?\\)"),
 ])
 def test_inconsistent_solver_configs_are_rejected(solver, message):
     raw = {"name": "bad", "system": SMALL_CLOTH, "integrators": ["backward_euler"], "sweep": {"dt": [0.1]}, "solver": solver}
@@ -417,7 +429,7 @@ def test_every_solver_solves_a_dense_kepler_step(name, options):
     problem, start = backward_euler_problem(system, system.x0, system.v0, 0.3)
     reference, stats = Newton(tolerance=1e-15).minimize(problem, start)
     assert stats.converged and stats.iterations >= 3
-    y, stats = SolverParams(type=name, tolerance=1e-10, max_iterations=500, **options).build().minimize(problem, start)
+    y, stats = solver_params(type=name, tolerance=1e-10, max_iterations=500, **options).build().minimize(problem, start)
     assert stats.converged, stats
     assert np.abs(y - reference).max() < 1e-8
 
@@ -425,7 +437,7 @@ def test_every_solver_solves_a_dense_kepler_step(name, options):
 def test_a_fallback_restarts_from_the_best_iterate_with_the_original_threshold(cloth_step):
     """The fallback starts where the failed attempt had its smallest |g|_inf and must reach
     tolerance * |g(start)|_inf, not tolerance times the residual at its own start."""
-    from simrun.solvers import FallbackChain, GradientDescent, ProjectedNewton
+    from simrun.solvers import GradientDescent, ProjectedNewton
 
     system, problem, start, reference, mu, free = cloth_step
     tried, rescuing = [], []
@@ -450,3 +462,184 @@ def test_eigen_projection_leaves_the_fixed_rows_alone():
     assert np.array_equal(projected[0], matrix[0]) and np.array_equal(projected[:, 0], matrix[:, 0])
     block = np.linalg.eigvalsh(projected[1:, 1:])
     assert block.min() >= EIGEN_FLOOR * np.abs(np.linalg.eigvalsh(matrix[1:, 1:])).max() * (1 - 1e-9)
+
+
+# ------------------------------------------------------------------------------------------------
+# The solver models: each solver's options are its constructor's arguments, and nothing else
+# ------------------------------------------------------------------------------------------------
+# The defaults of the one flat SolverParams that the per-solver models replaced: a config that sets
+# nothing must solve as before.
+FORMER_DEFAULTS = {"tolerance": 1e-10, "tolerance_mode": "residual", "max_iterations": 50, "line_search": "backtracking",
+                   "spd_projection": "clamp", "history": 8, "chebyshev_rho": 0.99, "relaxation": 0.9,
+                   "linear_solver": "direct", "linear_tolerance": 1e-10, "linear_max_iterations": 1000, "fallback": [],
+                   "on_not_converged": "continue"}
+
+
+def constructor_parameters(cls) -> set[str]:
+    """The keyword arguments a solver class takes: its own, and NonlinearSolver's (passed on through **options)."""
+    names = set()
+    for function in (cls.__init__, NonlinearSolver.__init__):
+        names |= {name for name, parameter in inspect.signature(function).parameters.items()
+                  if name != "self" and parameter.kind not in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)}
+    return names
+
+
+def option_value(option: str):
+    """A valid value of a solver option: its default in a model that has it."""
+    return next(model.model_fields[option].default for model in SOLVER_PARAMS.values() if option in model.model_fields)
+
+
+def other_value(info):
+    """A valid value of an own option other than its default: another choice, half the float, one more."""
+    choices = typing.get_args(info.annotation)
+    if choices:
+        return next(choice for choice in choices if choice != info.default)
+    return info.default / 2 if isinstance(info.default, float) else info.default + 1
+
+
+def foreign_options() -> list:
+    """(solver, an own option of another solver that it does not take), for every solver."""
+    own = sorted({option for model in SOLVER_PARAMS.values() for option in model.own_fields()})
+    return [pytest.param(name, option, id=f"{name}-{option}") for name, model in SOLVER_PARAMS.items()
+            for option in own if option not in model.model_fields]
+
+
+def solver_config(solver: dict) -> dict:
+    return {"name": "solver", "system": {"type": "spring_mass"}, "integrators": ["backward_euler"],
+            "solver": solver, "sweep": {"dt": [0.1]}}
+
+
+def refused_by_the_command_line(tmp_path, capsys, solver: dict) -> str:
+    """Run a config with this solver section: exit 2, one line on stderr, nothing written; returns the line."""
+    output = tmp_path / "out"
+    config = tmp_path / "config.yaml"
+    config.write_text(yaml.safe_dump({**solver_config(solver), "output": str(output)}, sort_keys=False))
+    assert main(["run", str(config), "--no-plots", "-q", "-j", "1"]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and captured.out == "", captured.err
+    assert not output.exists()
+    return lines[0]
+
+
+def test_every_solver_has_a_parameter_model_under_its_name():
+    assert list(SOLVER_PARAMS) == list(SOLVERS)
+    for name, model in SOLVER_PARAMS.items():
+        assert issubclass(model, SolverParams) and model.solver_name() == name
+
+
+@pytest.mark.parametrize("name", list(SOLVER_PARAMS))
+def test_a_solver_model_holds_exactly_the_arguments_of_its_constructor(name):
+    """Its own fields are the constructor's arguments beyond NonlinearSolver's; build() passes every field
+    but type, fallback and on_not_converged, with the linear solver built from the linear_* fields."""
+    model = SOLVER_PARAMS[name]
+    assert set(model.own_fields()) == constructor_parameters(SOLVERS[name]) - constructor_parameters(NonlinearSolver)
+    arguments = model(linear_solver="cg", linear_tolerance=1e-4, linear_max_iterations=9).constructor_arguments()
+    assert set(arguments) == constructor_parameters(SOLVERS[name]) - {"callback"}
+    linear = arguments["linear_solver"]
+    assert type(linear) is LINEAR_SOLVERS["cg"] and (linear.tolerance, linear.max_iterations) == (1e-4, 9)
+    assert type(model().build()) is SOLVERS[name]
+
+
+@pytest.mark.parametrize("name", list(SOLVER_PARAMS))
+def test_every_default_is_the_former_one_and_the_dump_holds_every_field(name):
+    params = solver_params(type=name)
+    assert type(params) is SOLVER_PARAMS[name]
+    dump = params.model_dump(mode="json")
+    assert list(dump) == list(SOLVER_PARAMS[name].model_fields)
+    assert dump == {"type": name, **{key: FORMER_DEFAULTS[key] for key in dump if key != "type"}}
+    assert solver_params(**dump) == params
+
+
+@pytest.mark.parametrize("name, option", foreign_options())
+def test_an_option_the_solver_does_not_use_is_refused_in_one_line(tmp_path, capsys, name, option):
+    line = refused_by_the_command_line(tmp_path, capsys, {"type": name, option: option_value(option)})
+    takes = ", ".join(key for key in SOLVER_PARAMS[name].model_fields if key != "type")
+    assert line == f"simrun: error: solver.{option}: {name} does not use {option!r}; it takes: {takes}"
+
+
+def test_newton_refuses_history(tmp_path, capsys):
+    assert refused_by_the_command_line(tmp_path, capsys, {"type": "newton", "history": 8}) == (
+        "simrun: error: solver.history: newton does not use 'history'; it takes: tolerance, tolerance_mode, "
+        "max_iterations, linear_solver, linear_tolerance, linear_max_iterations, fallback, on_not_converged")
+    with pytest.raises(SolverOptionError, match="^history: newton does not use 'history'; it takes: tolerance, "):
+        solver_params(type="newton", history=8)  # from Python, the same line
+
+
+def test_the_shared_base_is_not_built_directly():
+    with pytest.raises(ValueError, match="solver_params"):
+        SolverParams(type="lbfgs", history=4)
+
+
+def fallback_options() -> list:
+    """(main solver, fallback, an own option of the fallback that the main solver does not take)."""
+    return [pytest.param(main_name, name, option, id=f"{main_name}-{name}-{option}")
+            for main_name, main_model in SOLVER_PARAMS.items() for name, model in SOLVER_PARAMS.items()
+            if name != main_name for option in model.own_fields() if option not in main_model.model_fields]
+
+
+@pytest.mark.parametrize("main_name, name, option", fallback_options())
+def test_a_fallbacks_option_at_the_top_level_is_refused_with_the_entry_to_write(main_name, name, option):
+    value = option_value(option)
+    with pytest.raises(ConfigError) as error:
+        validate_experiment(solver_config({"type": main_name, "fallback": [name], option: value}))
+    message = str(error.value)
+    assert "\n" not in message
+    assert message.startswith(f"solver.{option}: {main_name} does not use {option!r}; it takes: ")
+    assert message.endswith(f"; to set it for the fallback {name}, give it in its entry: "
+                            f"fallback: [{{type: {name}, {option}: {value}}}]")
+
+
+@pytest.mark.parametrize("name", list(SOLVER_PARAMS))
+def test_a_fallback_entry_gives_its_own_options_and_takes_the_shared_ones_from_the_main_solver(name):
+    """As a name: its own defaults; as a mapping: the options given; either way tolerance and the rest
+    of the shared options are the main solver's."""
+    main_name = next(other for other in SOLVER_PARAMS if other != name)
+    own = {key: other_value(info) for key, info in SOLVER_PARAMS[name].own_fields().items()}
+    shared = {"tolerance": 1e-6, "max_iterations": 7, "linear_solver": "cg", "linear_tolerance": 1e-4}
+    for entry, options in ((name, {}), ({"type": name}, {}), ({"type": name, **own}, own)):
+        params = validate_experiment(solver_config({"type": main_name, **shared, "fallback": [entry]})).solver
+        assert params.fallback == [{"type": name, **{**SOLVER_PARAMS[name]().model_dump(include=set(own)), **options}}]
+        main_params, fallback = params.chain()
+        assert main_params is params and type(fallback) is SOLVER_PARAMS[name]
+        assert fallback.model_dump() == {**SOLVER_PARAMS[name]().model_dump(), **shared, **options}
+        chain = params.build()
+        assert isinstance(chain, FallbackChain) and [type(solver) for solver in chain.solvers] == [SOLVERS[main_name], SOLVERS[name]]
+        for solver in chain.solvers:
+            assert (solver.tolerance, solver.max_iterations) == (1e-6, 7)
+            assert type(solver.linear_solver) is LINEAR_SOLVERS["cg"] and solver.linear_solver.tolerance == 1e-4
+
+
+def test_a_fallback_chain_is_built_with_each_solvers_own_options():
+    """The built solvers' attributes: the main solver's line search stays its own (lbfgs, a name, keeps
+    the default one), Jacobi-Chebyshev's rho and relaxation come from its entry."""
+    params = validate_experiment(solver_config({
+        "type": "projected_newton", "line_search": "armijo", "tolerance": 1e-6, "max_iterations": 7,
+        "fallback": ["lbfgs", {"type": "jacobi_chebyshev", "chebyshev_rho": 0.5, "relaxation": 0.25, "spd_projection": "none"},
+                     {"type": "gradient_descent", "line_search": "none"}]})).solver
+    chain = params.build()
+    assert [solver.name for solver in chain.solvers] == ["projected_newton", "lbfgs", "jacobi_chebyshev", "gradient_descent"]
+    main_solver, lbfgs, jacobi, descent = chain.solvers
+    assert all((solver.tolerance, solver.max_iterations) == (1e-6, 7) for solver in chain.solvers)
+    assert (main_solver.line_search, main_solver.spd_projection) == ("armijo", "clamp")
+    assert (lbfgs.line_search, lbfgs.history) == ("backtracking", 8)
+    assert (jacobi.line_search, jacobi.rho, jacobi.relaxation, jacobi.spd_projection) == ("backtracking", 0.5, 0.25, "none")
+    assert descent.line_search == "none"
+    assert params.model_dump(mode="json")["fallback"] == [
+        {"type": "lbfgs", "line_search": "backtracking", "history": 8},
+        {"type": "jacobi_chebyshev", "line_search": "backtracking", "chebyshev_rho": 0.5, "relaxation": 0.25, "spd_projection": "none"},
+        {"type": "gradient_descent", "line_search": "none"}]
+
+
+def test_runs_keep_the_solvers_own_options_through_the_sweep():
+    """expand_runs re-validates a dump of the experiment: the dump must hold the solver's own options."""
+    experiment = validate_experiment({**solver_config({"type": "lbfgs", "history": 4, "fallback": [{"type": "jacobi_chebyshev", "relaxation": 0.5}]}),
+                                      "sweep": {"dt": [0.1], "solver.max_iterations": [5, 6]}})
+    runs = expand_runs(experiment)
+    assert [(run.solver.max_iterations, run.solver.history, run.solver.fallback[0]["relaxation"]) for run in runs] == [(5, 4, 0.5), (6, 4, 0.5)]
+    assert validate_experiment(solver_config({})).solver == solver_params(type="newton")
+
+
+def test_unknown_keys_are_matched_against_the_chosen_solvers_options():
+    assert _fields_at(["solver"], {"solver": {"type": "lbfgs"}}) == SOLVER_PARAMS["lbfgs"].model_fields
+    assert _fields_at(["solver"], {"solver": {}}) == SOLVER_PARAMS["newton"].model_fields

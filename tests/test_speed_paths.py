@@ -347,10 +347,10 @@ class _CopiedGradients:
 def test_solves_without_gradient_copies_equal_the_copying_path(params, solver_type):
     """A problem whose gradients are fresh arrays (no copy, best iterate kept by reference) gives the
     generic path's y, best iterate and statistics, bit for bit."""
-    from simrun.solvers import SolverParams
+    from simrun.solvers import solver_params
 
     system = params.build()
-    solver = SolverParams(type=solver_type, linear_solver="direct").build()
+    solver = solver_params(type=solver_type, linear_solver="direct").build()
     rng = np.random.default_rng(11)
     for _ in range(5):
         x = system.x0 + 0.1 * rng.standard_normal(system.dof_count)

@@ -1,4 +1,4 @@
-"""The figures, drawn from results files that the real pipeline wrote (`simrun CONFIG --no-plots` into tmp_path).
+"""The figures (simrun.figures), drawn from results files that the real pipeline wrote (`simrun CONFIG --no-plots` into tmp_path).
 
 On the spring with k = 100 N/m, m = 1 kg (w = 10 rad/s) and dt = 0.25 s (h w = 2.5) forward Euler
 multiplies the energy by 1 + (h w)^2 = 7.25 per step and symplectic Euler is past its limit h w < 2,
@@ -22,12 +22,14 @@ import yaml
 from matplotlib.image import imread
 
 from simrun.cli import main
-from simrun.plots import draw_figures, load_results, newton_iterations_vs_dt
+from simrun.figures import FIGURES, draw_figures, figure_data
+from simrun.figures.solver_work import newton_iterations_vs_dt
+from simrun.results import load
 
-ALWAYS = {"energy_over_time", "energy_drift_vs_dt", "stability_map", "newton_iterations_vs_dt",
-          "convergence", "work_precision", "wall_time_per_step_vs_dt", "energy_budget"}
 # runs on the undamped test equation (spring, linear circular motion) add the predicted-vs-measured curves
 TEST_EQUATION = {"artificial_damping", "spectral_radius_and_period"}
+# the figures every file with runs of the small systems gets (from the registry: a new figure joins these sets)
+ALWAYS = set(FIGURES) - TEST_EQUATION - {"orbits", "snapshots"}
 EULERS = ["forward_euler", "symplectic_euler", "backward_euler"]
 SPRING = {"system": {"type": "spring_mass", "stiffness": 100.0}, "integrators": EULERS,
           "duration": 2.0, "sweep": {"dt": [0.01, 0.05, 0.25]}}
@@ -93,7 +95,7 @@ def test_circular_motion_adds_the_orbits(orbit, tmp_path):
 def test_explicit_methods_only_skip_newton_iterations(tmp_path):
     """Explicit methods never call the solver: no Newton figure (the full drawing is checked in the redraw test)."""
     results = run_pipeline(tmp_path, "explicit", EXPLICIT)
-    assert newton_iterations_vs_dt(load_results(results)) is None
+    assert newton_iterations_vs_dt(figure_data(load(results))) is None
 
 
 def test_every_figure_copes_with_failed_runs_with_few_or_no_samples(orbit, tmp_path):
@@ -122,7 +124,7 @@ def truncate(group: h5py.Group, samples: int, status: str) -> None:
 
 def test_one_panel_row_per_group_of_swept_parameters(tmp_path):
     results = run_pipeline(tmp_path, "groups", GROUPS)
-    loaded = load_results(results)
+    loaded = figure_data(load(results))
     assert [title for title, _ in loaded.groups] == ["system.stiffness = 10", "system.stiffness = 100"]
     assert all(len(runs) == 4 for _, runs in loaded.groups)  # 2 integrators x 2 dt each
     paths = draw_figures(results, tmp_path / "figures")
@@ -131,7 +133,7 @@ def test_one_panel_row_per_group_of_swept_parameters(tmp_path):
 
 def test_colours_follow_the_sorted_labels(spring):
     """One colour per label for every figure: sorted labels -> tab10, so adding a method does not recolour others."""
-    loaded = load_results(spring)
+    loaded = figure_data(load(spring))
     assert loaded.labels == EULERS  # config order for legends and rows
     palette = plt.get_cmap("tab10")
     assert loaded.colours == {label: palette(number) for number, label in enumerate(sorted(EULERS))}
@@ -149,22 +151,26 @@ def test_figures_are_redrawn_from_the_results_file_alone(tmp_path):
     assert_figures(paths, tmp_path / "elsewhere" / "figures", (ALWAYS | TEST_EQUATION) - {"newton_iterations_vs_dt"})
 
 
-def test_plots_import_neither_config_nor_simulation():
-    """Plots depend on the file format only: importing them loads no config, simulation, store or CLI code.
+def imported_by(module: str) -> set[str]:
+    """The simrun modules a fresh interpreter has loaded after importing `module`."""
+    code = (f"import json, sys, {module}; "
+            "print(json.dumps(sorted(m for m in sys.modules if m.startswith('simrun'))))")
+    return set(json.loads(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout))
 
-    The predicted curves come from simrun.analysis, which probes the integrators named in the file
-    (so the integrators, and the systems and solvers they step with, are loaded), never from runs."""
-    code = ("import json, sys, simrun.plots; "
-            "print(json.dumps(sorted(m for m in sys.modules if m.startswith('simrun.') and m != 'simrun.plots')))")
-    loaded = set(json.loads(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout))
-    assert "simrun.analysis" in loaded
-    allowed = ("simrun.analysis", "simrun.integrators", "simrun.systems", "simrun.solvers")
-    assert {module for module in loaded if not module.startswith(allowed)} == set()
+
+def test_the_reader_and_the_figures_import_no_config_simulation_or_library():
+    """Data flows one way: the results reader and the figures depend on the file format only. Importing them
+    loads no config, simulation, store, CLI or library package (the theory figures load simrun.analysis, and
+    with it the integrators, only when they draw)."""
+    assert imported_by("simrun.results") == {"simrun", "simrun.errors", "simrun.results"}
+    figures = imported_by("simrun.figures")
+    assert {module for module in figures if not module.startswith("simrun.figures")} == {"simrun", "simrun.errors", "simrun.results"}
 
 
 def test_a_file_without_runs_gives_no_figures(tmp_path):
     path = tmp_path / "results.h5"
     with h5py.File(path, "w") as file:
+        file.attrs["format_version"] = 2
         file.create_group("runs")
     assert draw_figures(path, tmp_path / "figures") == []
     assert (tmp_path / "figures").is_dir()

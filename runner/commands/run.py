@@ -1,0 +1,48 @@
+"""`simrun run CONFIG` (or `simrun CONFIG`): every run of the sweep, the results file, then the figures."""
+
+from __future__ import annotations
+
+import sys
+
+from simrun.workers import EXECUTOR_ALIASES, EXECUTORS
+
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report Ctrl-C
+DEFAULT_MAX_SIZE_GB = 50.0  # = simrun.store.DEFAULT_MAX_SIZE_GB (the store is not imported before a run)
+
+
+def add_parser(commands) -> None:
+    run = commands.add_parser("run", help="run an experiment: every run of its sweep, then its figures",
+                              description="Run every run of CONFIG's sweep, write OUTPUT/results.h5 and draw OUTPUT/figures/.")
+    run.add_argument("config", help="the experiment's YAML file, e.g. configs/quickstart.yaml")
+    run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a config key, value in YAML (repeatable), e.g. --set system.stiffness=1000 --set sweep.dt=[0.01,0.02]")
+    run.add_argument("--output", help="output folder (default: the config's `output`, else results/<name>)")
+    run.add_argument("--no-plots", action="store_true", help="write the results file only")
+    run.add_argument("-j", "--jobs", type=int, help="runs at once: local processes or Dask workers (default: the number of cores; 1 = serial)")
+    run.add_argument("--executor", choices=(*EXECUTORS, *EXECUTOR_ALIASES), default="process",
+                     help="process: a process pool on this machine (default; `local` is the same); "
+                          "dask: a Dask cluster (pip install 'simrun[dask]')")
+    run.add_argument("--scheduler", metavar="ADDRESS", help="with --executor dask: an existing scheduler, e.g. tcp://host:8786 (default: a local cluster)")
+    run.add_argument("--force", action="store_true", help="start over even if OUTPUT/results.h5 holds other results (default: resume an unchanged config)")
+    run.add_argument("--max-size", type=float, default=DEFAULT_MAX_SIZE_GB, metavar="GB",
+                     help=f"refuse a sweep whose results would exceed this size (default {DEFAULT_MAX_SIZE_GB:g} GB)")
+    run.add_argument("-q", "--quiet", action="store_true", help="print only errors and the final paths")
+    run.set_defaults(handler=handle)
+
+
+def handle(args) -> int:
+    from simrun.pipeline import Interrupted, run
+
+    try:
+        results = run(args.config, output=args.output, jobs=args.jobs,
+                      executor=EXECUTOR_ALIASES.get(args.executor, args.executor), scheduler=args.scheduler,
+                      force=args.force, progress=not args.quiet, figures=not args.no_plots,
+                      overrides=args.overrides, max_size_gb=args.max_size)
+    except Interrupted as interrupted:
+        print(f"simrun: {interrupted}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    counts = ", ".join(f"{count} {status}" for status, count in results.ran.items()) or "nothing left to run"
+    print(f"results: {results.path}  ({counts})")
+    if not args.no_plots:
+        print(f"figures: {results.path.parent / 'figures'}  ({len(results.figure_files)} files)")
+    return 0

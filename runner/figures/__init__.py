@@ -1,0 +1,142 @@
+"""simrun.figures (folder runner/figures/): the figures of an experiment, drawn from its results file alone.
+
+Data flows one way: the figures read the file through ``simrun.results`` and nothing else, so they
+can be redrawn without re-running (``simrun plot results.h5``). One module per family (energy,
+stability, solver work, theory curves, convergence, orbits, frames); this module holds the registry.
+
+A figure is a function plus an entry in ``FIGURES``: the function takes the file's runs as
+``FigureData`` and returns a matplotlib Figure, a list of (file name, Figure) pairs (one per run),
+or None when the file holds nothing it could show. The entry carries its caption (the report prints
+it under the figure) and what it needs from a results file (the report says so when it is not
+drawn); ``simrun plot --list``, the report and the tests all read the registry.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from simrun.figures import _layout as layout
+from simrun.figures._data import FigureData, RunData, figure_data
+from simrun.figures.convergence import convergence, work_precision
+from simrun.figures.energy import energy_budget, energy_drift_vs_dt, energy_over_time
+from simrun.figures.frames import snapshots
+from simrun.figures.orbits import orbits
+from simrun.figures.solver_work import newton_iterations_vs_dt, wall_time_per_step_vs_dt
+from simrun.figures.stability import stability_map
+from simrun.figures.theory import artificial_damping, spectral_radius_and_period
+from simrun.results import Results, load
+
+
+@dataclass(frozen=True)
+class Figure:
+    """A registered figure: its name (the file stem), how to draw it, what it shows and what it needs."""
+
+    name: str
+    draw: Callable[[FigureData], object]
+    caption: str  # what to look for, shown under the figure in the report
+    needs: str  # what a results file must hold for it to be drawn
+    dpi: int = layout.PNG_DPI
+
+
+FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
+    Figure("energy_over_time", energy_over_time,
+           "E/E₀ against time, one panel per time step. Look for: growth (forward Euler: by 1 + (h w)² per step), "
+           "decay (backward Euler and the damped implicit methods), and a bounded oscillation around E₀ (symplectic "
+           "and energy-conserving methods). An ✕ ends a run that diverged.",
+           "runs with recorded energy"),
+    Figure("energy_drift_vs_dt", energy_drift_vs_dt,
+           "The largest relative energy change over each run against dt (log-log). Look for the slope (the drift "
+           "shrinks like dt^p) and for methods at round-off (energy-conserving on this problem).",
+           "runs with recorded energy"),
+    Figure("stability_map", stability_map,
+           "Integrators × dt, coloured by the largest energy growth in decades (blue: lost, red: gained). The black "
+           "bar in a row is the predicted stability limit dt = (h w)*/w from the amplification matrix: cells right of "
+           "it should be red or diverged (✕), cells left of it not.",
+           "runs with recorded energy"),
+    Figure("newton_iterations_vs_dt", newton_iterations_vs_dt,
+           "Mean (solid) and largest (dotted) Newton iterations per step of the implicit methods. Look for the growth "
+           "with dt: larger steps start Newton farther from the solution.",
+           "implicit methods"),
+    Figure("orbits", orbits,
+           "Trajectories of a body moving in the x-y plane against the circle through its start (the exact orbit of "
+           "circular motion). Look for forward Euler spiralling out, backward Euler spiralling in, and symplectic "
+           "Euler staying on a (slightly deformed) closed orbit.",
+           "a planar system (one body in the x-y plane, e.g. circular motion)"),
+    Figure("artificial_damping", artificial_damping,
+           "d_method/w = −2 ln ρ/(h w) against h w (Ascher's damping curves). Lines: predicted from the probed "
+           "amplification matrix of each method; markers: measured from each run's energy decay (hollow where the "
+           "run is too short to resolve it). Look for markers on their lines, backward Euler's damping ~ h w at small "
+           "steps (peak near h w = 2), second-order methods damping only at large h w, and the generalized-α and θ "
+           "families ordered by their parameter.",
+           "runs on the undamped test equation (a system that declares a test frequency: spring without damping, "
+           "linear circular motion)"),
+    Figure("spectral_radius_and_period", spectral_radius_and_period,
+           "Top: the spectral radius ρ(h w); ρ < 1 damps, ρ > 1 grows (a hollow circle marks a stability limit). "
+           "Bottom: the relative period error T_h/T − 1 of the principal eigenvalue (up to h w = π), with the periods "
+           "measured from the runs' zero crossings. Look for methods with ρ = 1 that still lag in phase (implicit "
+           "midpoint).",
+           "runs on the undamped test equation"),
+    Figure("convergence", convergence,
+           "The error at the end time against dt (log-log), with the least-squares slope over the smallest time steps "
+           "(dashed) in the legend. Look for slopes equal to each method's order; runs at round-off are exact on this "
+           "problem, saturated ones (error ~ amplitude) are left out of the fit.",
+           "runs with an exact solution, or a reference (systems without one: --reference)"),
+    Figure("work_precision", work_precision,
+           "The same error against the wall time of each run. Lower left is better: a higher-order or cheaper method "
+           "reaches a given accuracy sooner.",
+           "runs with an exact solution, or a reference (systems without one: --reference)"),
+    Figure("wall_time_per_step_vs_dt", wall_time_per_step_vs_dt,
+           "Wall time per step against dt, per integrator (and per group, e.g. per solver). Look for implicit methods "
+           "getting dearer at large dt (more Newton iterations).",
+           "runs that took at least one step"),
+    Figure("energy_budget", energy_budget,
+           "Where the energy goes, at one time step: kinetic and potential energy (each potential term), the work "
+           "done by the physical damping, stacked; the grey gap up to the initial energy (dashed) is the "
+           "integrator's own numerical dissipation, an orange band above it a numerical gain. With damping 0 the gap "
+           "is all of the drift; with damping it separates the model's loss from the method's.",
+           "runs with at least two samples"),
+    Figure("snapshots", snapshots,
+           "The vertex grid at four times of the run (from its stored frames).",
+           "runs that keep frames on a vertex grid (the cloth)", dpi=110),
+)}
+
+
+def render_figures(results: Results | str | Path, reference_errors: dict[str, float] | None = None
+                   ) -> Iterator[tuple[Figure, str, object]]:
+    """Yield (registry entry, file name, matplotlib Figure) for every figure the file supports; the caller closes each.
+
+    reference_errors (run_id -> error at the end time, m) stand in for the stored ``final_error`` where it is
+    NaN (no exact solution); ``simrun.reference.reference_errors`` computes them on request.
+    """
+    results = results if isinstance(results, Results) else load(results)
+    if not results.runs:
+        return
+    with results.opened():  # one file handle for every series the figures read
+        data = figure_data(results, reference_errors)
+        for entry in list(FIGURES.values()):
+            drawn = entry.draw(data)
+            if drawn is None:
+                continue
+            for name, figure in drawn if isinstance(drawn, list) else [(entry.name, drawn)]:
+                yield entry, name, figure
+
+
+def draw_figures(results: Results | str | Path, out_dir: str | Path,
+                 reference_errors: dict[str, float] | None = None) -> list[Path]:
+    """Draw every figure the results file supports into out_dir as PNG and SVG; returns the paths written."""
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    for entry, name, figure in render_figures(results, reference_errors):
+        try:
+            written += layout.save_figure(figure, out_dir / name, dpi=entry.dpi)
+        finally:
+            plt.close(figure)
+    return written
+
+
+__all__ = ["FIGURES", "Figure", "FigureData", "RunData", "draw_figures", "figure_data", "render_figures"]

@@ -1,0 +1,122 @@
+"""Pictures of runs that keep frames of their vertex positions (the cloth): snapshots at a few times, a GIF on request.
+
+A run's frames reshape to its system's declared ``frame_shape`` (rows x columns of the vertex grid)
+and are drawn as a surface; spheres among the system's stored contact parameters are drawn with it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib import pyplot as plt
+from matplotlib.animation import FuncAnimation, PillowWriter
+
+from simrun.figures._data import FigureData
+from simrun.results import Results, Status, StoredRun
+
+SNAPSHOT_COUNT = 4
+# A sweep of many such runs would drown its figure folder in snapshots: beyond this many runs,
+# draw one per method and swept setting (its largest dt); `simrun animate` reaches any run.
+MAX_SNAPSHOT_FIGURES = 12
+GIF_FRAMES_MAX = 120  # a longer GIF only grows the file; 120 frames at 20 fps is 6 s
+SNAPSHOT_DPI = 110
+
+
+def frame_runs(results: Results) -> list[str]:
+    """The runs with frames on a vertex grid: what snapshots and `simrun animate` can draw."""
+    return [run.run_id for run in results.runs.values()
+            if run.frame_shape is not None and "frames" in run.datasets and run["frame_t"].shape[0] > 0]
+
+
+def snapshot_runs(results: Results) -> list[str]:
+    """Every frame run, or for big sweeps one per integrator label and swept setting: the largest dt."""
+    runs = frame_runs(results)
+    if len(runs) <= MAX_SNAPSHOT_FIGURES:
+        return runs
+    chosen: dict[tuple, tuple[float, str]] = {}
+    for run_id in runs:
+        run = results.runs[run_id]
+        setting = tuple(sorted((key, str(value)) for key, value in run.params.items() if key != "dt"))
+        key = (run.label, setting)
+        if key not in chosen or run.dt > chosen[key][0]:
+            chosen[key] = (run.dt, run_id)
+    return sorted(run_id for _, run_id in chosen.values())[:MAX_SNAPSHOT_FIGURES]
+
+
+def snapshots(data: FigureData) -> list[tuple[str, object]] | None:
+    """One figure per frame run (see snapshot_runs): the vertex grid at SNAPSHOT_COUNT times spread over the run."""
+    figures = []
+    for run_id in snapshot_runs(data.results):
+        run = data.results.runs[run_id]
+        frames, times = run["frames"], run["frame_t"]
+        picks = np.unique(np.linspace(0, frames.shape[0] - 1, SNAPSHOT_COUNT).round().astype(int))
+        # a diverged run's last frame is the blow-up: frame the view on the frames before it
+        shown = picks[:-1] if run.status is Status.DIVERGED and len(picks) > 1 else picks
+        limits = _limits(frames[shown], _spheres(run))
+        figure = plt.figure(figsize=(3.2 * len(picks), 3.6))
+        for column, index in enumerate(picks):
+            axes = figure.add_subplot(1, len(picks), column + 1, projection="3d")
+            _draw_scene(axes, frames[index], run, limits)
+            axes.set_title(f"t = {times[index]:.3g} s", fontsize=9)
+        figure.suptitle(f"{run.label}, dt = {run.dt:g} s ({run.status})", fontsize=10)
+        figure.tight_layout()
+        figures.append((f"cloth_{run_id}", figure))
+    return figures or None
+
+
+def write_gif(results: Results, run_id: str, output, fps: int = 20):
+    """An animated GIF of one frame run; returns its path."""
+    run = results.runs[run_id]
+    frames, times = run["frames"], run["frame_t"]
+    label = f"{run.label}, dt = {run.dt:g} s"
+    step = max(1, int(np.ceil(frames.shape[0] / GIF_FRAMES_MAX)))
+    indices = np.r_[np.arange(0, frames.shape[0], step), frames.shape[0] - 1] if frames.shape[0] > 1 else np.array([0])
+    indices = np.unique(indices)
+    limits = _limits(frames[indices], _spheres(run))
+    figure = plt.figure(figsize=(5, 4.5))
+    axes = figure.add_subplot(projection="3d")
+
+    def draw(number):
+        axes.clear()
+        _draw_scene(axes, frames[indices[number]], run, limits)
+        axes.set_title(f"{label}\nt = {times[indices[number]]:.3f} s", fontsize=9)
+
+    animation = FuncAnimation(figure, draw, frames=len(indices))
+    output.parent.mkdir(parents=True, exist_ok=True)
+    animation.save(output, writer=PillowWriter(fps=fps), dpi=80)
+    plt.close(figure)
+    return output
+
+
+def _spheres(run: StoredRun) -> list[tuple[np.ndarray, float]]:
+    """(centre (m), radius (m)) of each sphere among the system's stored contact parameters."""
+    sphere = (run.system_params.get("contact") or {}).get("sphere")
+    return [(np.array(sphere["center"], dtype=float), float(sphere["radius"]))] if sphere else []
+
+
+def _draw_scene(axes, frame: np.ndarray, run: StoredRun, limits) -> None:
+    grid = frame.reshape(*run.frame_shape, 3)
+    axes.plot_surface(grid[..., 0], grid[..., 1], grid[..., 2], color="#4c72b0", edgecolor="#1f3552",
+                      linewidth=0.2, alpha=0.9, shade=True)
+    for centre, radius in _spheres(run):
+        u, v = np.mgrid[0:2 * np.pi:24j, 0:np.pi:12j]
+        axes.plot_wireframe(centre[0] + radius * np.cos(u) * np.sin(v), centre[1] + radius * np.sin(u) * np.sin(v),
+                            centre[2] + radius * np.cos(v), color="#c44e52", linewidth=0.4)
+    low, high = limits
+    axes.set_xlim(low[0], high[0])
+    axes.set_ylim(low[1], high[1])
+    axes.set_zlim(low[2], high[2])
+    axes.set_box_aspect(high - low)
+    axes.set_xlabel("x (m)", fontsize=7)
+    axes.set_ylabel("y (m)", fontsize=7)
+    axes.set_zlabel("z (m)", fontsize=7)
+    axes.tick_params(labelsize=6)
+
+
+def _limits(frames: np.ndarray, spheres: list[tuple[np.ndarray, float]]) -> tuple[np.ndarray, np.ndarray]:
+    finite = frames[np.isfinite(frames).all(axis=-1)]
+    low, high = finite.min(axis=0), finite.max(axis=0)
+    for centre, radius in spheres:
+        low, high = np.minimum(low, centre - radius), np.maximum(high, centre + radius)
+    span = np.maximum(high - low, 0.05 * max(float(np.max(high - low)), 1e-3))
+    middle = (low + high) / 2
+    return middle - span / 2, middle + span / 2

@@ -1,0 +1,422 @@
+"""simrun.results: the one reader of a results file (layout in docs/results-format.md).
+
+    results = simrun.load("results/quickstart/results.h5")
+    results.summary                   # pandas DataFrame, one row per run
+    run = results.runs["0000-forward_euler-dt=0.001"]
+    run.status, run.dt, run.attrs     # the run's attributes
+    run["energy"]                     # a recorded dataset, read on first use
+
+Figures, the report, ``simrun show`` and the writer's summary row all read through this module. It
+imports h5py and numpy only (pandas and yaml when a table or the config is asked for), never the
+config, the simulation or the library packages, so that results can be read where simrun's
+simulation could not even be imported.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import enum
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from simrun.errors import ResultsFileError
+
+FORMAT_VERSION = 2  # what this simrun writes
+READABLE_VERSIONS = (1, 2)
+RESULTS_NAME = "results.h5"
+
+
+class Status(str, enum.Enum):
+    """How a run ended (the ``status`` attribute); a ``str``, so ``Status.OK == "ok"``."""
+
+    OK = "ok"  # reached the end time
+    DIVERGED = "diverged"  # energy non-finite or beyond the bound (``t_diverged`` says when)
+    NOT_CONVERGED = "not_converged"  # some step's solver hit max_iterations
+    FAILED = "failed"  # an exception; its message is stored
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def stopped(self) -> bool:
+        """The run did not reach its end time with data to trust (diverged or failed)."""
+        return self in (Status.DIVERGED, Status.FAILED)
+
+
+# -- energy drift: the one definition ---------------------------------------------------------------
+def drift_scale(energy: np.ndarray, kinetic: np.ndarray, potential: np.ndarray) -> float:
+    """The energy (J) that drift is relative to: |E0|, else |KE0| + |PE0| (E0 = 0), else 1 J."""
+    if energy.size and np.isfinite(energy[0]) and energy[0] != 0:
+        return abs(float(energy[0]))
+    if kinetic.size and potential.size:
+        scale = abs(float(kinetic[0])) + abs(float(potential[0]))
+        if np.isfinite(scale) and scale > 0:
+            return scale
+    return 1.0
+
+
+def energy_drift(energy: np.ndarray, scale: float) -> tuple[float, float]:
+    """(max |E - E0|, final E - E0) over the finite samples, both divided by ``scale`` (J); NaN without samples."""
+    energy = energy[np.isfinite(energy)]
+    if energy.size == 0:
+        return math.nan, math.nan
+    drift = (energy - energy[0]) / scale
+    return float(np.max(np.abs(drift))), float(drift[-1])
+
+
+# -- the summary table ------------------------------------------------------------------------------
+SUMMARY_DTYPE = np.dtype([
+    ("run_id", h5py.string_dtype()),
+    ("integrator", h5py.string_dtype()),
+    ("dt", "f8"),
+    ("status", h5py.string_dtype()),
+    ("steps", "i8"),
+    ("max_rel_energy_drift", "f8"),
+    ("final_rel_energy_drift", "f8"),
+    ("final_error", "f8"),
+    ("mean_newton_iterations", "f8"),
+    ("mean_linear_iterations", "f8"),
+    ("wall_time", "f8"),
+])
+SUMMARY_COLUMNS = SUMMARY_DTYPE.names
+
+
+def summary_row(run_id: str, group: h5py.Group) -> tuple:
+    """One summary row, computed from a run's group alone (the writer's row, and a resumed file's rebuild)."""
+    attrs = group.attrs
+    series = {key: group[key][()] if key in group else np.empty(0)
+              for key in ("energy", "kinetic_energy", "potential_energy")}
+    max_drift, final_drift = energy_drift(series["energy"], drift_scale(*series.values()))
+    newton = group["newton_iterations"][()]
+    linear = group["linear_iterations"][()]
+    return (
+        run_id, _text(attrs["integrator_label"]), float(attrs["dt"]), _text(attrs["status"]), int(attrs["steps"]),
+        max_drift, final_drift, float(attrs.get("final_error", math.nan)),
+        float(newton.mean()) if newton.size else 0.0, float(linear.mean()) if linear.size else 0.0,
+        float(attrs["wall_time"]),
+    )
+
+
+# -- capabilities of format-1 files ------------------------------------------------------------------
+# Format 1 did not store what a system declares about itself (format 2 does, as run attributes). Its
+# three systems are a closed set, so their declarations are restated here once, from their parameters.
+def _format1_capabilities(system: str, params: dict) -> dict:
+    frequency = math.nan
+    if system == "spring_mass" and float(params.get("damping", 0.0)) == 0.0:
+        frequency = math.sqrt(float(params.get("stiffness", 100.0)) / float(params.get("mass", 1.0)))
+    if system == "circular_motion" and params.get("force", "linear") == "linear":
+        frequency = float(params.get("angular_velocity", 1.0))
+    frame_shape = np.array(params["resolution"][::-1], dtype=np.int64) if system == "cloth" else np.zeros(0, dtype=np.int64)
+    return {"test_frequency": frequency, "frame_shape": frame_shape, "planar": system == "circular_motion"}
+
+
+# -- one run ----------------------------------------------------------------------------------------
+class StoredRun:
+    """One run of a results file: its attributes (decoded) and its datasets, each read on first use.
+
+    ``run["energy"]`` is the recorded dataset as a numpy array (cached); ``"frames" in run`` tells
+    whether it was recorded. The properties name the attributes every run has.
+    """
+
+    def __init__(self, results: "Results", run_id: str, attrs: dict, datasets: tuple[str, ...]):
+        self._results = results
+        self.run_id = run_id
+        self.attrs = attrs
+        self.datasets = datasets
+        self._cache: dict[str, np.ndarray] = {}
+
+    def __repr__(self) -> str:
+        return f"<StoredRun {self.run_id}: {self.status}>"
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.datasets
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        if key not in self._cache:
+            if key not in self.datasets:
+                raise KeyError(f"run {self.run_id!r} has no dataset {key!r}; it has: {', '.join(self.datasets)}")
+            with self._results.opened() as file:
+                self._cache[key] = file["runs"][self.run_id][key][()]
+        return self._cache[key]
+
+    def get(self, key: str, default=None):
+        return self[key] if key in self.datasets else default
+
+    def series(self, key: str) -> np.ndarray:
+        """A dataset as floats, or an empty array when the run did not record it."""
+        return np.asarray(self[key], dtype=float) if key in self.datasets else np.empty(0)
+
+    # -- what the run was -----------------------------------------------------------------------
+    @property
+    def index(self) -> int:
+        return int(self.attrs.get("index", 0))
+
+    @property
+    def label(self) -> str:
+        """The integrator's name with its non-default parameters: tells lines apart."""
+        return str(self.attrs.get("integrator_label", self.attrs.get("integrator", self.run_id)))
+
+    @property
+    def integrator(self) -> str:
+        return str(self.attrs.get("integrator", ""))
+
+    @property
+    def params(self) -> dict:
+        """Every swept and method parameter: dt, the swept keys, integrator.<param>."""
+        return self._json("params")
+
+    @property
+    def integrator_params(self) -> dict:
+        return {key.removeprefix("integrator."): value for key, value in self.params.items() if key.startswith("integrator.")}
+
+    @property
+    def swept(self) -> dict:
+        """The swept parameters other than dt and the integrator's own (what tells groups of runs apart)."""
+        return {key: value for key, value in self.params.items() if key != "dt" and not key.startswith("integrator.")}
+
+    @property
+    def system(self) -> str:
+        return str(self.attrs.get("system", ""))
+
+    @property
+    def system_params(self) -> dict:
+        return self._json("system_params")
+
+    @property
+    def solver(self) -> dict:
+        return self._json("solver")
+
+    @property
+    def dt(self) -> float:
+        return float(self.attrs.get("dt", self.params.get("dt", math.nan)))
+
+    @property
+    def order(self) -> int:
+        return int(self.attrs.get("order", 0))
+
+    @property
+    def explicit(self) -> bool:
+        return bool(self.attrs.get("explicit", False))
+
+    # -- how it ended ---------------------------------------------------------------------------
+    @property
+    def status(self) -> Status:
+        return Status(str(self.attrs.get("status", "ok")))
+
+    @property
+    def message(self) -> str:
+        return str(self.attrs.get("message", ""))
+
+    @property
+    def steps(self) -> int:
+        return int(self.attrs.get("steps", 0))
+
+    @property
+    def wall_time(self) -> float:
+        return float(self.attrs.get("wall_time", math.nan))
+
+    @property
+    def final_error(self) -> float:
+        return float(self.attrs.get("final_error", math.nan))
+
+    # -- what its system declared (format 2; restated for format 1) ------------------------------
+    @property
+    def test_frequency(self) -> float | None:
+        """w (rad/s) when the run is the undamped test equation (or uncoupled copies), else None."""
+        value = float(self._capability("test_frequency"))
+        return value if math.isfinite(value) else None
+
+    @property
+    def length_scale(self) -> float:
+        """m: max |x0| (1 when x0 = 0), the scale of position errors."""
+        if "length_scale" in self.attrs:
+            return float(self.attrs["length_scale"])
+        start = self.series("positions")[:1] if "positions" in self else self.series("frames")[:1]
+        start = np.abs(start[np.isfinite(start)])
+        return float(start.max()) if start.size and start.max() > 0 else 1.0
+
+    @property
+    def energy_scale(self) -> float:
+        """J: the energy that growth is judged against (the divergence bound's scale)."""
+        if "energy_scale" in self.attrs:
+            return float(self.attrs["energy_scale"])
+        kinetic, potential = self.series("kinetic_energy"), self.series("potential_energy")
+        scale = abs(float(kinetic[0])) + abs(float(potential[0])) if kinetic.size and potential.size else 0.0
+        return scale if np.isfinite(scale) and scale > 0 else 1.0
+
+    @property
+    def frame_shape(self) -> tuple[int, ...] | None:
+        """The vertex grid of one frame, e.g. (rows, columns) of the cloth; None when the run keeps no frames."""
+        shape = tuple(int(size) for size in np.atleast_1d(self._capability("frame_shape")))
+        return shape or None
+
+    @property
+    def dof_count(self) -> int:
+        """Degrees of freedom of the run's system."""
+        if "dof_count" in self.attrs:
+            return int(self.attrs["dof_count"])
+        positions = self.get("positions")
+        return int(positions.shape[1]) if positions is not None else int(np.prod(self["frames"].shape[1:]))
+
+    @property
+    def planar(self) -> bool:
+        """One body moving in the x-y plane: its trajectory is an orbit."""
+        return bool(self._capability("planar"))
+
+    def _capability(self, key: str):
+        if key in self.attrs:
+            return self.attrs[key]
+        return _format1_capabilities(self.system, self.system_params)[key]
+
+    def _json(self, key: str) -> dict:
+        return json.loads(self.attrs.get(key) or "{}")
+
+
+# -- the file ---------------------------------------------------------------------------------------
+class Results:
+    """A results file: ``summary`` (DataFrame), ``runs`` (run id -> StoredRun, in sweep order),
+    ``config`` (the resolved config), ``provenance`` (who wrote it, when, with what)."""
+
+    def __init__(self, path: Path, attrs: dict, runs: dict[str, StoredRun] | None = None,
+                 summary_table: np.ndarray | None = None):
+        self.path = path
+        self.attrs = attrs
+        self.runs: dict[str, StoredRun] = runs or {}
+        self._summary_table = summary_table
+        self._file: h5py.File | None = None
+        # set by simrun.run: the figure files it drew, and status -> count of the runs it simulated
+        self.figure_files: list[Path] = []
+        self.ran: dict[str, int] = {}
+
+    def __repr__(self) -> str:
+        return f"<Results {self.name}: {len(self.runs)} runs in {self.path}>"
+
+    @property
+    def name(self) -> str:
+        return str(self.attrs.get("name", self.path.parent.name))
+
+    @property
+    def format_version(self) -> int:
+        return int(self.attrs.get("format_version", 0))
+
+    @property
+    def provenance(self) -> dict:
+        """Root attributes but the config: format and simrun version, creation time, config hash, package versions."""
+        provenance = {key: value for key, value in self.attrs.items() if key != "config"}
+        if isinstance(provenance.get("package_versions"), str):
+            try:
+                provenance["package_versions"] = json.loads(provenance["package_versions"])
+            except ValueError:
+                pass
+        return provenance
+
+    @property
+    def config_text(self) -> str:
+        """The config as YAML text, after --set overrides."""
+        return str(self.attrs.get("config", ""))
+
+    @property
+    def config(self) -> dict:
+        """The resolved config as a dict (parsed from the stored YAML)."""
+        import yaml
+
+        return yaml.safe_load(self.config_text) or {}
+
+    @property
+    def summary(self):
+        """One row per run in sweep order (pandas DataFrame), columns as the file's /summary table."""
+        import pandas
+
+        table = self._summary_table
+        if table is None:
+            with self.opened() as file:
+                rows = [summary_row(run_id, file["runs"][run_id]) for run_id in self.runs]
+            table = np.array(rows, dtype=SUMMARY_DTYPE)
+        frame = pandas.DataFrame({name: _decoded(table[name]) for name in SUMMARY_COLUMNS})
+        order = {run_id: number for number, run_id in enumerate(self.runs)}
+        frame = frame.sort_values("run_id", key=lambda ids: ids.map(order)).reset_index(drop=True)
+        return frame
+
+    @contextlib.contextmanager
+    def opened(self) -> Iterator[h5py.File]:
+        """The file, open for reading; nested uses share one handle (reading many runs' datasets in a block)."""
+        if self._file is not None:
+            yield self._file
+            return
+        with h5py.File(self.path, "r") as file:
+            self._file = file
+            try:
+                yield file
+            finally:
+                self._file = None
+
+
+def load(path: str | Path) -> Results:
+    """Open a results file: its root attributes and every run's attributes now, datasets on first use.
+
+    Raises ResultsFileError (one line) for a file that is missing, not HDF5, not a simrun results
+    file, or of a format version this simrun cannot read.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ResultsFileError(f"results: {str(path)!r} does not exist (expected e.g. results/quickstart/results.h5)")
+    if not h5py.is_hdf5(path):
+        raise ResultsFileError(f"results: {str(path)!r} is not an HDF5 file (expected e.g. results/quickstart/results.h5)")
+    try:
+        file = h5py.File(path, "r")
+    except OSError as error:
+        raise ResultsFileError(f"results: {str(path)!r} cannot be opened ({error.__class__.__name__})") from None
+    with file:
+        if "runs" not in file:
+            raise ResultsFileError(f"results: {str(path)!r} is an HDF5 file without /runs: not a simrun results file")
+        attrs = {key: _attribute(value) for key, value in file.attrs.items()}
+        version = int(attrs.get("format_version", 0))
+        if version not in READABLE_VERSIONS:
+            raise ResultsFileError(f"results: {str(path)!r} has format version {version}; this simrun reads versions "
+                                   + ", ".join(map(str, READABLE_VERSIONS)))
+        results = Results(path, attrs, summary_table=file["summary"][()] if "summary" in file else None)
+        stored = []
+        for run_id, group in file["runs"].items():
+            run_attrs = {key: _attribute(value) for key, value in group.attrs.items()}
+            stored.append(StoredRun(results, run_id, run_attrs, tuple(group.keys())))
+    stored.sort(key=lambda run: run.index)
+    results.runs = {run.run_id: run for run in stored}
+    return results
+
+
+def _attribute(value):
+    """An HDF5 attribute as Python: str for strings, int/float/bool for numpy scalars, arrays as they are."""
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _decoded(column: np.ndarray):
+    return [_text(item) for item in column] if column.dtype.kind == "O" else column
+
+
+def load_summary(path: str | Path) -> np.ndarray:
+    """Deprecated (use ``load(path).summary``): the summary table as a numpy structured array, strings decoded.
+
+    Kept for one version after format 2; it reads through ``load``."""
+    frame = load(path).summary
+    table = np.empty(len(frame), dtype=[(name, object if SUMMARY_DTYPE[name].kind == "O" else SUMMARY_DTYPE[name])
+                                        for name in SUMMARY_COLUMNS])
+    for name in SUMMARY_COLUMNS:
+        table[name] = frame[name].to_numpy()
+    return table
+
+
+__all__ = ["FORMAT_VERSION", "READABLE_VERSIONS", "RESULTS_NAME", "Results", "ResultsFileError", "Status", "StoredRun",
+           "SUMMARY_COLUMNS", "SUMMARY_DTYPE", "drift_scale", "energy_drift", "load", "load_summary", "summary_row"]

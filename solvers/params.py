@@ -1,0 +1,285 @@
+"""The nonlinear solvers as config: one small pydantic model per solver, found by its name.
+
+A solver's model is its schema: the options every solver shares live in ``SolverParams``, and each
+solver's model adds the keyword arguments of its own constructor, so an option that a solver does
+not use is refused instead of ignored (``solver: {type: newton, history: 8}``). ``build()`` hands
+the fields to the class as keyword arguments; a fallback entry gives only the fallback's own
+options, and takes the shared ones from the main solver.
+
+Adding a solver: write its class (``solvers/base.py`` has the contract), a model here with
+``type: Literal["<name>"] = "<name>"`` and the constructor's own arguments as fields, and register
+both at the bottom of this module.
+"""
+
+from __future__ import annotations
+
+import difflib
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, ValidationError, field_validator, model_validator
+
+from .base import NonlinearSolver
+from .descent import LBFGS, GradientDescent, JacobiChebyshev
+from .fallback import FallbackChain
+from .line_search import LINE_SEARCHES
+from .linear import LINEAR_SOLVERS
+from .newton import SPD_PROJECTIONS, Newton, ProjectedNewton
+
+# Fields that are not arguments of the solver's constructor: `type` picks the class, the runner reads
+# the other two; linear_tolerance and linear_max_iterations go to the linear solver's.
+RUNNER_FIELDS = ("type", "fallback", "on_not_converged")
+LINEAR_SOLVER_FIELDS = ("linear_tolerance", "linear_max_iterations")
+
+
+class SolverOptionError(ValueError):
+    """A solver option that cannot be used: one line, ``path: reason``.
+
+    ``path`` is the option's place within the solver's mapping (``("history",)``,
+    ``("fallback", 0, "tolerance")``), so that the config can name it in full: ``solver.history``."""
+
+    def __init__(self, path: tuple = (), reason: str = ""):
+        self.path = tuple(path)
+        self.reason = reason
+        super().__init__(f"{'.'.join(map(str, self.path))}: {reason}" if self.path else reason)
+
+
+def _did_you_mean(word: Any, choices) -> str:
+    close = difflib.get_close_matches(str(word), list(choices), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _option_error(error: ValidationError) -> SolverOptionError:
+    """The first error of a model validation as one SolverOptionError (the config reports one error)."""
+    first = error.errors()[0]
+    path, kind, message = first["loc"], first["type"], first["msg"]
+    cause = first.get("ctx", {}).get("error")
+    if isinstance(cause, SolverOptionError):  # ours, raised below this path: keep its own path
+        return SolverOptionError((*path, *cause.path), cause.reason)
+    if kind == "value_error":
+        message = message.removeprefix("Value error, ")
+    elif "input" in first and kind != "missing" and not isinstance(first["input"], (dict, list)):
+        message = f"{message} (got {first['input']!r})"
+    return SolverOptionError(path, message)
+
+
+def _model_named(name: Any, path: tuple) -> type[SolverParams]:
+    if not isinstance(name, str) or name not in SOLVER_PARAMS:
+        raise SolverOptionError(path, f"unknown solver {name!r}{_did_you_mean(name, SOLVER_PARAMS)}; valid: "
+                                + ", ".join(SOLVER_PARAMS))
+    return SOLVER_PARAMS[name]
+
+
+def _fallback_entry(entry: Any) -> dict[str, Any]:
+    """One solver of the fallback chain as {type, each of its own options}: from a name or a mapping."""
+    if isinstance(entry, str):
+        return {"type": entry, **_own_defaults(_model_named(entry, ()))}
+    if not isinstance(entry, dict):
+        raise SolverOptionError((), "expected a solver name or a mapping {type: name, its own option: value}")
+    if "type" not in entry:
+        raise SolverOptionError((), "a mapping needs 'type': one of " + ", ".join(SOLVER_PARAMS))
+    model = _model_named(entry["type"], ("type",))
+    own = model.own_fields()
+    for key in entry:
+        if key == "type" or key in own:
+            continue
+        takes = f"its entry takes: {', '.join(['type', *own])}"
+        if key in SolverParams.model_fields:
+            raise SolverOptionError((key,), f"a fallback takes {key} from the main solver; {takes}")
+        raise SolverOptionError((key,), f"{model.solver_name()} does not use {key!r}{_did_you_mean(key, own)}; {takes}")
+    try:
+        validated = model.model_validate(entry)
+    except ValidationError as error:
+        raise _option_error(error) from None
+    return {"type": validated.type, **{key: getattr(validated, key) for key in own}}
+
+
+def _own_defaults(model: type[SolverParams]) -> dict[str, Any]:
+    return {key: info.default for key, info in model.own_fields().items()}
+
+
+# A fallback is stored with every own option filled in, so that `[lbfgs]` and `[{type: lbfgs, history: 8}]`
+# are the same config (and hash alike).
+FallbackEntry = Annotated[dict[str, Any], BeforeValidator(_fallback_entry)]
+
+
+class SolverParams(BaseModel):
+    """The options every nonlinear solver takes; each solver's model (SOLVER_PARAMS) adds its own.
+
+    Not built directly: ``solver_params(type=..., option=...)`` or ``SOLVER_PARAMS[name](...)``
+    gives the model of one solver. Its fields other than RUNNER_FIELDS are the keyword arguments of
+    the solver's constructor (the linear solver built from linear_solver, linear_tolerance and
+    linear_max_iterations)."""
+
+    model_config = ConfigDict(extra="forbid")
+    type: str = Field(description="nonlinear solver")
+    tolerance: float = Field(1e-10, gt=0, lt=1, allow_inf_nan=False, description="residual mode: stop when |residual|_inf <= tolerance * |initial residual|_inf; step mode: when |p|_inf <= tolerance * |first p|_inf")
+    tolerance_mode: Literal["residual", "step"] = Field("residual", description="residual (every solver) or step (newton, projected_newton: the Newton step relative to the first one)")
+    max_iterations: int = Field(50, ge=1, description="nonlinear iterations per step (per solver of the fallback chain) before the step counts as not converged")
+    linear_solver: Literal[tuple(LINEAR_SOLVERS)] = Field("direct", description="linear solver for Newton directions: " + " | ".join(LINEAR_SOLVERS))  # type: ignore[valid-type]
+    linear_tolerance: float = Field(1e-10, gt=0, lt=1, allow_inf_nan=False, description="iterative linear solvers: stop when |b - A p|_2 <= linear_tolerance * |b|_2")
+    linear_max_iterations: int = Field(1000, ge=1, description="iterative linear solvers: iterations per linear solve")
+    fallback: list[FallbackEntry] = Field([], description="solvers tried in turn when the previous one does not converge on a step (from its best iterate): names, or mappings {type: name, its own option: value}; the shared options are this solver's")
+    on_not_converged: Literal["continue", "stop"] = Field("continue", description="go on after a step that did not converge (status not_converged at the end), or stop the run there")
+
+    @classmethod
+    def solver_name(cls) -> str:
+        return cls.model_fields["type"].default
+
+    @classmethod
+    def own_fields(cls) -> dict:
+        """The fields of this solver beyond the shared ones (name -> pydantic FieldInfo)."""
+        return {key: info for key, info in cls.model_fields.items() if key not in SolverParams.model_fields}
+
+    @model_validator(mode="before")
+    @classmethod
+    def _only_its_own_options(cls, data: Any) -> Any:
+        if cls is SolverParams:
+            raise SolverOptionError((), "SolverParams holds the shared options only; build a solver's model with "
+                                        "solver_params(type=name, option=value) or SOLVER_PARAMS[name]")
+        if isinstance(data, dict):
+            for key in data:
+                if key not in cls.model_fields:
+                    raise SolverOptionError((key,), cls._not_used(key, data[key], data.get("fallback")))
+        return data
+
+    @classmethod
+    def _not_used(cls, key: Any, value: Any, fallback: Any) -> str:
+        """'newton does not use 'history'; it takes: ...', with the fallback entry to write where one takes it."""
+        # a misspelling gets a suggestion; another solver's option is named as it is
+        known = any(key in model.model_fields for model in SOLVER_PARAMS.values())
+        options = [name for name in cls.model_fields if name != "type"]
+        message = f"{cls.solver_name()} does not use {key!r}{'' if known else _did_you_mean(key, options)}; it takes: {', '.join(options)}"
+        names = [entry.get("type") if isinstance(entry, dict) else entry for entry in (fallback if isinstance(fallback, list) else [])]
+        users = [name for name in names if isinstance(name, str) and name in SOLVER_PARAMS and key in SOLVER_PARAMS[name].own_fields()]
+        if users:
+            message += f"; to set it for the fallback {users[0]}, give it in its entry: fallback: [{{type: {users[0]}, {key}: {value}}}]"
+        return message
+
+    @field_validator("linear_solver")
+    @classmethod
+    def _installed(cls, name: str) -> str:
+        missing = LINEAR_SOLVERS[name].missing()
+        if missing is not None:
+            raise ValueError(missing)
+        return name
+
+    @model_validator(mode="after")
+    def _consistent_chain(self) -> "SolverParams":
+        chain = self.chain_names()
+        if len(set(chain)) != len(chain):
+            raise SolverOptionError(("fallback",), f"each solver may appear once in the chain {chain}; a repeat would redo the same attempt")
+        if self.tolerance_mode == "step":
+            unsupported = [name for name in chain if not SOLVERS[name].supports_step_test]
+            if unsupported:
+                newton_type = ", ".join(name for name, cls in SOLVERS.items() if cls.supports_step_test)
+                raise SolverOptionError(("tolerance_mode",), f"step needs Newton-type solvers ({newton_type}), not "
+                                        f"{', '.join(unsupported)}: their steps do not estimate the error")
+        return self
+
+    def chain_names(self) -> list[str]:
+        """This solver's name, then its fallbacks'."""
+        return [self.type, *(entry["type"] for entry in self.fallback)]
+
+    def chain(self) -> list["SolverParams"]:
+        """This model, then each fallback's: its own options from its entry, the shared ones from this model."""
+        shared = {key: getattr(self, key) for key in SolverParams.model_fields if key not in ("type", "fallback")}
+        return [self, *(SOLVER_PARAMS[entry["type"]](**shared, **entry) for entry in self.fallback)]
+
+    def constructor_arguments(self) -> dict[str, Any]:
+        """The keyword arguments of SOLVERS[type]: every field but RUNNER_FIELDS, the linear solver built."""
+        arguments = {key: getattr(self, key) for key in type(self).model_fields if key not in RUNNER_FIELDS}
+        linear_tolerance, linear_max_iterations = (arguments.pop(key) for key in LINEAR_SOLVER_FIELDS)
+        arguments["linear_solver"] = LINEAR_SOLVERS[self.linear_solver](linear_tolerance, linear_max_iterations)
+        return arguments
+
+    def build_one(self) -> NonlinearSolver:
+        """This solver alone, without its fallbacks."""
+        return SOLVERS[self.type](**self.constructor_arguments())
+
+    def build(self) -> NonlinearSolver | FallbackChain:
+        """The configured solver, or a FallbackChain when ``fallback`` names more."""
+        solvers = [params.build_one() for params in self.chain()]
+        return solvers[0] if len(solvers) == 1 else FallbackChain(solvers)
+
+
+# -- each solver's own options: the keyword arguments of its constructor beyond the shared ones -----
+LineSearch = Annotated[Literal[LINE_SEARCHES], Field(description="none | backtracking (halve the step until the energy decreases) | armijo (until it decreases enough)")]  # type: ignore[valid-type]
+SpdProjection = Literal[SPD_PROJECTIONS]  # type: ignore[valid-type]
+
+
+class NewtonParams(SolverParams):
+    """Full Newton steps on the residual with the raw Hessian; it takes only the shared options."""
+
+    type: Literal["newton"] = "newton"
+
+
+class ProjectedNewtonParams(SolverParams):
+    """Newton on the incremental potential: SPD-projected Hessian and a line search."""
+
+    type: Literal["projected_newton"] = "projected_newton"
+    line_search: LineSearch = "backtracking"
+    spd_projection: SpdProjection = Field("clamp", description="none | clamp (the system's own projection) | eigen (whole-matrix eigenvalue clamp for dense problems; clamp for sparse ones)")
+
+
+class LBFGSParams(SolverParams):
+    """Limited-memory BFGS directions with a line search."""
+
+    type: Literal["lbfgs"] = "lbfgs"
+    line_search: LineSearch = "backtracking"
+    history: int = Field(8, ge=1, le=1000, description="number of (s, dg) pairs kept")
+
+
+class GradientDescentParams(SolverParams):
+    """Steepest descent with Barzilai-Borwein step lengths and a line search."""
+
+    type: Literal["gradient_descent"] = "gradient_descent"
+    line_search: LineSearch = "backtracking"
+
+
+class JacobiChebyshevParams(SolverParams):
+    """Jacobi-preconditioned descent with Chebyshev acceleration, checked against the energy."""
+
+    type: Literal["jacobi_chebyshev"] = "jacobi_chebyshev"
+    line_search: LineSearch = "backtracking"
+    chebyshev_rho: float = Field(0.99, ge=0, lt=1, allow_inf_nan=False, description="estimated spectral radius rho of the Jacobi iteration")
+    relaxation: float = Field(0.9, gt=0, le=1, allow_inf_nan=False, description="under-relaxation gamma of each Jacobi step (halved when a plain step raises the energy)")
+    spd_projection: SpdProjection = Field("clamp", description="the Hessian whose diagonal is D: none (raw) | clamp (the system's own projection) | eigen (as clamp: a diagonal has no whole-matrix clamp)")
+
+
+# config name -> solver class, and -> its parameter model: the one place where a new solver is made known
+SOLVERS: dict[str, type[NonlinearSolver]] = {
+    cls.name: cls for cls in (Newton, ProjectedNewton, LBFGS, GradientDescent, JacobiChebyshev)
+}
+SOLVER_PARAMS: dict[str, type[SolverParams]] = {
+    model.solver_name(): model
+    for model in (NewtonParams, ProjectedNewtonParams, LBFGSParams, GradientDescentParams, JacobiChebyshevParams)
+}
+
+
+def solver_params(type: str = "newton", **options: Any) -> SolverParams:
+    """The model of solver ``type`` with ``options``: ``solver_params(type="lbfgs", history=4).build()``.
+
+    Raises SolverOptionError (a ValueError) with one line naming the option, e.g. for an option
+    that the solver does not use."""
+    return _from_mapping({"type": type, **options})
+
+
+def _from_mapping(mapping: dict) -> SolverParams:
+    model = _model_named(mapping.get("type", "newton"), ("type",))
+    try:
+        return model.model_validate(mapping)
+    except ValidationError as error:
+        raise _option_error(error) from None
+
+
+def _from_config(value: Any) -> SolverParams:
+    if isinstance(value, SolverParams):
+        return value
+    if not isinstance(value, dict):
+        raise SolverOptionError((), "expected a mapping {type: " + " | ".join(SOLVER_PARAMS) + ", option: value}")
+    return _from_mapping(value)
+
+
+# The config's `solver:` field: a mapping (type defaults to newton) or a model, validated into the model of
+# its type. SerializeAsAny: a dump of the experiment keeps the solver's own options, not only the shared ones.
+SolverField = Annotated[SerializeAsAny[SolverParams], BeforeValidator(_from_config)]
