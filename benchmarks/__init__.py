@@ -1,0 +1,1 @@
+"""benchmarks (folder benchmarks/, run as `python -m benchmarks`): simrun's timing benchmarks, outside the test suite."""

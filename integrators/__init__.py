@@ -1,4 +1,12 @@
-"""Time integrators, found by their config name."""
+"""simrun.integrators (folder integrators/): the time integrators, found by their config name.
+
+``INTEGRATORS`` maps each config name (an entry of the config's ``integrators:`` list, or its ``type``)
+to the method's class; its parameters validate into a frozen instance. A new method joins with an
+``Integrator`` subclass (integrators/base.py has the contract: ``name``, ``order``, ``explicit``,
+``summary``, parameters as fields with a default and a description, and ``step``; an explicit
+Runge-Kutta method supplies only its ``ButcherTableau``) and an entry in INTEGRATORS below; the tests
+in tests/test_integrators.py then step it, and ask for its closed-form spectral radius in CLOSED_FORMS.
+"""
 
 from .base import IncrementalPotential, Integrator, SegmentPotential, State
 from .euler import BackwardEuler, ForwardEuler, SymplecticEuler

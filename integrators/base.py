@@ -30,7 +30,7 @@ from simrun.solvers.base import FLOAT64, SMALL_VECTOR, max_norm
 from simrun.systems import System
 
 
-@dataclass(slots=True)  # not frozen: a frozen dataclass's __init__ costs 4x more, once per step
+@dataclass(slots=True)  # not frozen: built once per step, and a frozen __init__ is slower (docs/performance.md)
 class State:
     """The changing state: time t (s), positions x (m), velocities v (m/s), and a method's carried arrays.
 
@@ -80,7 +80,7 @@ def add_diagonal(matrix, diagonal: np.ndarray, in_place: bool = False):
 
     ``in_place``: the caller owns ``matrix`` (a temporary), so a dense float array is updated in place."""
     if in_place and type(matrix) is np.ndarray and matrix.dtype is FLOAT64 and matrix.flags.c_contiguous:
-        # the diagonal of a C-ordered square array, through its flat view (ravel: a third cheaper than .flat)
+        # the diagonal of a C-ordered square array, through its flat view (ravel: cheaper than .flat)
         matrix.ravel()[:: matrix.shape[0] + 1] += diagonal
         return matrix
     if scipy.sparse.issparse(matrix):

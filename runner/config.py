@@ -20,7 +20,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 
 from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS, Integrator
-from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError, SolverParams
+from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
 from simrun.systems import SYSTEMS
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.

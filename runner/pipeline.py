@@ -21,7 +21,7 @@ from simrun.config import config_hash, expand_runs, load_experiment
 from simrun.errors import ConfigError
 from simrun.executors import EXECUTOR_FUNCTIONS, execute
 from simrun.lock import OutputLock
-from simrun.results import RESULTS_NAME, Results, load
+from simrun.results import RESULTS_NAME, Results, Status, load
 from simrun.store import DEFAULT_MAX_SIZE_GB, admit_size, check_writable, open_writer
 from simrun.workers import default_jobs
 
@@ -84,7 +84,7 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
                         bar.set_postfix_str(item.run_id, refresh=False)
                         bar.update()
                     else:
-                        detail = f" ({result.message})" if result.status != "ok" and result.message else ""
+                        detail = f" ({result.message})" if result.status is not Status.OK and result.message else ""
                         say(f"[{number}/{len(pending)}] {item.run_id}: {result.status}, {result.steps} steps "
                             f"in {result.wall_time:.3g} s{detail}")
             except KeyboardInterrupt:

@@ -104,15 +104,26 @@ def summary_row(run_id: str, group: h5py.Group) -> tuple:
 
 # -- capabilities of format-1 files ------------------------------------------------------------------
 # Format 1 did not store what a system declares about itself (format 2 does, as run attributes). Its
-# three systems are a closed set, so their declarations are restated here once, from their parameters.
-def _format1_capabilities(system: str, params: dict) -> dict:
-    frequency = math.nan
-    if system == "spring_mass" and float(params.get("damping", 0.0)) == 0.0:
-        frequency = math.sqrt(float(params.get("stiffness", 100.0)) / float(params.get("mass", 1.0)))
-    if system == "circular_motion" and params.get("force", "linear") == "linear":
-        frequency = float(params.get("angular_velocity", 1.0))
-    frame_shape = np.array(params["resolution"][::-1], dtype=np.int64) if system == "cloth" else np.zeros(0, dtype=np.int64)
-    return {"test_frequency": frequency, "frame_shape": frame_shape, "planar": system == "circular_motion"}
+# three systems are a closed set, so what each declares is restated here once, from its stored
+# parameters, keyed by its name in format 1 (tests/test_results.py checks it against the systems).
+def _spring_mass_format1(params: dict) -> dict:
+    undamped = float(params.get("damping", 0.0)) == 0.0
+    frequency = math.sqrt(float(params.get("stiffness", 100.0)) / float(params.get("mass", 1.0))) if undamped else math.nan
+    return {"test_frequency": frequency, "planar": False, "frame_shape": np.zeros(0, dtype=np.int64)}
+
+
+def _circular_motion_format1(params: dict) -> dict:
+    frequency = float(params.get("angular_velocity", 1.0)) if params.get("force", "linear") == "linear" else math.nan
+    return {"test_frequency": frequency, "planar": True, "frame_shape": np.zeros(0, dtype=np.int64)}
+
+
+def _cloth_format1(params: dict) -> dict:
+    rows_and_columns = np.array(params["resolution"][::-1], dtype=np.int64)  # resolution is [nx, ny]
+    return {"test_frequency": math.nan, "planar": False, "frame_shape": rows_and_columns}
+
+
+FORMAT1_CAPABILITIES = {"spring_mass": _spring_mass_format1, "circular_motion": _circular_motion_format1,
+                        "cloth": _cloth_format1}
 
 
 # -- one run ----------------------------------------------------------------------------------------
@@ -271,7 +282,10 @@ class StoredRun:
     def _capability(self, key: str):
         if key in self.attrs:
             return self.attrs[key]
-        return _format1_capabilities(self.system, self.system_params)[key]
+        if self.system not in FORMAT1_CAPABILITIES:
+            raise ResultsFileError(f"results: run {self.run_id!r} stores no {key!r} and its system {self.system!r} "
+                                   "is not one of format 1; the file is damaged")
+        return FORMAT1_CAPABILITIES[self.system](self.system_params)[key]
 
     def _json(self, key: str) -> dict:
         return json.loads(self.attrs.get(key) or "{}")
@@ -363,6 +377,9 @@ def load(path: str | Path) -> Results:
     file, or of a format version this simrun cannot read.
     """
     path = Path(path)
+    if path.is_dir():
+        hint = f"; did you mean {str(path / RESULTS_NAME)!r}?" if (path / RESULTS_NAME).is_file() else ""
+        raise ResultsFileError(f"results: {str(path)!r} is a folder, not a results file{hint}")
     if not path.is_file():
         raise ResultsFileError(f"results: {str(path)!r} does not exist (expected e.g. results/quickstart/results.h5)")
     if not h5py.is_hdf5(path):
@@ -410,6 +427,10 @@ def load_summary(path: str | Path) -> np.ndarray:
     """Deprecated (use ``load(path).summary``): the summary table as a numpy structured array, strings decoded.
 
     Kept for one version after format 2; it reads through ``load``."""
+    import warnings
+
+    warnings.warn("load_summary(path) is deprecated: use simrun.load(path).summary (a pandas DataFrame)",
+                  DeprecationWarning, stacklevel=2)
     frame = load(path).summary
     table = np.empty(len(frame), dtype=[(name, object if SUMMARY_DTYPE[name].kind == "O" else SUMMARY_DTYPE[name])
                                         for name in SUMMARY_COLUMNS])

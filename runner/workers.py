@@ -1,7 +1,7 @@
 """The local process pool's workers: where they come from and how many BLAS threads each gets.
 
 Kept free of numpy and the simulation, so that the command line can start the workers' fork server
-before it imports them itself: the two imports (~0.5 s each) then run side by side on two cores.
+before it imports them itself: the two imports then run side by side on two cores.
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ def may_use_local_pool(argv: list[str]) -> bool:
     """Whether a `simrun run` command line may run on the local pool (not -j 1, not --executor dask);
     a guess from the options alone, before the full parser (which needs the heavy imports) runs.
     A wrong yes (--help, a sweep with one pending run, combined short options such as -qj1) costs
-    one idle server process and ~0.5 s of imports on another core, nothing of the caller's time."""
+    one idle server process and its imports on another core, nothing of the caller's time."""
     guess = argparse.ArgumentParser(add_help=False, exit_on_error=False)
     guess.add_argument("-j", "--jobs", type=int)
     guess.add_argument("--executor")

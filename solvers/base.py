@@ -59,7 +59,7 @@ class SolveStats(NamedTuple):
 
     Immutable (EXPLICIT_STEP is shared by every explicit step); a NamedTuple rather than a frozen
     dataclass because it is built once per implicit step, and a frozen dataclass's __init__ (one
-    object.__setattr__ per field) costs three times as much: 3 % of a backward Euler step on the spring."""
+    object.__setattr__ per field) costs more (docs/performance.md)."""
 
     iterations: int = 0  # nonlinear (Newton) iterations; the final residual check is not one
     linear_iterations: int = 0  # summed over the solve; a direct factor-and-solve counts as one
@@ -84,14 +84,14 @@ def max_norm(vector: np.ndarray) -> float:
             elif value != value:  # NaN, which np.max propagates too
                 return math.nan
         return float(largest)
-    # the ufunc's reduce on the flat view: np.max's wrappers and an axis=None argument each double the cost
+    # the ufunc's reduce on the flat view: cheaper than np.max with its wrappers and axis=None (docs/performance.md)
     return float(np.maximum.reduce(abs(vector.ravel())))
 
 
 def _own_copy(array) -> np.ndarray:
     """np.array(array, dtype=float): a float64 copy the solver owns; ndarray.copy() where it already is one."""
     if type(array) is np.ndarray and array.dtype is FLOAT64:
-        return array.copy()  # the same values, without np.array's argument parsing (a third of its cost here)
+        return array.copy()  # the same values, without np.array's argument parsing
     return np.array(array, dtype=float)
 
 

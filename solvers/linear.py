@@ -30,17 +30,17 @@ import threadpoolctl
 
 from .dofs import FreeDofs
 
-# MMD on A^T + A suits the symmetric pattern of M + c h^2 K: it factors about twice as fast as
-# scipy's default COLAMD ordering on a 64x64 cloth.
+# MMD on A^T + A suits the symmetric pattern of M + c h^2 K: it factors the cloth faster than scipy's
+# default COLAMD ordering (docs/performance.md).
 SPLU_ORDERING = "MMD_AT_PLUS_A"
-# SPD matrices need no pivoting: diagonal pivots in symmetric mode factor a 20x20 cloth's matrix
-# in 5.2 ms instead of 11.9 ms (measured here, scipy 1.17 SuperLU).
+# SPD matrices need no pivoting: diagonal pivots in symmetric mode factor the cloth's matrix faster
+# (docs/performance.md).
 SPLU_SPD_OPTIONS = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
 # cholesky on a matrix not known to be SPD: an LDL^T solution whose relative residual exceeds this
 # met a tiny pivot, and the pivoting LU solves again
 INDEFINITE_RESIDUAL = 1e-8
 FLOAT64 = np.dtype(np.float64)  # the one native float64 dtype object: `dtype is FLOAT64` is the cheapest test
-EPSILON = float(np.finfo(float).eps)  # np.finfo per call cost ~1 us, 4 % of an implicit spring step
+EPSILON = float(np.finfo(float).eps)  # once: np.finfo is not free, and every dense solve compares rcond with it
 # A stationary iteration whose residual grows past this factor times |b| diverges (spectral radius > 1).
 DIVERGED_FACTOR = 1e8
 
@@ -224,12 +224,11 @@ def cholmod_module():
 
     CHOLMOD brings its own BLAS (the system's OpenBLAS) beside numpy's bundled one. An OpenBLAS
     thread spins for a while after each parallel call, and numpy parallelises the dot products of
-    the cloth's vectors (n > 10^4), so numpy's idle threads took the cores CHOLMOD's threads needed:
-    a 64x64 refactorisation right after an assembly took 150-210 ms instead of 70-80 ms. The BLAS
-    libraries loaded before CHOLMOD (numpy's, scipy's) are therefore held at one thread; vector
-    operations of this size are memory-bound and lose nothing by it. For the same reason CHOLMOD's
-    OpenMP threads wait passively (sleep, not spin) unless the user chose a policy: 55-59 ms
-    instead of 70-80 ms per 64x64 refactorisation here."""
+    the cloth's vectors (n > 10^4), so numpy's idle threads took the cores CHOLMOD's threads needed
+    and slowed each refactorisation after an assembly. The BLAS libraries loaded before CHOLMOD
+    (numpy's, scipy's) are therefore held at one thread; vector operations of this size are
+    memory-bound and lose nothing by it. For the same reason CHOLMOD's OpenMP threads wait
+    passively (sleep, not spin) unless the user chose a policy. The timings are in docs/performance.md."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read once, when libgomp loads with CHOLMOD
     before = threadpoolctl.ThreadpoolController()
     try:
@@ -262,7 +261,8 @@ def _dense_direct_solve(matrix, rhs: np.ndarray, spd: bool) -> np.ndarray:
 def _dense_solve(matrix: np.ndarray, rhs: np.ndarray, spd: bool) -> np.ndarray:
     """scipy.linalg.solve(matrix, rhs) (assume_a="pos" first when spd) through the LAPACK drivers it
     uses, called directly: on the 2x2 and 3x3 matrices of the small systems its argument checks cost
-    20x the solve. The same checks of the result, with |A|_1 from dlange("1") as scipy takes it:
+    far more than the solve (docs/performance.md). The same checks of the result, with |A|_1 from
+    dlange("1") as scipy takes it:
     LinAlgError for a singular matrix, LinAlgWarning when the reciprocal condition number is below eps."""
     if spd:
         factor, solution, info = _dposv(matrix, rhs)
@@ -284,7 +284,7 @@ def _dense_solve(matrix: np.ndarray, rhs: np.ndarray, spd: bool) -> np.ndarray:
     return solution
 
 
-# the LAPACK wrappers bound once: three attribute lookups per call are 5 % of a 2x2 solve
+# the LAPACK wrappers bound once: attribute lookups are a visible share of a small system's 2x2 solve
 _dposv, _dpocon, _dgesv, _dgecon, _dlange = (scipy.linalg.lapack.dposv, scipy.linalg.lapack.dpocon,
                                              scipy.linalg.lapack.dgesv, scipy.linalg.lapack.dgecon,
                                              scipy.linalg.lapack.dlange)
@@ -395,8 +395,8 @@ class GaussSeidel(ReducedSolver):
     Converges for SPD and for strictly diagonally dominant A (Saad, sec. 4.1). Each sweep is one
     sparse triangular solve in compiled code: the lower triangle factored once per linear solve by
     SuperLU in natural order without pivoting (its factors are the triangle itself), which sweeps
-    6x (32x32 cloth) to 15x (12x12) faster than scipy.sparse.linalg.spsolve_triangular, whose
-    per-call copies and rescaling dominate at these sizes.
+    faster than scipy.sparse.linalg.spsolve_triangular, whose per-call copies and rescaling dominate
+    at the cloth's sizes (docs/performance.md).
     Dense matrices use LAPACK's triangular solve."""
 
     name = "gauss_seidel"

@@ -201,8 +201,8 @@ class Cloth(System):
         diagonal_keys = np.arange(n, dtype=np.int64) * (n + 1)
         self.diagonal_positions = np.searchsorted(keys, diagonal_keys)  # where M enters the data array
         # gradient scatter: the incidence matrix (+1 at vertex i, -1 at vertex j of each spring) times the
-        # springs' forces, one sparse product for all three components: half the time of the equivalent
-        # np.bincount over 3 i + c and 3 j + c, which needs the concatenated (force, -force) first
+        # springs' forces, one sparse product for all three components, cheaper than the equivalent
+        # np.bincount over 3 i + c and 3 j + c (docs/performance.md)
         self._first_dofs = (3 * i[:, None] + offsets).ravel()
         self._second_dofs = (3 * j[:, None] + offsets).ravel()
         springs = np.arange(self.spring_count)
@@ -221,10 +221,10 @@ class Cloth(System):
         geometry = self._geometry
         if geometry is not None and np.array_equal(geometry.x, x):  # an O(n) compare, far below the O(springs) geometry
             return geometry
-        # a flat gather of the dofs 3 i + c: the same numbers as positions[self.first], ~5x faster than
-        # that fancy index and ~1.4x faster than np.take along axis 0 (numpy 2.4, 64x64)
+        # a flat gather of the dofs 3 i + c: the same numbers as positions[self.first], cheaper than
+        # that fancy index or np.take along axis 0 (docs/performance.md)
         delta = (np.take(x, self._first_dofs) - np.take(x, self._second_dofs)).reshape(-1, 3)
-        # |delta|^2 as a matrix-vector product with (1, 1, 1): ~2.5x faster than einsum("ij,ij->i")
+        # |delta|^2 as a matrix-vector product with (1, 1, 1), cheaper than einsum("ij,ij->i")
         length = np.sqrt(np.square(delta) @ _ONES3)
         stretch = length - self.rest_length
         geometry = SpringGeometry(x.copy(), delta, length, stretch, self.stiffness * stretch)
@@ -265,8 +265,8 @@ class Cloth(System):
     def gradient(self, x):
         geometry = self._springs(x)
         # dP/dx_i of each spring, k (L - l0) (x_i - x_j) / L: the one division on the springs' scalars;
-        # the rows scaled through the transposed view, whose inner loop runs along the springs (~1.2x
-        # faster than broadcasting a (springs, 1) column over 3 components); the result is C-ordered
+        # the rows scaled through the transposed view, whose inner loop runs along the springs (cheaper
+        # than broadcasting a (springs, 1) column over 3 components); the result is C-ordered
         spring_gradient = (geometry.delta.T * (geometry.tension / geometry.length)).T
         gradient = (self._incidence @ spring_gradient).ravel()
         gradient -= self._gravity_force

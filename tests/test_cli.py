@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from simrun.cli import main
-from simrun.store import load_summary
+from simrun.results import load
 
 SPRING_CONFIG = """\
 name: spring-euler
@@ -83,7 +83,7 @@ def test_run_writes_every_run_and_figure(tmp_path, capsys):
         assert statuses[("symplectic_euler", 0.5)] == "diverged"
         assert statuses[("backward_euler", 0.5)] == "ok"
         assert "t_diverged" in runs["0002-forward_euler-dt=0.5"].attrs
-    summary = load_summary(results)
+    summary = load(results).summary
     assert len(summary) == 9 and set(summary["status"]) == {"ok", "diverged"}
     assert summary["mean_newton_iterations"][summary["integrator"] == "backward_euler"].min() >= 1
     figures = {path.name for path in (tmp_path / "out" / "figures").iterdir()}
@@ -209,6 +209,6 @@ def test_summary_drift_matches_the_exact_energy_factor(tmp_path):
         output: {tmp_path / 'drift'}
         """)
     assert main([str(config), "-q", "--no-plots"]) == 0
-    row = load_summary(tmp_path / "drift" / "results.h5")[0]
+    row = load(tmp_path / "drift" / "results.h5").summary.iloc[0]
     assert row["final_rel_energy_drift"] == pytest.approx(1.04 ** -10 - 1.0, rel=1e-9)
     assert row["steps"] == 10 and row["status"] == "ok" and np.isfinite(row["final_error"])

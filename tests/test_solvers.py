@@ -31,7 +31,7 @@ from simrun.solvers import (LINEAR_SOLVERS, SOLVER_PARAMS, SOLVERS, FallbackChai
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.newton import EIGEN_FLOOR, project_eigen
-from simrun.results import load_summary
+from simrun.results import load
 from simrun.systems import CircularMotionParams, ClothParams
 
 CORNERS = ["top_left", "top_right", "bottom_left", "bottom_right"]
@@ -344,7 +344,7 @@ def test_iteration_counts_are_recorded_per_step_and_summarised(tmp_path):
         output: {tmp_path / 'out'}
         """))
     assert main(["run", str(config), "--no-plots", "-q", "-j", "1"]) == 0
-    (row,) = load_summary(tmp_path / "out" / "results.h5")
+    (_, row), = load(tmp_path / "out" / "results.h5").summary.iterrows()
     assert row["mean_newton_iterations"] == pytest.approx(newton.mean())
     assert row["mean_linear_iterations"] == pytest.approx(linear.mean())
 

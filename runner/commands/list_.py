@@ -9,10 +9,10 @@ def add_parser(commands) -> None:
                         ).set_defaults(handler=handle)
 
 
-def _fields(model, skip=("type",)) -> list[str]:
+def _fields(model, fields: dict | None = None) -> list[str]:
     lines = []
-    for key, info in model.model_fields.items():
-        if key in skip:
+    for key, info in (model.model_fields if fields is None else fields).items():
+        if key == "type":
             continue
         default = "" if info.is_required() else f" = {info.default!r}"
         note = f"  # {info.description}" if info.description else ""
@@ -22,7 +22,7 @@ def _fields(model, skip=("type",)) -> list[str]:
 
 def handle(args) -> int:
     from simrun.integrators import INTEGRATORS
-    from simrun.solvers import LINEAR_SOLVERS, SOLVERS, SolverParams
+    from simrun.solvers import LINEAR_SOLVERS, SOLVER_PARAMS, SolverParams
     from simrun.systems import SYSTEMS
 
     print("systems (system.type):")
@@ -36,6 +36,12 @@ def handle(args) -> int:
         print("\n".join(_fields(cls)))
     linear = [name if cls.missing() is None else f"{name} (not installed: make install-cholmod)"
               for name, cls in LINEAR_SOLVERS.items()]
-    print("\nsolvers (solver.type): " + ", ".join(SOLVERS) + "; linear solvers (solver.linear_solver): " + ", ".join(linear))
+    print("\nsolvers (solver: {type: name, option: value}); options every solver takes:")
     print("\n".join(_fields(SolverParams)))
+    print("    linear solvers (solver.linear_solver): " + ", ".join(linear))
+    for name, model in SOLVER_PARAMS.items():
+        own = model.own_fields()
+        print(f"  {name}: {(model.__doc__ or '').strip().splitlines()[0]}")
+        if own:
+            print("\n".join(_fields(model, own)))
     return 0

@@ -48,6 +48,8 @@ LABEL_MARKERS = "osD^vP<>hpd*"
 MARKER_SHRINK = 0.5
 LEGEND_MARKER_SIZE = 6.0
 
+
+# -- colours, markers, saving ----------------------------------------------------------------------
 def label_colours(labels: list[str]) -> dict[str, tuple]:
     """A stable colour per integrator label: sorted labels -> tab10 (or tab20 beyond ten labels)."""
     ordered = sorted(labels)
@@ -69,6 +71,7 @@ def save_figure(figure, stem: Path, dpi: int = PNG_DPI) -> list[Path]:
     return written
 
 
+# -- marks of how runs ended -----------------------------------------------------------------------
 def pad_top(ax) -> None:
     """Room above the data for the markers of diverged runs, drawn at the top edge."""
     low, high = ax.get_ylim()
@@ -100,7 +103,7 @@ def status_handles(marked: set[str], where: str) -> list[Line2D]:
     return [Line2D([], [], ls="none", **entries[status]) for status in entries if status in marked]
 
 
-# -- layout helpers --------------------------------------------------------------------------------
+# -- panels and legends ---------------------------------------------------------------------------
 def dt_panels(data: FigureData) -> tuple[list[list[tuple[str, list[RunData]]]], str]:
     """Rows of (title, runs) panels, one per dt; wrapped rows for one group, a row per group otherwise."""
     groups = data.groups[:MAX_GROUPS]
@@ -170,7 +173,7 @@ def label_outer(axes, rows, xlabel: str, ylabel: str) -> None:
 
 def status_label(run: RunData) -> str:
     """A legend label for runs that did not end ok; ok runs stay out of the panel legends."""
-    return run.label + run.status_note() if run.status != "ok" else "_nolegend_"
+    return run.label + run.status_note() if run.status is not Status.OK else "_nolegend_"
 
 
 def no_data_entries(ax, runs: list[RunData], data: FigureData) -> None:
@@ -201,6 +204,17 @@ def tidy_log_axes(ax) -> None:
             axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
             axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
             axis.set_minor_formatter(NullFormatter())
+
+
+def log_log_panel(ax, title: str, minor_grid: bool = True) -> None:
+    """A panel of a figure against dt or time: both axes logarithmic, tidy ticks, its title, a light grid."""
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    tidy_log_axes(ax)
+    ax.set_title(title, fontsize=9)
+    ax.grid(True, which="major", alpha=0.3)
+    if minor_grid:
+        ax.grid(True, which="minor", alpha=0.08)
 
 
 def flatten(rows):

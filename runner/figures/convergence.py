@@ -68,12 +68,7 @@ def convergence(data: FigureData):
             if np.isfinite(fit.order):
                 ends = dts[fit.used][[0, -1]]
                 ax.plot(ends, np.exp(fit.intercept) * ends ** fit.order, "--", color="black", lw=0.9, zorder=5)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        layout.tidy_log_axes(ax)
-        ax.set_title(title, fontsize=9)
-        ax.grid(True, which="major", alpha=0.3)
-        ax.grid(True, which="minor", alpha=0.08)
+        layout.log_log_panel(ax, title)
         if single:
             handles = ax.get_legend_handles_labels()[0]
         else:
@@ -108,11 +103,7 @@ def work_precision(data: FigureData):
             labels.append(label)
             ax.plot([run.wall_time for run in mine], np.maximum([run.final_error for run in mine], ERROR_FLOOR),
                     "-", lw=1.2, **layout.label_style(data, label, number))
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        layout.tidy_log_axes(ax)
-        ax.set_title(title, fontsize=9)
-        ax.grid(True, which="major", alpha=0.3)
+        layout.log_log_panel(ax, title, minor_grid=False)
     layout.label_outer(axes, rows, "wall time of the run (s)", "error at the end time (m)")
     handles = [Line2D([], [], ls="-", **{**layout.label_style(data, label, number), "ms": layout.LEGEND_MARKER_SIZE})
                for number, label in enumerate(data.labels) if label in labels]

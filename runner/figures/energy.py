@@ -21,7 +21,7 @@ LOG_AXIS_RANGE = 100.0
 DRIFT_FLOOR = 1e-16
 
 
-# -- 1. energy over time ---------------------------------------------------------------------------
+# -- energy over time ----------------------------------------------------------------------------
 def energy_over_time(data: FigureData):
     """E/E0 against t: small multiples per dt (rows per group), one line per integrator label."""
     rows, note = layout.dt_panels(data)
@@ -72,7 +72,7 @@ def _energy_axis(ax, values: np.ndarray) -> None:
         ax.ticklabel_format(axis="y", useOffset=False)
 
 
-# -- 2. energy drift against dt --------------------------------------------------------------------
+# -- energy drift against dt ---------------------------------------------------------------------
 def energy_drift_vs_dt(data: FigureData):
     """max |E - E0| / |E0| against dt, log-log; one panel per group, one line per integrator label."""
     panels = layout.group_panels(data)
@@ -121,7 +121,7 @@ def _max_drift(run: RunData) -> float:
 
 
 
-# -- 9. where the energy goes ----------------------------------------------------------------------
+# -- where the energy goes -----------------------------------------------------------------------
 BUDGET_PANELS = 16
 BUDGET_PANEL_SIZE = (3.6, 2.5)
 # The stack is cut at this multiple of the budget: a method that gains energy leaves the panel.

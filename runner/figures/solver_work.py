@@ -83,12 +83,7 @@ def wall_time_per_step_vs_dt(data: FigureData):
             if stopped.any():
                 ax.plot(dts[stopped], cost[stopped], ls="none", **{**style, "mfc": "white", "mew": 1.6, "label": None})
                 stopped_any = True
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        layout.tidy_log_axes(ax)
-        ax.set_title(title, fontsize=9)
-        ax.grid(True, which="major", alpha=0.3)
-        ax.grid(True, which="minor", alpha=0.08)
+        layout.log_log_panel(ax, title)
     layout.label_outer(axes, rows, "time step dt (s)", "wall time per step (ms)")
     handles = [Line2D([], [], ls="-", **{**layout.label_style(data, label, number), "ms": layout.LEGEND_MARKER_SIZE})
                for number, label in enumerate(data.labels)]

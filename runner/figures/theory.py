@@ -80,12 +80,16 @@ def _grid_rows(panels: list, columns: int = FAMILY_COLUMNS) -> list[list]:
 
 def artificial_damping(data: FigureData):
     """d_method / w against h w: predicted lines (all labels), measured markers (undamped linear runs)."""
+    return _predicted_and_measured(data, damping_figure, "artificial damping, predicted and measured")
+
+
+def _predicted_and_measured(data: FigureData, draw, title: str):
+    """A theory figure of the labels in the file, with the runs on the test equation as markers; None without such runs."""
     runs = test_equation_runs(data)
     predictions = predictions_for(data, runs) if runs else {}
     if not predictions:
         return None
-    return damping_figure(predictions, data.colours, data.markers,
-                          f"{data.name}: artificial damping, predicted and measured", runs)
+    return draw(predictions, data.colours, data.markers, f"{data.name}: {title}", runs)
 
 
 def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict, markers: dict, title: str,
@@ -178,15 +182,9 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
     return figure
 
 
-# -- 7. spectral radius and period error ------------------------------------------------------------
 def spectral_radius_and_period(data: FigureData):
     """rho(h w) (top) and the relative period error (bottom), predicted; measured periods as markers."""
-    runs = test_equation_runs(data)
-    predictions = predictions_for(data, runs) if runs else {}
-    if not predictions:
-        return None
-    return spectral_figure(predictions, data.colours, data.markers,
-                           f"{data.name}: spectral radius and period error", runs)
+    return _predicted_and_measured(data, spectral_figure, "spectral radius and period error")
 
 
 def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict, markers: dict, title: str,
