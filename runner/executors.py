@@ -74,12 +74,12 @@ def run_local(runs: list[Run], jobs: int, scheduler: str | None = None) -> Itera
     return run_process_pool(runs, min(jobs, len(runs)))
 
 
-# executor name -> function(runs, jobs, scheduler) yielding (run, result) as runs finish
+# executor name -> function(runs, jobs, scheduler) yielding (run, result) as runs finish; the names are
+# simrun.workers.EXECUTORS, which the command line offers before it imports this module
 EXECUTOR_FUNCTIONS = {
     "process": run_local,
     "dask": run_dask,
 }
-assert set(EXECUTOR_FUNCTIONS) == set(EXECUTORS), "simrun.workers.EXECUTORS names what the command line offers"
 
 
 def execute(runs: list[Run], executor: str = "process", jobs: int = 1,

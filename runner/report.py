@@ -28,7 +28,6 @@ from simrun.tables import (DAMPING_TOLERANCE, DETERMINANT_TOLERANCE, ORDER_TOLER
                            StabilityRow, SummaryRow, damping_text, determinant_rows, number_text, order_rows,
                            stability_rows, summary_rows)
 
-REPORT_NAME = "report.html"
 REPORT_DPI = 100  # the figures' inches become about as many CSS pixels at this resolution
 # A summary table longer than this scrolls inside its box.
 SCROLLING_TABLE_ROWS = 40

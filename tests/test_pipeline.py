@@ -252,6 +252,23 @@ def test_jobs_must_be_positive(tmp_path, tiny_config):
     assert not (tmp_path / "out").exists()
 
 
+def test_the_command_line_offers_every_executor_and_only_those():
+    """simrun.workers.EXECUTORS (light, read by the parser) names exactly the executors' registry."""
+    from simrun.executors import EXECUTOR_FUNCTIONS
+    from simrun.workers import EXECUTOR_ALIASES, EXECUTORS
+
+    assert set(EXECUTORS) == set(EXECUTOR_FUNCTIONS)
+    assert set(EXECUTOR_ALIASES.values()) <= set(EXECUTOR_FUNCTIONS)
+
+
+def test_the_command_line_default_size_limit_is_the_store_s():
+    """commands/run.py states the --max-size default without importing the store (a light parser): the same number."""
+    from simrun.commands.run import DEFAULT_MAX_SIZE_GB as command_line
+    from simrun.store import DEFAULT_MAX_SIZE_GB as store
+
+    assert command_line == store
+
+
 def test_an_unknown_executor_lists_the_valid_ones(tmp_path, tiny_config):
     with pytest.raises(ConfigError) as error:
         simrun.run(tiny_config, output=tmp_path / "out", jobs=1, executor="threads", progress=False)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from simrun.commands._options import add_reference_option, load_results, say
 
-REPORT_NAME = "report.html"  # = simrun.report.REPORT_NAME, light here for the parser
+REPORT_NAME = "report.html"  # beside the results file, unless --output says otherwise
 
 
 def add_parser(commands) -> None:
