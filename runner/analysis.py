@@ -414,10 +414,11 @@ def measure_period_error(t: np.ndarray, x: np.ndarray, angular_frequency: float)
 class OrderFit:
     """The slope of log(error) against log(dt) over the asymptotic points (``used``), and its line."""
 
-    order: float  # NaN when fewer than two points qualify
+    order: float  # NaN when fewer than ORDER_MIN_POINTS points qualify
     intercept: float
     used: np.ndarray  # (points,) bool, aligned with the sorted dts given
     exact: bool  # every error at round-off: the method is exact on this problem
+    reason: str = ""  # why there is no slope (empty when there is one): what the errors were, what would help
 
 
 def observed_order(dts, errors, scale: float = 1.0) -> OrderFit:
@@ -444,6 +445,24 @@ def observed_order(dts, errors, scale: float = 1.0) -> OrderFit:
             break
     exact = bool(finite.any() and np.all(errors[finite] <= ROUND_OFF_ERROR * scale))
     if used.sum() < ORDER_MIN_POINTS:
-        return OrderFit(math.nan, math.nan, used, exact)
+        return OrderFit(math.nan, math.nan, used, exact, _no_slope_reason(dts, errors, finite, used, exact, scale))
     slope, intercept = np.polyfit(np.log(dts[used]), np.log(errors[used]), 1)
     return OrderFit(float(slope), float(intercept), used, exact)
+
+
+def _no_slope_reason(dts: np.ndarray, errors: np.ndarray, finite: np.ndarray, used: np.ndarray, exact: bool,
+                     scale: float) -> str:
+    """Why observed_order could not fit a slope, in the words a user can act on."""
+    if not finite.any():
+        return "no error known (no exact solution, and no reference asked for)"
+    if exact:
+        return "exact on this problem: every error is at round-off"
+    saturated = finite & (errors >= SATURATED_ERROR * scale)
+    asymptotic = int(used.sum())
+    if asymptotic == 0 and saturated[finite].all():
+        return (f"the error is saturated (at least {SATURATED_ERROR:g} of the length scale {scale:g} m) at every dt, "
+                f"down to {dts[finite].min():.3g} s: smaller dts or an earlier record.error_time")
+    where = f"{asymptotic} dt{'s' if asymptotic != 1 else ''}" if asymptotic else "no dt"
+    return (f"{where} in the asymptotic range (error between {ROUND_OFF_ERROR:g} and {SATURATED_ERROR:g} of the "
+            f"length scale), {ORDER_MIN_POINTS} needed: "
+            + ("smaller dts (the larger ones are saturated)" if saturated.any() else "more dts"))

@@ -12,7 +12,7 @@ import hashlib
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Any, Union
+from typing import Annotated, Any, Literal, Union
 
 import numpy as np
 import yaml
@@ -25,6 +25,12 @@ from simrun.systems import SYSTEMS
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
 MAX_RUNS = 100_000
+# record.error_time: auto measures the error after this many periods of the test frequency: long enough
+# for the phase and amplitude errors to build up, short enough that the damped methods' errors at the
+# sweep's larger steps are not yet saturated (the whole amplitude), so that an order can be fitted; an
+# eighth of a period past a whole one, because at whole (or quarter) periods x = cos(w t) is at a turning
+# point (or a zero), where the position error hides the phase (or the amplitude) error.
+ERROR_PERIODS = 2.125
 
 
 # -- integrators: a name, or a mapping with `type` and the method's parameters --------------------
@@ -84,6 +90,28 @@ class RecordParams(BaseModel):
 
     frames_every: int | None = Field(None, ge=1, description="cloth: keep the vertex positions every k-th step")
     max_frames: int = Field(200, ge=2, description="cloth, when `frames_every` is not given: at most this many frames per run")
+    error_time: float | Literal["auto"] = Field(
+        "auto", description="time (s) at which each run's error is measured, the same for every run of the sweep (at its "
+                            f"nearest step): convergence is measured there; auto: {ERROR_PERIODS} periods of the system's "
+                            "test frequency, else the end of the run (never past it)")
+
+    @field_validator("error_time")
+    @classmethod
+    def _positive_time(cls, value):
+        if value != "auto" and not (math.isfinite(value) and value > 0):
+            raise ValueError(f"expected 'auto' or a time > 0 (s), got {value!r}")
+        return value
+
+    def error_step(self, dt: float, step_count: int, test_frequency: float | None) -> int:
+        """The step at whose end the run's error is measured: the nearest to error_time (auto: ERROR_PERIODS
+        periods 2 pi / w of the system's test frequency, else the whole run), within the run."""
+        if self.error_time == "auto":
+            if test_frequency is None:
+                return step_count
+            time = ERROR_PERIODS * 2.0 * math.pi / test_frequency
+        else:
+            time = self.error_time
+        return min(step_count, max(1, round(time / dt)))
 
     def stride(self, step_count: int) -> int:
         if self.every is not None:
@@ -150,7 +178,8 @@ class Run(BaseModel):
 
     @property
     def step_count(self) -> int:
-        return max(1, math.ceil(self.duration / self.dt - 1e-9))
+        """Steps of dt that fit in the duration: every run of a sweep ends within one dt before it, never past it."""
+        return max(1, math.floor(self.duration / self.dt + 1e-9))
 
     @property
     def params(self) -> dict[str, Any]:

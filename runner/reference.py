@@ -47,21 +47,23 @@ def reference_positions(system, times, method: str = "DOP853", rtol: float = REF
 
 
 def reference_errors(results: Results, reference: str, say=None) -> dict[str, float]:
-    """run_id -> max |x - x_ref| (m) at the run's last stored state, for runs without an exact solution (NaN final_error).
+    """run_id -> max |x - x_ref| (m) at the run's error time (``StoredRun.error_time``: the state stored there,
+    ``error_positions``; format 1: the last stored state), for runs without an exact solution (NaN error).
+    These stand in for ``StoredRun.error`` in the convergence figures and tables.
 
     ``reference``: a scipy solve_ivp method (dop853 by default: explicit, 8th order; at rtol 1e-10
     it is far more accurate than any run) solved on the system rebuilt from the stored
     ``system_params``, or a run_id of the file whose last state serves as the reference for runs
     of the same system and end time. Runs whose last state is not stored are skipped.
     """
-    needing = [run for run in results.runs.values() if not np.isfinite(run.final_error) and not run.status.stopped]
+    needing = [run for run in results.runs.values() if not np.isfinite(run.error) and not run.status.stopped]
     if not needing:
         return {}
-    finals = {run.run_id: final for run in needing if (final := final_state(run)) is not None}
+    finals = {run.run_id: final for run in needing if (final := error_state(run)) is not None}
     errors: dict[str, float] = {}
     if reference in results.runs:  # another run (e.g. the smallest dt) as the reference
         anchor = results.runs[reference]
-        anchor_final = final_state(anchor)
+        anchor_final = error_state(anchor)
         if anchor_final is None:
             raise ConfigError(f"--reference: run {reference!r} has no stored final state to compare with")
         for run in needing:
@@ -98,8 +100,13 @@ def reference_errors(results: Results, reference: str, say=None) -> dict[str, fl
     return errors
 
 
-def final_state(run: StoredRun) -> tuple[float, np.ndarray] | None:
-    """(t, x) of the run's last stored state: its last frame, or its last positions sample."""
+def error_state(run: StoredRun) -> tuple[float, np.ndarray] | None:
+    """(t, x) where the run's error is measured: the state stored at its error time; format 1 (which stored
+    none): its last frame, or its last positions sample. None when the run has neither."""
+    if "error_positions" in run:
+        return run.error_time, np.asarray(run["error_positions"], dtype=float).ravel()
+    if run.format_version >= 2:  # it stopped before its error time
+        return None
     if "frames" in run and run["frames"].shape[0]:
         return float(run["frame_t"][-1]), np.asarray(run["frames"][-1], dtype=float).ravel()
     if "positions" in run and run["positions"].shape[0]:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import functools
 import json
 import math
 from collections.abc import Iterator
@@ -49,8 +50,19 @@ class Status(str, enum.Enum):
 
 
 # -- energy drift: the one definition ---------------------------------------------------------------
+def energy_reference(attrs, energy: np.ndarray, kinetic: np.ndarray, potential: np.ndarray) -> tuple[float, str]:
+    """A run's energy reference E_ref (J) and what it is: every drift, energy figure and table divides by it.
+
+    Format 2: what the run's system declared (attributes ``energy_scale``, ``energy_reference_name``),
+    e.g. E0 for the spring and M |g| L for a cloth at rest, whose E0 is round-off. Format 1 did not store
+    it: its drifts were relative to ``drift_scale``, which stays its reference."""
+    if "energy_scale" in attrs:
+        return float(attrs["energy_scale"]), _text(attrs.get("energy_reference_name", "the system's energy scale"))
+    return drift_scale(energy, kinetic, potential), "|E0| (format 1)"
+
+
 def drift_scale(energy: np.ndarray, kinetic: np.ndarray, potential: np.ndarray) -> float:
-    """The energy (J) that drift is relative to: |E0|, else |KE0| + |PE0| (E0 = 0), else 1 J."""
+    """Format 1's drift reference (J): |E0|, else |KE0| + |PE0| (E0 = 0), else 1 J."""
     if energy.size and np.isfinite(energy[0]) and energy[0] != 0:
         return abs(float(energy[0]))
     if kinetic.size and potential.size:
@@ -79,6 +91,8 @@ SUMMARY_DTYPE = np.dtype([
     ("max_rel_energy_drift", "f8"),
     ("final_rel_energy_drift", "f8"),
     ("final_error", "f8"),
+    ("error_time", "f8"),
+    ("error", "f8"),
     ("mean_newton_iterations", "f8"),
     ("mean_linear_iterations", "f8"),
     ("wall_time", "f8"),
@@ -91,12 +105,13 @@ def summary_row(run_id: str, group: h5py.Group) -> tuple:
     attrs = group.attrs
     series = {key: group[key][()] if key in group else np.empty(0)
               for key in ("energy", "kinetic_energy", "potential_energy")}
-    max_drift, final_drift = energy_drift(series["energy"], drift_scale(*series.values()))
+    max_drift, final_drift = energy_drift(series["energy"], energy_reference(attrs, *series.values())[0])
     newton = group["newton_iterations"][()]
     linear = group["linear_iterations"][()]
     return (
         run_id, _text(attrs["integrator_label"]), float(attrs["dt"]), _text(attrs["status"]), int(attrs["steps"]),
         max_drift, final_drift, float(attrs.get("final_error", math.nan)),
+        float(attrs.get("error_time", math.nan)), float(attrs.get("error", math.nan)),
         float(newton.mean()) if newton.size else 0.0, float(linear.mean()) if linear.size else 0.0,
         float(attrs["wall_time"]),
     )
@@ -146,6 +161,11 @@ class StoredRun:
 
     def __contains__(self, key: str) -> bool:
         return key in self.datasets
+
+    @property
+    def format_version(self) -> int:
+        """The format of the file that holds the run (docs/results-format.md)."""
+        return self._results.format_version
 
     def __getitem__(self, key: str) -> np.ndarray:
         if key not in self._cache:
@@ -233,7 +253,25 @@ class StoredRun:
 
     @property
     def final_error(self) -> float:
+        """m: max |x - x_exact| at the last sample (NaN without an exact solution)."""
         return float(self.attrs.get("final_error", math.nan))
+
+    @property
+    def error_time(self) -> float:
+        """s: when the run's error was measured (record.error_time, at its nearest step); NaN for a run that
+        stopped before it. Format 1 measured at the last sample."""
+        if self.format_version == 1:
+            t = self.series("t")
+            return float(t[-1]) if t.size else math.nan
+        return float(self.attrs.get("error_time", math.nan))
+
+    @property
+    def error(self) -> float:
+        """m: the distance from the exact solution at error_time (in phase space (x, v/w) on the test equation,
+        else max |x - x_exact|); NaN without an exact solution or before error_time. Format 1: final_error."""
+        if self.format_version == 1:
+            return self.final_error
+        return float(self.attrs.get("error", math.nan))
 
     # -- what its system declared (format 2; restated for format 1) ------------------------------
     @property
@@ -252,13 +290,20 @@ class StoredRun:
         return float(start.max()) if start.size and start.max() > 0 else 1.0
 
     @property
-    def energy_scale(self) -> float:
-        """J: the energy that growth is judged against (the divergence bound's scale)."""
-        if "energy_scale" in self.attrs:
-            return float(self.attrs["energy_scale"])
-        kinetic, potential = self.series("kinetic_energy"), self.series("potential_energy")
-        scale = abs(float(kinetic[0])) + abs(float(potential[0])) if kinetic.size and potential.size else 0.0
-        return scale if np.isfinite(scale) and scale > 0 else 1.0
+    def energy_reference(self) -> float:
+        """E_ref (J): what every drift and energy figure of this run is relative to (``energy_reference``)."""
+        return self._energy_reference[0]
+
+    @property
+    def energy_reference_name(self) -> str:
+        """What E_ref is, e.g. "E0 (initial energy)" or "max(M |g| L, |KE0| + |PE0|)"."""
+        return self._energy_reference[1]
+
+    energy_scale = energy_reference  # the capability's name in the file
+
+    @functools.cached_property
+    def _energy_reference(self) -> tuple[float, str]:
+        return energy_reference(self.attrs, *(self.series(key) for key in ("energy", "kinetic_energy", "potential_energy")))
 
     @property
     def frame_shape(self) -> tuple[int, ...] | None:
@@ -343,7 +388,10 @@ class Results:
 
     @property
     def summary(self):
-        """One row per run in sweep order (pandas DataFrame), columns as the file's /summary table."""
+        """One row per run in sweep order (pandas DataFrame), columns SUMMARY_COLUMNS.
+
+        From the file's /summary table; columns that an older table lacks (error_time and error, added
+        in format 2) come from the runs."""
         import pandas
 
         table = self._summary_table
@@ -351,9 +399,13 @@ class Results:
             with self.opened() as file:
                 rows = [summary_row(run_id, file["runs"][run_id]) for run_id in self.runs]
             table = np.array(rows, dtype=SUMMARY_DTYPE)
-        frame = pandas.DataFrame({name: _decoded(table[name]) for name in SUMMARY_COLUMNS})
+        stored = table.dtype.names
+        frame = pandas.DataFrame({name: _decoded(table[name]) for name in SUMMARY_COLUMNS if name in stored})
         order = {run_id: number for number, run_id in enumerate(self.runs)}
         frame = frame.sort_values("run_id", key=lambda ids: ids.map(order)).reset_index(drop=True)
+        for name in SUMMARY_COLUMNS:
+            if name not in stored:
+                frame.insert(SUMMARY_COLUMNS.index(name), name, [getattr(self.runs[run_id], name) for run_id in frame["run_id"]])
         return frame
 
     @contextlib.contextmanager
@@ -440,4 +492,4 @@ def load_summary(path: str | Path) -> np.ndarray:
 
 
 __all__ = ["FORMAT_VERSION", "READABLE_VERSIONS", "RESULTS_NAME", "Results", "ResultsFileError", "Status", "StoredRun",
-           "SUMMARY_COLUMNS", "SUMMARY_DTYPE", "drift_scale", "energy_drift", "load", "load_summary", "summary_row"]
+           "SUMMARY_COLUMNS", "SUMMARY_DTYPE", "drift_scale", "energy_drift", "energy_reference", "load", "load_summary", "summary_row"]

@@ -97,6 +97,8 @@ def simulate(run: Run) -> RunResult:
     stride = run.record.stride(step_count)
     check_every = run.divergence.check_every
     frame_stride = run.record.frame_stride(step_count)
+    error_step = run.record.error_step(dt, step_count, system.capabilities.test_frequency)
+    error_state = None  # (t, x, v) at the end of step error_step, where the run's error is measured
     recorder = Recorder(system, step_count // stride + 2, step_count // frame_stride + 2)
     with_frames = not system.records_state_per_sample
     per_step = {
@@ -152,6 +154,8 @@ def simulate(run: Run) -> RunResult:
                     line_search_steps[n] = stats.line_search_steps
                     residuals[n] = stats.residual
                     solver_index[n] = stats.solver_index
+                if steps == error_step:
+                    error_state = (t, state.x.copy(), state.v.copy())
                 last = steps == step_count
                 sampled = steps % stride == 0 or last
                 # a sample's row carries the energy, so the check below needs no second evaluation
@@ -184,11 +188,31 @@ def simulate(run: Run) -> RunResult:
     samples = recorder.result()
     attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps,
              **system.capabilities.as_attrs()}
+    if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
+        attrs["error_time"], samples["error_positions"], _ = error_state
+        attrs["error"] = _error_at(system, *error_state)
     return RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
         per_step={key: value[:steps] for key, value in per_step.items()},
         t_diverged=t_diverged, message=message, attrs=attrs,
     )
+
+
+def _error_at(system, t: float, x: np.ndarray, v: np.ndarray) -> float:
+    """The distance (m) of (x, v) at time t from the exact solution, NaN where none is known.
+
+    On the test equation (a declared test frequency w) it is the phase-space distance
+    sqrt(|x - x_exact|^2 + |v - v_exact|^2 / w^2): a method's error there is a vector that turns with
+    the motion, whose length this measures at any phase (|x - x_exact| alone vanishes twice a period).
+    Otherwise max |x - x_exact| over the degrees of freedom."""
+    exact = system.exact_solution(np.array([t]))
+    if exact is None:
+        return math.nan
+    x_exact, v_exact = exact[0][0], exact[1][0]
+    frequency = system.capabilities.test_frequency
+    if frequency is None:
+        return float(np.max(np.abs(x - x_exact)))
+    return math.sqrt(float(np.sum((x - x_exact) ** 2)) + float(np.sum((v - v_exact) ** 2)) / frequency ** 2)
 
 
 def _final_error(system, samples: dict[str, np.ndarray]) -> float:

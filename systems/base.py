@@ -42,10 +42,11 @@ class Capabilities:
 
     test_frequency: float | None  # w (rad/s) when the system is the undamped test equation q'' + w^2 q = 0 (or uncoupled copies of it), else None
     length_scale: float  # m, the scale of position errors: max |x0| (1 when x0 = 0)
-    energy_scale: float  # J, what energy growth is judged against (System.energy_scale())
+    energy_scale: float  # J, the run's energy reference E_ref: drift, divergence and every energy figure are relative to it
     frame_shape: tuple[int, ...] | None  # the vertex grid of one stored frame, e.g. (ny, nx) for the cloth (rows of the grid, vertices per row, as frames reshape to (ny, nx, 3)); None for systems that record x and v in every sample
     planar: bool  # one body whose motion stays in the x-y plane: its trajectory is drawn as an orbit
     dof_count: int
+    energy_reference_name: str = "|KE0| + |PE0|"  # what energy_scale is, for axis labels and tables
 
     def as_attrs(self) -> dict:
         """The capabilities as HDF5 attributes, under the field names: test_frequency (float, NaN for None),
@@ -58,6 +59,7 @@ class Capabilities:
             "frame_shape": np.array(self.frame_shape or (), dtype=np.int64),
             "planar": bool(self.planar),
             "dof_count": int(self.dof_count),
+            "energy_reference_name": str(self.energy_reference_name),
         }
 
 
@@ -238,6 +240,11 @@ class System(ABC):
             start += size
         return columns
 
+    @property
+    def energy_reference_name(self) -> str:
+        """What ``energy_scale()`` is, in a few words (axis labels, table notes)."""
+        return "|KE0| + |PE0|" if self.kinetic_energy(self.v0) or self.potential_energy(self.x0) else "1 J (KE0 = PE0 = 0)"
+
     def energy_scale(self) -> float:
         """A characteristic energy (J) against which energy growth is judged: |KE0| + |PE0|, else 1."""
         scale = abs(self.kinetic_energy(self.v0)) + abs(self.potential_energy(self.x0))
@@ -281,6 +288,7 @@ class System(ABC):
             frame_shape=frame_shape,
             planar=bool(self.planar),
             dof_count=int(self.dof_count),
+            energy_reference_name=self.energy_reference_name,
         )
 
 

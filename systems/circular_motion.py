@@ -124,6 +124,12 @@ class CircularMotion(System):
             hessian = (eigenvectors * np.maximum(eigenvalues, 0.0)) @ eigenvectors.T
         return hessian
 
+    energy_reference_name = "|E0| (initial energy)"
+
+    def energy_scale(self) -> float:
+        """|E0| (J): the orbit's own energy, m w^2 r^2 for the linear law, -m w^2 r^2 / 2 for gravity (a bound orbit)."""
+        return abs(self.total_energy(self.x0, self.v0))
+
     def exact_solution(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
         r, w = self.params.radius, self.params.angular_velocity

@@ -89,6 +89,8 @@ class SpringMass(System):
     def damping_matrix(self, x):
         return self._damping
 
+    energy_reference_name = "E0 (initial energy)"  # = |KE0| + |PE0|: both parts are >= 0
+
     def exact_solution(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
         m = self.mass[0]

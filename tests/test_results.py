@@ -107,8 +107,12 @@ def test_format1_summary_is_the_stored_table_in_sweep_order(path):
     rows = {row["run_id"]: row for row in summary.to_dict("records")}
     for record in stored:
         row = rows[decoded(record["run_id"])]
-        for column in SUMMARY_COLUMNS:
+        for column in stored.dtype.names:
             assert same_value(row[column], decoded(record[column])), (row["run_id"], column)
+        # format 1 measured the error at the end: the columns format 2 added say so
+        assert row["error"] == row["final_error"] or math.isnan(row["final_error"])
+        assert row["error_time"] == results.runs[row["run_id"]]["t"][-1]
+    assert set(SUMMARY_COLUMNS) - set(stored.dtype.names) == {"error_time", "error"}
 
 
 def test_summary_follows_the_sweep_order_not_the_stored_order(tmp_path):
@@ -205,15 +209,17 @@ def test_a_format1_run_of_an_unknown_system_is_refused_in_one_line(tmp_path):
 
 @pytest.mark.parametrize("path", FORMAT1_FILES, ids=lambda path: path.stem)
 def test_format1_energy_scale_is_a_fallback(path):
-    """Format 1 did not store the energy scale, so the reader falls back to |KE0| + |PE0| (1 J when that
-    is 0). That need not equal what a system declares today (a system may override energy_scale(), and
-    format 2 stores what it declares), so it is not compared with the system: it must be positive and be
-    the fallback computed from the stored series."""
+    """Format 1 did not store an energy reference; its drifts were relative to |E0| (|KE0| + |PE0| when
+    E0 = 0, 1 J when that is 0 too), which stays its reference, so that a resumed format-1 summary keeps its
+    numbers. That need not equal what a system declares today (format 2 stores what it declares), so it is
+    not compared with the system: it must be positive, be that fallback, and say that it is."""
     for run in load(path).runs.values():
-        scale = run.energy_scale
-        assert math.isfinite(scale) and scale > 0
-        expected = abs(run["kinetic_energy"][0]) + abs(run["potential_energy"][0])
-        assert scale == (expected if expected > 0 else 1.0)
+        scale = run.energy_reference
+        assert math.isfinite(scale) and scale > 0 and run.energy_scale == scale
+        energy0 = abs(run["energy"][0])
+        fallback = abs(run["kinetic_energy"][0]) + abs(run["potential_energy"][0])
+        assert scale == (energy0 if energy0 > 0 else fallback if fallback > 0 else 1.0)
+        assert "format 1" in run.energy_reference_name
 
 
 # -- format 2 ------------------------------------------------------------------------------------------
