@@ -8,8 +8,12 @@ needs when it runs.
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
+import os
+import shlex
 import sys
+from pathlib import Path
 
 from simrun import __version__
 from simrun.commands import COMMANDS
@@ -17,6 +21,8 @@ from simrun.errors import ConfigError
 from simrun.workers import may_use_local_pool, start_worker_server
 
 EXIT_CONFIG_ERROR = 2
+CONFIG_FOLDER = Path("configs")  # where `simrun NAME` looks for NAME.yaml to suggest
+CONFIG_SUFFIXES = (".yaml", ".yml")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,20 +40,59 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] not in COMMANDS and not argv[0].startswith("-"):
+    command_line = shlex.join(["simrun", *argv])
+    if not argv:  # a command is needed: say which there are
+        build_parser().print_help(sys.stderr)
+        return EXIT_CONFIG_ERROR
+    if argv[0] not in COMMANDS and not argv[0].startswith("-"):
+        if not _may_be_config(argv[0]):
+            return _error(ConfigError(_unknown_command(argv[0])))
         argv.insert(0, "run")  # `simrun CONFIG.yaml`
     if argv and argv[0] == "run" and may_use_local_pool(argv):
         start_worker_server()
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        parser.print_help()
-        return 0
+        parser.print_help(sys.stderr)
+        return EXIT_CONFIG_ERROR
+    args.command_line = command_line  # the provenance of a run
     try:
         return args.handler(args)
-    except ConfigError as error:  # config errors, a locked output folder, an unreadable results file
-        print(f"simrun: error: {error}", file=sys.stderr)
-        return EXIT_CONFIG_ERROR
+    except ConfigError as error:  # config errors, a locked output folder, an unreadable results file, an unwritable output
+        return _error(error)
+    except BrokenPipeError:  # a reader that stopped early (`simrun list | head`) is not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 0
+    except OSError as error:  # one the command did not name (it names its outputs itself)
+        where = f"{error.filename}: " if error.filename else ""
+        return _error(ConfigError(f"{where}{error.strerror or error}"))
+
+
+def _error(error: ConfigError) -> int:
+    """``simrun: error: field: ...``, one line per error (a config reports up to a handful at once)."""
+    for line in str(error).splitlines() or [""]:
+        print(f"simrun: error: {line}", file=sys.stderr)
+    return EXIT_CONFIG_ERROR
+
+
+def _may_be_config(word: str) -> bool:
+    """Whether the first argument is meant as a config file (`simrun CONFIG.yaml`): it exists, or looks like one."""
+    path = Path(word)
+    return path.exists() or path.suffix.lower() in CONFIG_SUFFIXES or "/" in word
+
+
+def _unknown_command(word: str) -> str:
+    """'unknown command ...' with the closest subcommand or shipped config, and what is valid."""
+    message = f"unknown command {word!r}"
+    configs = {}
+    if CONFIG_FOLDER.is_dir():
+        configs = {path.stem: path for path in sorted(CONFIG_FOLDER.iterdir()) if path.suffix.lower() in CONFIG_SUFFIXES}
+    # a config's own name first (`simrun quickstart`), then a misspelt command (`simrun runn`), then a misspelt config
+    suggestions = ([str(configs[word])] if word in configs else []) + difflib.get_close_matches(word, list(COMMANDS), n=1) \
+        + [str(configs[name]) for name in difflib.get_close_matches(word, list(configs), n=1)]
+    if suggestions:
+        message += f" (did you mean {suggestions[0]!r}?)"
+    return message + f"; give a command ({', '.join(COMMANDS)}) or a config file such as configs/quickstart.yaml"
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ import hashlib
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from types import UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import numpy as np
 import yaml
@@ -20,11 +21,13 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 
 from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS, Integrator
-from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
+from simrun.solvers import SOLVER_PARAMS, SOLVERS, NewtonParams, SolverField, SolverOptionError
 from simrun.systems import SYSTEMS
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
 MAX_RUNS = 100_000
+# A config's errors reported at once, one line each: enough to fix a file in one go, few enough to read.
+MAX_REPORTED_ERRORS = 5
 # record.error_time: auto measures the error after this many periods of the test frequency: long enough
 # for the phase and amplitude errors to build up, short enough that the damped methods' errors at the
 # sweep's larger steps are not yet saturated (the whole amplitude), so that an order can be fitted; an
@@ -174,7 +177,14 @@ class Run(BaseModel):
     duration: float
     record: RecordParams
     divergence: DivergenceParams
-    swept: dict[str, Any]  # the swept keys other than dt, with this run's values
+    swept: dict[str, Any]  # the swept keys other than dt that this run uses, with this run's values
+    # the integrator's label in its config: with the parameters its family varies (expand_runs); None: integrator.label
+    label: str | None = None
+
+    @property
+    def integrator_label(self) -> str:
+        """The integrator's name and parameters as the run id and the results file show them."""
+        return self.label or self.integrator.label
 
     @property
     def step_count(self) -> int:
@@ -269,7 +279,11 @@ def load_experiment(source: str | Path | dict, overrides: list[str] = ()) -> tup
 
 
 def expand_runs(experiment: Experiment) -> list[Run]:
-    """The cartesian product of the sweep x integrators, every run validated before any starts."""
+    """The cartesian product of the sweep x integrators, every run validated before any starts.
+
+    A swept solver key that a run does not use (``solver.linear_solver`` for L-BFGS, any solver key for
+    an explicit method) does not multiply that run: it is run once, with the key's first value, and
+    its run id does not name the key."""
     swept = {key: values for key, values in experiment.sweep.items() if key != "dt"}
     combinations = [dict(zip(swept, values)) for values in _product(list(swept.values()))]
     total = len(combinations) * len(experiment.integrators) * len(experiment.sweep["dt"])
@@ -280,27 +294,91 @@ def expand_runs(experiment: Experiment) -> list[Run]:
     # carry the base solver's own options to a solver that does not take them
     base["solver"] = experiment.solver.model_dump(exclude_unset=True, mode="python")
     base["integrators"] = list(experiment.integrators)
+    labels = family_labels(experiment.integrators)
     runs = []
+    seen = set()  # (integrator's position, the swept keys it uses) already expanded
     for assignment in combinations:
         resolved = _resolve(base, assignment)
-        for integrator in resolved.integrators:
+        for number, integrator in enumerate(resolved.integrators):
+            used = {key: value for key, value in assignment.items() if uses_swept_key(key, integrator, resolved.solver)}
+            identity = (number, json.dumps(used, sort_keys=True, default=str))
+            if identity in seen:
+                continue
+            seen.add(identity)
             for dt in experiment.sweep["dt"]:
                 if dt > resolved.duration:
                     raise ConfigError(f"sweep.dt: {dt:g} is longer than duration {resolved.duration:g}; a step must fit in the run")
                 index = len(runs)
                 runs.append(Run(
-                    run_id=_run_id(index, integrator, dt, assignment), index=index, system=resolved.system,
+                    run_id=_run_id(index, labels[number], dt, used), index=index, system=resolved.system,
                     integrator=integrator, solver=resolved.solver, dt=float(dt), duration=resolved.duration,
-                    record=resolved.record, divergence=resolved.divergence, swept=assignment,
+                    record=resolved.record, divergence=resolved.divergence, swept=used, label=labels[number],
                 ))
     return runs
 
 
+# the swept solver keys that only a linear solver reads (solvers/params.py: LINEAR_SOLVER_FIELDS and the solver's name)
+LINEAR_SOLVER_KEYS = ("solver.linear_solver", "solver.linear_tolerance", "solver.linear_max_iterations")
+# integrators that take one Newton step with the main solver's linear solver whatever the solver (solver.newton_step)
+NEWTON_STEP_INTEGRATORS = ("semi_implicit_backward_euler",)
+
+
+def uses_swept_key(key: str, integrator: Integrator, solver) -> bool:
+    """Whether a run of ``integrator`` with ``solver`` reads the swept config key ``key``.
+
+    An explicit method reads no solver key; a linear-solver key is read by the solvers whose
+    directions are linear solves (Newton's family: ``uses_linear_solver``), in the chain of the
+    solver and its fallbacks, and by the methods that take one Newton step (NEWTON_STEP_INTEGRATORS)."""
+    if not key.startswith("solver."):
+        return True
+    if integrator.explicit:
+        return False
+    if key not in LINEAR_SOLVER_KEYS:
+        return True
+    return integrator.name in NEWTON_STEP_INTEGRATORS or any(SOLVERS[name].uses_linear_solver for name in solver.chain_names())
+
+
+def family_labels(integrators: list[Integrator]) -> list[str]:
+    """Each integrator's label in this config: its name and the parameters that differ from their defaults,
+    and, when integrators of the same type differ in a parameter (a family: generalized_alpha at several
+    rho_inf), that parameter in every label of the family, so that the default member is named too:
+    ``generalized_alpha[rho_inf=0.5]`` beside ``generalized_alpha[rho_inf=0]``."""
+    values_by_type: dict[str, dict[str, set]] = {}
+    for integrator in integrators:
+        for key, value in integrator.model_dump().items():
+            values_by_type.setdefault(integrator.name, {}).setdefault(key, set()).add(json.dumps(value, default=str))
+    labels = []
+    for integrator in integrators:
+        defaults = type(integrator).model_fields
+        varied = values_by_type.get(integrator.name, {})
+        named = [(key, value) for key, value in integrator.model_dump().items()
+                 if value != defaults[key].default or len(varied.get(key, ())) > 1]
+        if not any(len(values) > 1 for values in varied.values()):
+            labels.append(integrator.label)  # no family: the label as everywhere else
+            continue
+        parts = [f"{key}={value:g}" if isinstance(value, float) else f"{key}={value}" for key, value in named]
+        labels.append(f"{integrator.name}[{','.join(parts)}]" if parts else integrator.name)
+    return labels
+
+
 def config_hash(experiment: Experiment) -> str:
     """sha256 of the validated experiment (defaults filled in), so equal configs hash equally."""
-    document = experiment.model_dump(mode="json", exclude={"output"})
-    document["integrators"] = [{"type": item.name, **item.model_dump()} for item in experiment.integrators]
+    document = resolved_document(experiment)
+    del document["output"]
     return hashlib.sha256(json.dumps(document, sort_keys=True).encode()).hexdigest()
+
+
+def resolved_document(experiment: Experiment) -> dict:
+    """The validated experiment with every default filled in, as plain data (JSON types): a config that
+    gives the same runs. Integrators are mappings with their ``type``."""
+    document = experiment.model_dump(mode="json")
+    document["integrators"] = [{"type": item.name, **item.model_dump(mode="json")} for item in experiment.integrators]
+    return document
+
+
+def resolved_config(experiment: Experiment) -> str:
+    """``resolved_document`` as YAML text (stored in the results file as ``resolved_config``)."""
+    return yaml.safe_dump(resolved_document(experiment), sort_keys=False)
 
 
 # -- internals -------------------------------------------------------------------------------------
@@ -317,7 +395,7 @@ def _resolve(base: dict, assignment: dict[str, Any]) -> Experiment:
     try:
         return Experiment.model_validate(raw)
     except ValidationError as error:
-        raise ConfigError("sweep: " + _describe_error(error, raw)) from None
+        raise ConfigError("\n".join("sweep: " + line for line in _describe_error(error, raw).splitlines())) from None
 
 
 def _product(lists: list[list]) -> list[tuple]:
@@ -327,8 +405,8 @@ def _product(lists: list[list]) -> list[tuple]:
     return result
 
 
-def _run_id(index: int, integrator: Integrator, dt: float, assignment: dict[str, Any]) -> str:
-    parts = [f"{index:04d}", integrator.label, f"dt={dt:.6g}"]
+def _run_id(index: int, label: str, dt: float, assignment: dict[str, Any]) -> str:
+    parts = [f"{index:04d}", label, f"dt={dt:.6g}"]
     parts += [f"{key}={value:.6g}" if isinstance(value, float) else f"{key}={value}" for key, value in assignment.items()]
     return "-".join(parts).replace("/", "_")
 
@@ -355,22 +433,91 @@ def _describe(error: dict, fields: dict | None = None) -> str:
 
 
 def _describe_error(error: ValidationError, raw: dict) -> str:
-    first = error.errors()[0]
-    location = [part for part in first["loc"]]
+    """Up to MAX_REPORTED_ERRORS errors of a config, one line each (``field.path: what is allowed``)."""
+    lines: dict[str, list[str]] = {}  # config path -> its messages (the alternatives of a union are one error)
+    for item in error.errors():
+        path, line = _describe_one(item, raw)
+        if path not in lines and len(lines) == MAX_REPORTED_ERRORS:
+            break
+        if line not in lines.setdefault(path, []):
+            lines[path].append(line)
+    # a line break inside a message (a key or value with one) would look like a second error
+    return "\n".join(_joined_alternatives(path, messages).replace("\n", "\\n") for path, messages in lines.items())
+
+
+def _describe_one(item: dict, raw: dict) -> tuple[str, str]:
+    """One pydantic error as (its config path, its line)."""
+    location = [part for part in item["loc"]]
     # pydantic puts the discriminator's tag into the path (system.spring_mass.mass); drop it
     if len(location) >= 2 and location[0] == "system" and location[1] in SYSTEMS:
         location.pop(1)
-    cause = first.get("ctx", {}).get("error")
+    cause = item.get("ctx", {}).get("error")
     if isinstance(cause, SolverOptionError):  # it names the option inside the field: solver.history, not solver
         location += list(cause.path)
-        first = {**first, "msg": cause.reason}
-    first = {**first, "loc": tuple(location)}
-    if first["type"] == "union_tag_invalid":
-        tag = first.get("ctx", {}).get("tag")
-        return f"system.type: unknown system {tag!r}{_did_you_mean(tag, SYSTEMS)}; valid: " + ", ".join(SYSTEMS)
-    if first["type"] == "union_tag_not_found":
-        return "system.type: missing; valid: " + ", ".join(SYSTEMS)
-    return _describe(first, _fields_at(location[:-1], raw))
+        item = {**item, "msg": cause.reason}
+    # ... and the member of a plain union that did not match (record.error_time.float): one error per field
+    location = _without_union_member(location)
+    item = {**item, "loc": tuple(location)}
+    path = ".".join(str(part) for part in location)
+    if item["type"] == "union_tag_invalid":
+        tag = item.get("ctx", {}).get("tag")
+        return "system.type", f"system.type: unknown system {tag!r}{_did_you_mean(tag, SYSTEMS)}; valid: " + ", ".join(SYSTEMS)
+    if item["type"] == "union_tag_not_found":
+        return "system.type", "system.type: missing; valid: " + ", ".join(SYSTEMS)
+    return path, _describe(item, _fields_at(location[:-1], raw))
+
+
+def _joined_alternatives(path: str, lines: list[str]) -> str:
+    """'path: a' and 'path: b' (the members of a union) as 'path: a, or b'."""
+    prefix = f"{path}: "
+    if len(lines) == 1 or not path or not all(line.startswith(prefix) for line in lines):
+        return lines[0]
+    messages = [line.removeprefix(prefix) for line in lines]
+    got = messages[-1][messages[-1].rfind(" (got "):] if " (got " in messages[-1] else None
+    if got and all(message.endswith(got) for message in messages):  # the input once, at the end
+        messages = [message.removesuffix(got) for message in messages[:-1]] + messages[-1:]
+    return prefix + ", or ".join(messages)
+
+
+def _without_union_member(location: list) -> list:
+    """An error location cut where pydantic names the member of a union that failed: the config's path."""
+    node: Any = Experiment
+    for number, part in enumerate(location):
+        node = _unwrap(node)
+        if isinstance(node, type) and issubclass(node, BaseModel):
+            if part not in node.model_fields:
+                return location  # an unknown key, or a path below a validator's own: as it is
+            node = node.model_fields[part].annotation
+        elif get_origin(node) in (list, tuple, dict):
+            arguments = get_args(node)
+            node = arguments[-1] if arguments else None
+        elif get_origin(node) in (Union, UnionType):
+            # a union of models (the systems) continues in the member that has the key; any other union's
+            # next part names the member that failed
+            models = [member for member in get_args(node) if isinstance(member, type) and issubclass(member, BaseModel)]
+            if not models:
+                return location[:number] if isinstance(part, str) else location
+            owner = next((model for model in models if part in model.model_fields), None)
+            if owner is None:
+                return location  # an unknown key of a model
+            node = owner.model_fields[part].annotation
+        else:
+            return location
+    return location
+
+
+def _unwrap(node: Any) -> Any:
+    """The type inside Annotated[X, ...] and X | None."""
+    while True:
+        if get_origin(node) is Annotated:
+            node = get_args(node)[0]
+            continue
+        if get_origin(node) in (Union, UnionType):
+            members = [member for member in get_args(node) if member is not type(None)]
+            if len(members) == 1:
+                node = members[0]
+                continue
+        return node
 
 
 def _fields_at(location: list, raw: dict) -> dict:

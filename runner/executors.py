@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from simrun.config import Run
 from simrun.errors import ConfigError
 from simrun.simulate import RunResult, simulate
-from simrun.workers import EXECUTORS, process_pool
+from simrun.workers import EXECUTORS, process_pool, stop_workers
 
 __all__ = ["EXECUTORS", "EXECUTOR_FUNCTIONS", "execute", "run_serial", "run_process_pool", "run_dask"]
 
@@ -25,7 +25,8 @@ def run_serial(runs: list[Run]) -> Iterator[tuple[Run, RunResult]]:
 
 
 def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResult]]:
-    """A local pool of `jobs` processes; pending runs are cancelled when the consumer stops early."""
+    """A local pool of `jobs` processes; pending runs are cancelled and running ones ended when the
+    consumer stops early (or Ctrl-C, which the workers ignore, stops it)."""
     pool = process_pool(jobs)
     finished = False
     try:
@@ -34,6 +35,8 @@ def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResul
             yield futures[future], future.result()
         finished = True
     finally:
+        if not finished:  # Ctrl-C (the workers ignore it) or a consumer that stopped: no run in flight is waited for
+            stop_workers(pool)
         pool.shutdown(wait=finished, cancel_futures=True)
 
 

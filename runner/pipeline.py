@@ -12,18 +12,25 @@ one writer commits each finished run, then draw the figures from the file. The c
 
 from __future__ import annotations
 
+import shutil
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
 from simrun import __version__
-from simrun.config import config_hash, expand_runs, load_experiment
+from simrun.config import config_hash, expand_runs, load_experiment, resolved_config
 from simrun.errors import ConfigError
 from simrun.executors import EXECUTOR_FUNCTIONS, execute
-from simrun.lock import OutputLock
+from simrun.lock import FIGURES_NAME, REPORT_NAME, OutputLock, check_writable, filling, write_error
 from simrun.results import RESULTS_NAME, Results, Status, load
-from simrun.store import DEFAULT_MAX_SIZE_GB, admit_size, check_writable, open_writer
+from simrun.store import DEFAULT_MAX_SIZE_GB, admit_size, open_writer
 from simrun.workers import default_jobs
+
+# The remaining time is estimated once this many runs finished, or this many seconds passed with one finished:
+# earlier, the first runs' times (imports, the pool starting) say little about the rest.
+ESTIMATE_AFTER_RUNS = 3
+ESTIMATE_AFTER_SECONDS = 5.0
 
 
 class Interrupted(KeyboardInterrupt):
@@ -37,16 +44,18 @@ class Interrupted(KeyboardInterrupt):
 def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: int | None = None,
         executor: str = "process", scheduler: str | None = None, force: bool = False, progress: bool = True,
         figures: bool = True, overrides: list[str] | tuple[str, ...] = (),
-        max_size_gb: float = DEFAULT_MAX_SIZE_GB) -> Results:
+        max_size_gb: float = DEFAULT_MAX_SIZE_GB, command_line: str | None = None) -> Results:
     """Run an experiment and return its results (``simrun.results.Results``).
 
     config: a path to a YAML file, YAML text, or a dict of the same content.
     output: the folder for results.h5 and figures/ (default: the config's ``output``, else results/<name>).
     jobs: runs at once (default: one per core; 1 = serial). executor: "process" (this machine) or "dask"
     (``scheduler``: an existing cluster's address, else a local one). force: start over even if the
-    folder holds other results (default: resume an unchanged config, refuse a changed one).
-    progress: a progress bar on a terminal, else a line per run (False: silent). figures: draw them.
-    overrides: ``key.path=value`` assignments, as ``--set``. max_size_gb: refuse bigger sweeps.
+    folder holds other results, removing its old figures and report (default: resume an unchanged
+    config, refuse a changed one). progress: a progress bar on a terminal, else a line per run (False:
+    silent). figures: draw them. overrides: ``key.path=value`` assignments, as ``--set``. max_size_gb:
+    refuse bigger sweeps. command_line: what started the sweep, stored as provenance (the command line
+    passes its own; default: this call, ``simrun.run('configs/x.yaml', ...)``).
 
     Raises ConfigError (one line naming the field) before anything is written, and Interrupted
     (a KeyboardInterrupt) on Ctrl-C after committing what finished. The returned results also carry
@@ -63,42 +72,84 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     check_writable(output)
     admit_size(runs, output, jobs, max_size_gb)
     say = _printer(progress)
+    if command_line is None:
+        command_line = _call_text(config, output=output, jobs=jobs, executor=executor, force=force, overrides=overrides)
 
-    output.mkdir(parents=True, exist_ok=True)
     path = output / RESULTS_NAME
     ran: Counter[str] = Counter()
+    try:
+        output.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise write_error("output", output, error) from None
     with OutputLock(output):
-        with open_writer(path, config_text, config_hash(experiment), experiment.name, force) as writer:
+        if force:
+            _remove_drawn(output)
+        try:
+            writer = open_writer(path, config_text, config_hash(experiment), experiment.name, force,
+                                 command_line=command_line, config_path=_config_file(config),
+                                 resolved_config=resolved_config(experiment))
+        except OSError as error:
+            raise write_error("output", path, error) from None
+        with writer:
             done = writer.completed_runs()
+            stale = done - {item.run_id for item in runs}
+            if stale:  # the same config, runs named otherwise: written by an older simrun
+                raise ConfigError(f"output: {str(path)!r} holds {len(stale)} runs this config does not name "
+                                  f"(e.g. {min(stale)!r}, from an older simrun?); start over with --force")
             pending = [item for item in runs if item.run_id not in done]
             where = f"{executor}, {jobs} job{'s' if jobs > 1 else ''}" if len(pending) > 1 else "serial"
             say(f"simrun {__version__}: {experiment.name}: {len(runs)} runs -> {output} ({where})")
             if done:
                 say(f"resuming: skipped {len(runs) - len(pending)} runs already in {path}; running {len(pending)}")
-            bar = _progress_bar(len(pending), progress)
+            view = _Progress(len(pending), progress)
             try:
-                for number, (item, result) in enumerate(execute(pending, executor, jobs, scheduler), 1):
-                    writer.write_run(item, result)
+                for item, result in execute(pending, executor, jobs, scheduler):
+                    try:
+                        writer.write_run(item, result)
+                    except OSError as error:
+                        raise write_error("output", path, error) from None
                     ran[str(result.status)] += 1
-                    if bar is not None:
-                        bar.set_postfix_str(item.run_id, refresh=False)
-                        bar.update()
-                    else:
-                        detail = f" ({result.message})" if result.status is not Status.OK and result.message else ""
-                        say(f"[{number}/{len(pending)}] {item.run_id}: {result.status}, {result.steps} steps "
-                            f"in {result.wall_time:.3g} s{detail}")
+                    view.finished(item, result)
             except KeyboardInterrupt:
                 raise Interrupted(path, len(writer.completed_runs()), len(runs)) from None
             finally:
-                if bar is not None:
-                    bar.close()
+                view.close()
     results = load(path)
     results.ran = dict(sorted(ran.items()))
     if figures:
         from simrun.figures import draw_figures
 
-        results.figure_files = draw_figures(results, output / "figures")
+        with filling(output / FIGURES_NAME, "output") as folder:  # a failed drawing leaves no half figure
+            written = draw_figures(results, folder)
+        results.figure_files = [output / FIGURES_NAME / drawn.name for drawn in written]
     return results
+
+
+def _remove_drawn(output: Path) -> None:
+    """--force: the figures and the report drawn from the old results go before the new runs start."""
+    try:
+        if (output / FIGURES_NAME).is_dir():
+            shutil.rmtree(output / FIGURES_NAME)
+        (output / REPORT_NAME).unlink(missing_ok=True)
+    except OSError as error:
+        raise ConfigError(f"output: cannot remove the old figures or report in {str(output)!r} "
+                          f"({error.strerror or error}); remove them, or choose another --output") from None
+
+
+def _config_file(config) -> Path | None:
+    """The config's file, when it was given as a path (not YAML text or a dict)."""
+    if isinstance(config, Path) or (isinstance(config, str) and "\n" not in config and ": " not in config):
+        return Path(config)
+    return None
+
+
+def _call_text(config, **keywords) -> str:
+    """This call as text, for the provenance: simrun.run('configs/x.yaml', output='results/x', jobs=2)."""
+    source = repr(str(config)) if _config_file(config) is not None else ("<dict>" if isinstance(config, dict) else "<YAML text>")
+    defaults = {"executor": "process", "force": False, "overrides": ()}
+    shown = [f"{key}={str(value)!r}" if isinstance(value, Path) else f"{key}={value!r}" for key, value in keywords.items()
+             if key not in defaults or defaults[key] != (tuple(value) if key == "overrides" else value)]
+    return f"simrun.run({', '.join([source, *shown])})"
 
 
 def _printer(progress: bool):
@@ -107,13 +158,61 @@ def _printer(progress: bool):
     return lambda text: print(text, flush=True)
 
 
+class _Progress:
+    """What a sweep shows while it runs: a bar on a terminal, else a line per run; in both, a line for
+    each run that did not end ok (with why) and, after the first few runs, the time left. Silent when
+    progress is off."""
+
+    def __init__(self, total: int, progress: bool):
+        self.total, self.progress, self.done = total, progress, 0
+        self.start = time.monotonic()
+        self.bar = _progress_bar(total, progress)
+
+    def finished(self, run, result) -> None:
+        self.done += 1
+        if not self.progress:
+            return
+        detail = f" ({result.message})" if result.status is not Status.OK and result.message else ""
+        left = remaining_text(time.monotonic() - self.start, self.done, self.total)
+        if self.bar is None:
+            print(f"[{self.done}/{self.total}] {run.run_id}: {result.status}, {result.steps} steps "
+                  f"in {result.wall_time:.3g} s{detail}{f'; {left}' if left else ''}", flush=True)
+            return
+        if result.status is not Status.OK:
+            self.bar.write(f"{run.run_id}: {result.status}{detail}", file=sys.stderr)
+        self.bar.set_postfix_str(", ".join(filter(None, [left, run.run_id])), refresh=False)
+        self.bar.update()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def remaining_text(elapsed: float, done: int, total: int) -> str | None:
+    """'about 2 min 10 s left' from the mean time per finished run so far (s); None before the first
+    ESTIMATE_AFTER_RUNS runs (or ESTIMATE_AFTER_SECONDS s), and at the end."""
+    if done == 0 or done >= total or (done < ESTIMATE_AFTER_RUNS and elapsed < ESTIMATE_AFTER_SECONDS):
+        return None
+    return f"about {_duration_text(elapsed / done * (total - done))} left"
+
+
+def _duration_text(seconds: float) -> str:
+    seconds = max(1, round(seconds))
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
+
+
 def _progress_bar(total: int, progress: bool):
     """A progress bar on a terminal; None (plain log lines) when not asked for or stderr is not a terminal."""
     if not progress or total == 0 or not sys.stderr.isatty():
         return None
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="run", dynamic_ncols=True, file=sys.stderr)
+    return tqdm(total=total, unit="run", dynamic_ncols=True, file=sys.stderr,
+                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")  # the time left: in the postfix
 
 
-__all__ = ["Interrupted", "run"]
+__all__ = ["Interrupted", "remaining_text", "run"]

@@ -1,12 +1,15 @@
 """`simrun report`'s page: a results file as one self-contained HTML file.
 
-Figures are embedded as base64 PNG, styles inline, no script, no link to any other file: the
-experiment's config and provenance, a summary table of the runs (status, energy drift, iterations,
-order, measured against predicted artificial damping), the observed orders, the predicted stability
-limits against what the runs did, the determinant of each method's one-step map on the spring against
-the lectures' closed forms, and every registered figure with its caption. Like the figures, it is made
-from the results file alone (``simrun.results``); the tables come from ``simrun.tables``, the errors of
-runs without an exact solution from ``simrun.reference`` on request.
+Figures are embedded as base64 PNG, styles inline, no script, no link to any other file. The page opens
+with the findings (``simrun.findings``: the answers, each linked to the table or figure that shows it,
+and what could not be measured), then the tables that apply to the file: the summary of the runs, the
+observed orders (runs with a known error), the predicted stability limits against what the runs did
+(runs on the undamped test equation), the determinant of each method's one-step map on the spring
+against the lectures' closed forms (runs with one degree of freedom); then every figure the file
+supports with its caption (the cloth's snapshots as one grid of runs x times), and the provenance with
+the config as written beside the resolved one. Like the figures, it is made from the results file alone
+(``simrun.results``); the tables come from ``simrun.tables``, the errors of runs without an exact
+solution from ``simrun.reference`` on request.
 """
 
 from __future__ import annotations
@@ -15,46 +18,64 @@ import base64
 import datetime
 import html
 import io
+import json
 import math
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
-from simrun.figures import FIGURES, Figure, FigureData, figure_data, render_figures
+from simrun.figures import FIGURES, Figure, FigureData, figure_data
+from simrun.findings import Finding, drift_text, findings
 from simrun.reference import REFERENCE_RTOL, reference_errors
-from simrun.results import Results, load
+from simrun.results import Results, Status, load
 from simrun.tables import (DAMPING_TOLERANCE, DETERMINANT_TOLERANCE, ORDER_TOLERANCE, DeterminantRow, OrderRow,
-                           StabilityRow, SummaryRow, damping_text, determinant_rows, number_text, order_rows,
-                           stability_rows, summary_rows)
+                           StabilityRow, SummaryRow, damping_text, determinant_rows, energy_reference_differs,
+                           energy_reference_text, error_time_text, iteration_name, mixed_solvers, number_text,
+                           order_rows, stability_rows, summary_rows)
 
 REPORT_DPI = 100  # the figures' inches become about as many CSS pixels at this resolution
 # A summary table longer than this scrolls inside its box.
 SCROLLING_TABLE_ROWS = 40
+# One cell of the snapshot grid (in): four columns of 3D views fit the page's 1280 px at REPORT_DPI.
+SNAPSHOT_CELL = (2.7, 2.4)
+# The snapshot grid's title and row headings (in).
+SNAPSHOT_TITLE_HEIGHT = 0.6
 
 STYLE = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', Roboto, Helvetica, Arial, sans-serif; margin: 0 auto;
-       max-width: 1280px; padding: 1.5rem 2rem 4rem; color: #1d2330; line-height: 1.45; }
+       max-width: 1280px; padding: 1.5rem 2rem 4rem; color: #1d2330; line-height: 1.45; box-sizing: border-box; }
 h1 { font-size: 1.7rem; margin-bottom: 0.2rem; } h2 { margin-top: 2.4rem; border-bottom: 1px solid #d8dce3; padding-bottom: 0.2rem; }
+h3 { font-size: 1.02rem; margin: 1.4rem 0 0.5rem; }
 .subtitle { color: #5a6270; margin-top: 0; }
-nav ul { columns: 3; list-style: none; padding-left: 0; } nav a { color: #2856a3; text-decoration: none; }
-table { border-collapse: collapse; font-size: 0.82rem; font-variant-numeric: tabular-nums; }
-th, td { padding: 0.25rem 0.55rem; border-bottom: 1px solid #e6e8ec; text-align: right; white-space: nowrap; }
-th { background: #f3f5f8; position: sticky; top: 0; text-align: center; }
+nav ul { columns: 3; list-style: none; padding-left: 0; } nav a, a { color: #2856a3; text-decoration: none; }
+table { border-collapse: collapse; font-size: 0.8rem; font-variant-numeric: tabular-nums; }
+th, td { padding: 0.25rem 0.38rem; border-bottom: 1px solid #e6e8ec; text-align: right; white-space: nowrap; }
+th { background: #f3f5f8; position: sticky; top: 0; text-align: center; white-space: normal; min-width: 2.4rem; }
 td.text, th.text { text-align: left; }
+td.label { white-space: normal; overflow-wrap: anywhere; min-width: 7rem; max-width: 14rem; }
+td.wrap { white-space: normal; min-width: 12rem; max-width: 26rem; text-align: left; }
 tbody tr:nth-child(even) { background: #fafbfc; }
+.box { max-width: 100%; overflow-x: auto; }
 .scroll { max-height: 34rem; overflow: auto; border: 1px solid #e6e8ec; }
 .status { padding: 0.05rem 0.4rem; border-radius: 0.6rem; font-size: 0.75rem; }
 .ok { background: #e3f4e8; color: #1c6b34; } .diverged { background: #fde6e4; color: #a1281c; }
 .failed { background: #f2e3f7; color: #6d2a86; } .not_converged { background: #fff2d6; color: #8a5a00; }
 .agrees { color: #1c6b34; } .differs { color: #a1281c; font-weight: 600; }
-pre { background: #f6f8fa; padding: 0.8rem 1rem; overflow: auto; font-size: 0.8rem; border-radius: 4px; }
+.sub { color: #5a6270; font-size: 0.74rem; }
+pre { background: #f6f8fa; padding: 0.8rem 1rem; overflow: auto; font-size: 0.8rem; border-radius: 4px; max-height: 40rem; margin: 0; }
+.configs { display: grid; grid-template-columns: minmax(0, 1fr) minmax(0, 1fr); gap: 1rem; }
+.configs pre { white-space: pre-wrap; overflow-wrap: anywhere; }
 figure { margin: 1.6rem 0 2.4rem; } figure img { max-width: 100%; height: auto; border: 1px solid #eceef2; }
 figcaption { color: #3c4452; font-size: 0.9rem; max-width: 70rem; margin-top: 0.4rem; }
 figcaption b { color: #1d2330; }
-dl { display: grid; grid-template-columns: max-content auto; gap: 0.2rem 1.2rem; font-size: 0.9rem; }
-dt { color: #5a6270; } dd { margin: 0; }
+dl { display: grid; grid-template-columns: max-content minmax(0, 1fr); gap: 0.2rem 1.2rem; font-size: 0.9rem; }
+dt { color: #5a6270; } dd { margin: 0; overflow-wrap: anywhere; }
 .note { color: #5a6270; font-size: 0.85rem; max-width: 70rem; }
+.missing { color: #8a5a00; }
+ul.findings { padding-left: 1.2rem; max-width: 72rem; } ul.findings li { margin: 0.35rem 0; }
+ul.findings a.see { font-size: 0.8rem; white-space: nowrap; }
+.topic { color: #5a6270; font-size: 0.75rem; text-transform: uppercase; letter-spacing: 0.04em; margin-right: 0.3rem; }
 """
 
 
@@ -62,12 +83,13 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
     """Write the report of the results file at path into output (an .html file); returns output.
 
     reference: what the errors of runs without an exact solution are measured against (see
-    ``simrun.reference.reference_errors``), or None / "none" for no reference."""
+    ``simrun.reference.reference_errors``), or None / "none" for no reference. (``simrun report`` checks
+    the output before any work and hands a temporary file here, renamed when the page is complete.)"""
     import matplotlib.pyplot as plt
 
-    results = load(path)
     output = Path(output)
-    without_exact = [run for run in results.runs.values() if not np.isfinite(run.final_error) and not run.status.stopped]
+    results = load(path)
+    without_exact = [run for run in results.runs.values() if not np.isfinite(_stored_error(run)) and not run.status.stopped]
     errors: dict[str, float] = {}
     reference_note = ""
     if without_exact and reference and str(reference).lower() != "none":
@@ -83,24 +105,111 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
     with results.opened():
         data = figure_data(results, errors or None)
         rows = summary_rows(data)
-        sections = [
-            ("summary", "Runs", _summary_section(rows)),
-            ("orders", "Observed order of convergence", _orders_section(order_rows(data), reference_note)),
-            ("stability", "Stability limits: predicted and observed", _stability_section(stability_rows(data))),
-            ("determinants", "Determinant of the one-step map (one degree of freedom: the mass on a spring)",
-             _determinant_section(determinant_rows(data))),
-        ]
-        for entry, name, figure in render_figures(results, errors or None):
+        orders = order_rows(data)
+        stability = stability_rows(data)
+        determinants = determinant_rows(data)
+        for entry, name, figure in _render(data):
             try:
                 figures.append((entry, name, _png_data(figure)))
             finally:
                 plt.close(figure)
-    sections.append(("figures", "Figures", _figures_section(figures)))
+        found = findings(data, rows, orders)
+    test_equation = any(np.isfinite(row.hw) for row in rows)
+    sections = [("summary", "Runs", _summary_section(rows))]
+    if orders:
+        sections.append(("orders", "Observed order of convergence", _orders_section(orders, reference_note, error_time_text(rows))))
+    if stability:
+        sections.append(("stability", "Stability limits: predicted and observed", _stability_section(stability)))
+    if determinants:
+        sections.append(("determinants", "Determinant of the one-step map (one degree of freedom: the mass on a spring)",
+                         _determinant_section(determinants)))
+    sections.append(("figures", "Figures", _figures_section(figures, test_equation)))
     sections.append(("provenance", "Provenance and config", _provenance_section(results, path)))
+    anchors = {f"#{key}" for key, _, _ in sections} | {f"#figure-{name}" for _, name, _ in figures}
+    sections.insert(0, ("findings", "Findings", _findings_section(found, anchors, rows, data.dt_names)))
     page = _page(results, data, sections)
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(page, encoding="utf-8")
     return output
+
+
+def _stored_error(run) -> float:
+    """The run's stored error at its error time (files from before error times: its final error)."""
+    return run.error if ("error" in run.attrs or run.format_version == 1) else run.final_error
+
+
+def _render(data: FigureData):
+    """(registry entry, name, matplotlib Figure) for every figure the file supports; the snapshots as one grid."""
+    for entry in FIGURES.values():
+        if entry.name == "snapshots":
+            grid = _snapshot_grid(data)
+            if grid is not None:
+                yield entry, entry.name, grid
+            continue
+        drawn = entry.draw(data)
+        if drawn is None:
+            continue
+        for name, figure in drawn if isinstance(drawn, list) else [(entry.name, drawn)]:
+            yield entry, name, figure
+
+
+def _snapshot_grid(data: FigureData):
+    """One figure of the frame runs (rows; simrun.figures.frames.snapshot_runs) at SNAPSHOT_COUNT times (columns),
+    spread over the longest run and drawn at the same scale; a run that stopped earlier leaves its later cells empty."""
+    import matplotlib.pyplot as plt
+
+    from simrun.figures import frames as frame_figures
+
+    run_ids = frame_figures.snapshot_runs(data.results)
+    if not run_ids:
+        return None
+    runs = [data.results.runs[run_id] for run_id in run_ids]
+    end = max(float(run["frame_t"][-1]) for run in runs)
+    times = np.linspace(0.0, end, frame_figures.SNAPSHOT_COUNT)
+    picks, shown = [], []
+    for run in runs:
+        t = np.asarray(run["frame_t"], dtype=float)
+        spacing = (t[-1] - t[0]) / (len(t) - 1) if len(t) > 1 else 0.0
+        row = [int(np.argmin(np.abs(t - time))) if time <= t[-1] + 0.5 * spacing + 1e-12 else None for time in times]
+        picks.append(row)
+        last = len(t) - 1
+        # a diverged run's last frame is the blow-up: frame the view on the frames before it
+        shown += [run["frames"][index] for index in row
+                  if index is not None and not (run.status is Status.DIVERGED and index == last and last > 0)]
+    spheres = [sphere for run in runs for sphere in frame_figures._spheres(run)]
+    limits = frame_figures._limits(np.array(shown) if shown else runs[0]["frames"][:1], spheres)
+    columns = len(times)
+    width, height = SNAPSHOT_CELL
+    figure = plt.figure(figsize=(columns * width, len(runs) * height + SNAPSHOT_TITLE_HEIGHT))
+    title, body = figure.subfigures(2, 1, height_ratios=[SNAPSHOT_TITLE_HEIGHT, len(runs) * height])
+    low, high = limits
+    box = ", ".join(f"{name} {round(low[axis], 2) + 0.0:g} to {round(high[axis], 2) + 0.0:g} m" for axis, name in enumerate("xyz"))
+    title.suptitle(f"{data.name}: snapshots (rows: runs; columns: times)\nevery cell the same box: {box}",
+                   fontsize=10, y=0.75)
+    for number, (subfigure, run, row) in enumerate(zip(body.subfigures(len(runs), 1, squeeze=False)[:, 0], runs, picks)):
+        status = "" if run.status is Status.OK else f", {run.status}"
+        if run.status is Status.DIVERGED and "t_diverged" in run.attrs:
+            status += f" at t = {float(run.attrs['t_diverged']):.3g} s"
+        subfigure.set_facecolor("#f4f6f9" if number % 2 == 0 else "white")  # rows told apart
+        subfigure.text(0.01, 0.97, f"{run.label}, dt = {run.dt:g} s{status}", fontsize=9, fontweight="bold", va="top")
+        subfigure.subplots_adjust(left=0.0, right=0.98, bottom=0.02, top=0.84, wspace=0.05)
+        for column, index in enumerate(row):
+            axes = subfigure.add_subplot(1, columns, column + 1, projection="3d")
+            if index is None:
+                axes.set_axis_off()
+                axes.text2D(0.5, 0.5, f"run ended at t = {float(run['frame_t'][-1]):.3g} s", ha="center",
+                            va="center", transform=axes.transAxes, fontsize=8, color="#5a6270")
+                continue
+            frame_figures._draw_scene(axes, run["frames"][index], run, limits)
+            axes.set_facecolor("none")
+            axes.set_title(f"t = {float(run['frame_t'][index]):.3g} s", fontsize=8, pad=0)
+            # one box for the whole grid, stated in its title: ticks in every cell would only crowd it
+            axes.set_xlabel("")
+            axes.set_ylabel("")
+            axes.set_zlabel("")
+            for axis in (axes.xaxis, axes.yaxis, axes.zaxis):
+                axis.set_ticklabels([])
+    return figure
 
 
 def _png_data(figure) -> str:
@@ -132,15 +241,16 @@ def _page(results: Results, data: FigureData, sections: list[tuple[str, str, str
     )
 
 
-def _table(headings: list[tuple[str, bool]], body_rows: list[list[str]], scroll: bool = False) -> str:
-    """headings: (text, is_text_column); cells are HTML already."""
-    head = "".join(f'<th class="text">{_e(text)}</th>' if is_text else f"<th>{_e(text)}</th>" for text, is_text in headings)
-    rows = []
-    for cells in body_rows:
-        rows.append("<tr>" + "".join(f'<td class="text">{cell}</td>' if headings[number][1] else f"<td>{cell}</td>"
-                                     for number, cell in enumerate(cells)) + "</tr>")
+def _table(headings: list[tuple[str, bool | str]], body_rows: list[list[str]], scroll: bool = False) -> str:
+    """headings: (text, kind): False a number column, True a text column, "label" a text column that wraps
+    (integrator labels), "wrap" a prose column; cells are HTML already. The table scrolls sideways inside
+    its box when it is wider than the page, and down when ``scroll``."""
+    classes = {True: ' class="text"', "label": ' class="text label"', "wrap": ' class="text wrap"', False: ""}
+    head = "".join(f'<th class="text">{_e(text)}</th>' if kind else f"<th>{_e(text)}</th>" for text, kind in headings)
+    rows = ["<tr>" + "".join(f"<td{classes[headings[number][1]]}>{cell}</td>" for number, cell in enumerate(cells)) + "</tr>"
+            for cells in body_rows]
     table = f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
-    return f'<div class="scroll">{table}</div>' if scroll else table
+    return f'<div class="box{" scroll" if scroll else ""}">{table}</div>'
 
 
 def _status(status: str) -> str:
@@ -152,58 +262,161 @@ def _verdict(text: str) -> str:
     return f'<span class="{kind}">{_e(text)}</span>' if kind else _e(text)
 
 
-def _summary_section(rows: list[SummaryRow]) -> str:
-    several_groups = len({row.group for row in rows}) > 1
-    headings = [("#", False), ("integrator", True)] + ([("group", True)] if several_groups else []) + [
-        ("dt (s)", False), ("h w", False), ("status", True), ("steps", False), ("order", False),
-        ("max drift", False), ("final drift", False), ("error (m)", False), ("Newton/step", False),
-        ("linear/step", False), ("wall (s)", False), ("d/w measured", False), ("d/w predicted", False), ("difference", False)]
-    body = []
-    for row in rows:
-        measured = damping_text(row.measured_damping)
-        if np.isfinite(row.measured_damping) and not row.measured_resolved:
-            measured += " (run too short to resolve)"
-        difference = row.damping_difference
-        if not np.isfinite(difference):
-            difference_text = "–"
-        else:
-            difference_text = "0.00 %" if abs(difference) < 5e-5 else f"{100 * difference:+.2f} %"
-        if np.isfinite(difference) and row.measured_resolved:
-            kind = "agrees" if abs(difference) <= DAMPING_TOLERANCE else "differs"
-            difference_text = f'<span class="{kind}">{difference_text}</span>'
-        cells = [str(row.index), _e(row.integrator)] + ([_e(row.group)] if several_groups else []) + [
-            f"{row.dt:.4g}", "–" if not np.isfinite(row.hw) else f"{row.hw:.3g}", _status(row.status), str(row.steps),
-            str(row.order), number_text(row.max_rel_energy_drift), number_text(row.final_rel_energy_drift), number_text(row.final_error),
-            f"{row.mean_newton_iterations:.2f}", number_text(row.mean_linear_iterations), f"{row.wall_time:.3g}",
-            measured, damping_text(row.predicted_damping), difference_text]
-        body.append(cells)
-    note = ('<p class="note">drift: |E − E₀|/|E₀| (max over the run, and at its end); error: max |x − x_exact| at the '
-            "last sample; d/w: the artificial damping d_method/w = −2 ln ρ/(h w), measured from the decay of ln E(t) of "
-            "runs on the undamped test equation (spring, linear circular motion) and predicted from the probed "
-            f"amplification matrix at the run's h w; the difference is relative to the prediction (±{100 * DAMPING_TOLERANCE:g} % "
-            "marked as agreeing).</p>")
-    return note + _table(headings, body, scroll=len(rows) > SCROLLING_TABLE_ROWS)
+# -- findings ---------------------------------------------------------------------------------------
+def _anchor_name(anchor: str) -> str:
+    names = {"#summary": "runs table", "#orders": "orders table", "#stability": "stability table",
+             "#determinants": "determinants table"}
+    return names.get(anchor, "figure: " + anchor.removeprefix("#figure-").replace("_", " "))
 
 
-def _orders_section(rows: list[OrderRow], reference_note: str) -> str:
-    note = f'<p class="note">{_e(reference_note)}</p>' if reference_note else ""
-    if not rows:
-        return note + '<p class="note">No run has a known error at its end time (no exact solution, no reference).</p>'
+def _findings_section(found: list[Finding], anchors: set[str], rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
+    """The findings as a list, each linked to what shows it (the runs table when that is not on the page),
+    then the error (or energy change) and cost of every run as one integrators x dt table."""
+    items = []
+    for finding in found:
+        anchor = finding.link_anchor if finding.link_anchor in anchors else "#summary"
+        kind = ' class="missing"' if finding.topic == "not measured" else ""
+        topic = f'<span class="topic">{_e(finding.topic)}</span>' if finding.topic and finding.topic != "not measured" else ""
+        items.append(f'<li{kind}>{topic}{_e(finding.sentence)} '
+                     f'<a class="see" href="{_e(anchor)}">→ {_e(_anchor_name(anchor))}</a></li>')
+    parts = [f'<ul class="findings">{"".join(items)}</ul>'] if items else ['<p class="note">The file holds no runs.</p>']
+    if rows:
+        parts.append(_glance(rows, dt_names))
+    return "".join(parts)
+
+
+def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
+    """Integrators (rows) x dt (columns): each run's error and wall time, or its status when it stopped."""
+    errors = any(np.isfinite(row.error) for row in rows)
     several = len({row.group for row in rows}) > 1
-    headings = ([("group", True)] if several else []) + [("integrator", True), ("declared order", False),
-                                                           ("observed order", False), ("fitted over", False), ("", True)]
+    dts = sorted({row.dt for row in rows})
+    hw = {}
+    for row in rows:
+        if np.isfinite(row.hw):
+            hw.setdefault(row.dt, set()).add(f"{row.hw:.3g}")
+    keys = list(dict.fromkeys((row.group, row.integrator) for row in rows))
+    cells = {(row.group, row.integrator, row.dt): row for row in rows}
+    head = (("<th class=\"text\">group</th>" if several else "") + "<th class=\"text\">integrator</th>"
+            + "".join(f"<th>dt = {_e(dt_names.get(dt, f'{dt:g}'))} s" + (f"<br><span class=\"sub\">h w = {_e(', '.join(sorted(hw[dt])))}</span>"
+                                                if dt in hw else "") + "</th>" for dt in dts))
+    body = []
+    for group, label in keys:
+        line = (f'<td class="text">{_e(group)}</td>' if several else "") + f'<td class="text">{_e(label)}</td>'
+        for dt in dts:
+            row = cells.get((group, label, dt))
+            if row is None:
+                line += "<td></td>"
+            elif row.status in (Status.DIVERGED, Status.FAILED):
+                line += f"<td>{_status(row.status)}</td>"
+            else:
+                top = ((number_text(row.error) + " m" if np.isfinite(row.error) else "–") if errors
+                       else drift_text(row.max_rel_energy_drift))
+                flag = "" if row.status == Status.OK else f" {_status(row.status)}"
+                line += f'<td>{_e(top)}{flag}<br><span class="sub">{row.wall_time:.3g} s</span></td>'
+        body.append(f"<tr>{line}</tr>")
+    what = (f"the error at {error_time_text(rows)} (against the "
+            + ("reference" if any(row.error_from_reference for row in rows) else "exact") + " solution)"
+            if errors else f"the largest energy change max |E − E0| / E_ref ({energy_reference_text(rows)})")
+    note = (f'<h3>Error and cost at each dt</h3><p class="note">Each cell: {_e(what)}; below it the wall time of the '
+            "whole run. Stopped runs show their status.</p>")
+    return note + f'<div class="box"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
+
+
+# -- the tables ------------------------------------------------------------------------------------
+def _summary_section(rows: list[SummaryRow]) -> str:
+    """The runs, one row each; a column every run leaves empty (NaN, zero or not applicable) is left out."""
+    def finite(value) -> bool:
+        return value is not None and np.isfinite(value) and value != 0
+
+    iterations = iteration_name(rows)
+    columns = [  # heading, kind, cell, shown
+        ("#", False, lambda row: str(row.index), True),
+        ("integrator", "label", lambda row: _e(row.integrator), True),
+        ("group", True, lambda row: _e(row.group), len({row.group for row in rows}) > 1),
+        ("solver", True, lambda row: _e(row.solver or "–"), mixed_solvers(rows)),
+        ("dt (s)", False, lambda row: f"{row.dt:.4g}", True),
+        ("h w", False, lambda row: "–" if not np.isfinite(row.hw) else f"{row.hw:.3g}", any(finite(row.hw) for row in rows)),
+        ("status", True, lambda row: _status(row.status), True),
+        ("steps", False, lambda row: str(row.steps), True),
+        ("order", False, lambda row: str(row.order), True),
+        ("E_ref (J)", False, lambda row: number_text(row.energy_reference), energy_reference_differs(rows)),
+        ("max drift", False, lambda row: number_text(row.max_rel_energy_drift), True),
+        ("final drift", False, lambda row: number_text(row.final_rel_energy_drift), True),
+        ("error (m)", False, lambda row: number_text(row.error), any(finite(row.error) for row in rows)),
+        (f"{iterations} it/step", False, lambda row: f"{row.mean_newton_iterations:.2f}" if row.solver else "–",
+         any(finite(row.mean_newton_iterations) for row in rows)),
+        ("linear it/step", False, lambda row: number_text(row.mean_linear_iterations) if row.solver else "–",
+         any(finite(row.mean_linear_iterations) for row in rows)),
+        ("wall (s)", False, lambda row: f"{row.wall_time:.3g}", True),
+        ("d/w measured", False, _measured_cell, any(np.isfinite(row.measured_damping) for row in rows)),
+        ("d/w predicted", False, lambda row: damping_text(row.predicted_damping),
+         any(np.isfinite(row.predicted_damping) for row in rows)),
+        ("difference", False, _difference_cell, any(np.isfinite(row.damping_difference) for row in rows)),
+    ]
+    columns = [column for column in columns if column[3]]
+    body = [[cell(row) for _, _, cell, _ in columns] for row in rows]
+    shown = {heading for heading, _, _, _ in columns}
+    notes = [f"drift: |E − E0| / E_ref (the largest over the run, and at its end), {energy_reference_text(rows)}"]
+    if "error (m)" in shown:
+        reference = any(row.error_from_reference for row in rows)
+        notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
+                     f"{error_time_text(rows)} (record.error_time, at the step nearest it"
+                     + ("; on the test equation in phase space, √(|x − x_exact|² + |v − v_exact|²/w²)"
+                        if any(np.isfinite(row.hw) for row in rows) and not reference else "") + ")")
+    if any(heading.endswith("it/step") for heading in shown):
+        notes.append(f"{iterations} it/step: the solver's iterations per step"
+                     + (" (the solver column says which)" if mixed_solvers(rows) else "")
+                     + "; – for explicit methods, which solve nothing")
+    if "d/w measured" in shown or "d/w predicted" in shown:
+        notes.append("d/w: the artificial damping d_method/w = −2 ln ρ/(h w), measured from the decay of ln E(t) of runs "
+                     "on the undamped test equation and predicted from the probed amplification matrix at the run's h w; "
+                     f"the difference is relative to the prediction (±{100 * DAMPING_TOLERANCE:g} % agrees), or where "
+                     "none is predicted the measured d/w itself, without %, agreeing within the fit's resolution 1e-3)")
+    hidden = [name for name, present in (("h w", "h w" in shown), ("error", "error (m)" in shown),
+                                         ("solver iterations", any(h.endswith("it/step") for h in shown)),
+                                         ("d/w", "d/w measured" in shown)) if not present]
+    if hidden:
+        notes.append("not shown, empty for every run: " + ", ".join(hidden))
+    note = '<p class="note">' + "<br>".join(_e(text[0].upper() + text[1:]) + "." for text in notes) + "</p>"
+    return note + _table([(heading, kind) for heading, kind, _, _ in columns], body, scroll=len(rows) > SCROLLING_TABLE_ROWS)
+
+
+def _measured_cell(row: SummaryRow) -> str:
+    text = _e(damping_text(row.measured_damping))
+    if np.isfinite(row.measured_damping) and not row.measured_resolved:
+        text += ' <span class="sub">(unresolved)</span>'
+    return text
+
+
+def _difference_cell(row: SummaryRow) -> str:
+    difference = row.damping_difference
+    if not np.isfinite(difference):
+        return "–"
+    if row.damping_relative:
+        text = "0.00 %" if abs(difference) < 5e-5 else f"{100 * difference:+.2f} %"
+    else:
+        text = "0" if abs(difference) < 1e-12 else f"{difference:+.1e}"
+    if row.measured_resolved:
+        text = f'<span class="{"agrees" if row.damping_agrees else "differs"}">{text}</span>'
+    return text
+
+
+def _orders_section(rows: list[OrderRow], reference_note: str, when: str) -> str:
+    note = f'<p class="note">{_e(reference_note)}</p>' if reference_note else ""
+    several = len({row.group for row in rows}) > 1
+    headings = ([("group", True)] if several else []) + [("integrator", "label"), ("declared order", False),
+                                                           ("observed order", False), ("fitted over", False), ("", "wrap")]
     body = [([_e(row.group)] if several else []) + [_e(row.integrator), str(row.declared),
             "–" if not np.isfinite(row.observed) else f"{row.observed:.2f}", _e(row.dt_range), _verdict(row.verdict)]
             for row in rows]
-    explain = (f'<p class="note">Slope of log(error) against log(dt) over the consecutive smallest time steps whose '
-               f"error lies between round-off (1e-10 of the length scale) and saturation (10 % of it), at most 4; "
-               f"agreement within ±{ORDER_TOLERANCE:g}.</p>")
+    explain = ('<p class="note">Slope of log(error) against log(dt), the error measured at a fixed time'
+               + (f" ({_e(when)}, record.error_time)" if when else "")
+               + ", over the consecutive smallest time steps whose error lies between round-off (1e-10 of the length "
+               f"scale) and saturation (10 % of it), at most 4 and at least 3; agreement within ±{ORDER_TOLERANCE:g}.</p>")
     return note + explain + _table(headings, body)
 
 
 def _stability_section(rows: list[StabilityRow]) -> str:
-    if not rows:
-        return '<p class="note">No run is on the undamped test equation (spring, linear circular motion): no predicted limits.</p>'
     several = len({row.group for row in rows}) > 1
 
     def limit_text(row):
@@ -213,23 +426,21 @@ def _stability_section(rows: list[StabilityRow]) -> str:
             return "0 (unstable at every h)"
         return f"{row.limit_hw:.4g}"
 
-    headings = ([("group", True)] if several else []) + [("integrator", True), ("limit h w", False), ("limit dt (s)", False),
-                                                           ("largest dt that stayed bounded", False),
-                                                           ("smallest dt that diverged", False), ("", True)]
+    headings = ([("group", True)] if several else []) + [("integrator", "label"), ("limit h w", False), ("limit dt (s)", False),
+                                                           ("largest dt that did not diverge", False),
+                                                           ("smallest dt that diverged", False), ("", "wrap")]
     body = [([_e(row.group)] if several else []) + [_e(row.integrator), limit_text(row),
             "∞" if math.isinf(row.limit_dt) else f"{row.limit_dt:.4g}", number_text(row.largest_ok_dt),
             number_text(row.smallest_diverged_dt), _verdict(row.verdict)] for row in rows]
-    explain = ('<p class="note">The predicted limit is the h w at which the spectral radius of the probed amplification '
-               "matrix first exceeds 1 (+1e-8). A run beyond it grows, but is only marked diverged once its energy "
-               "leaves the configured bound, which a short run may not reach.</p>")
+    explain = ('<p class="note">Predicted: the h w at which the spectral radius of the probed amplification matrix first '
+               "exceeds 1 (+1e-8). Measured: the runs at each dt. A run beyond the limit grows, but is only marked diverged "
+               "once its energy leaves the configured bound, which a short run may not reach.</p>")
     return explain + _table(headings, body)
 
 
 def _determinant_section(rows: list[DeterminantRow]) -> str:
-    if not rows:
-        return '<p class="note">No run on the mass on a spring.</p>'
     several = len({row.group for row in rows}) > 1
-    headings = ([("group", True)] if several else []) + [("integrator", True), ("dt (s)", False), ("k (N/m)", False),
+    headings = ([("group", True)] if several else []) + [("integrator", "label"), ("dt (s)", False), ("k (N/m)", False),
                                                            ("m (kg)", False), ("det A (probed)", False),
                                                            ("lecture closed form", True), ("value", False),
                                                            ("relative difference", False), ("", True)]
@@ -244,8 +455,63 @@ def _determinant_section(rows: list[DeterminantRow]) -> str:
     return explain + _table(headings, body, scroll=len(rows) > SCROLLING_TABLE_ROWS)
 
 
-def _figures_section(figures: list[tuple[Figure, str, str]]) -> str:
-    """Every drawn figure with its registry caption; the registered figures not drawn, with what they need."""
+# -- figures ----------------------------------------------------------------------------------------
+# A caption's words about the test equation (h w, a method's behaviour on the spring) hold only for runs on it.
+TEST_EQUATION_WORDS = ("h w",)
+
+
+def caption(entry: Figure, test_equation: bool) -> str:
+    """The registry's caption for this file: without runs on the test equation, the sentences and parenthetical
+    remarks that speak of h w (how a method behaves on the spring) are left out."""
+    text = entry.caption
+    if test_equation:
+        return text
+    kept = []
+    for sentence in _sentences(text):
+        sentence = _without_groups(sentence, TEST_EQUATION_WORDS)
+        if not any(word in sentence for word in TEST_EQUATION_WORDS):
+            kept.append(sentence)
+    return " ".join(kept)
+
+
+def _sentences(text: str) -> list[str]:
+    """Split after a full stop that ends a sentence (outside parentheses)."""
+    sentences, depth, start = [], 0, 0
+    for index, character in enumerate(text):
+        depth += (character == "(") - (character == ")")
+        if character == "." and depth == 0 and (index + 1 == len(text) or text[index + 1] == " "):
+            sentences.append(text[start:index + 1].strip())
+            start = index + 1
+    if text[start:].strip():
+        sentences.append(text[start:].strip())
+    return sentences
+
+
+def _without_groups(sentence: str, words: tuple[str, ...]) -> str:
+    """The sentence without its parenthetical remarks (top-level groups after a space, before a space or a
+    punctuation mark) that contain any of ``words``; a group inside a formula, as (h w)* in dt = (h w)*/w, stays."""
+    out, depth, group = [], 0, []
+    for number, character in enumerate(sentence):
+        if depth == 0 and character != "(":
+            out.append(character)
+            continue
+        group.append(character)
+        depth += (character == "(") - (character == ")")
+        if depth == 0:
+            text = "".join(group)
+            following = sentence[number + 1:number + 2]
+            remark = (not out or out[-1] == " ") and following in ("", " ", ",", ".", ";", ":")
+            if remark and any(word in text for word in words):
+                if out and out[-1] == " ":
+                    out.pop()
+            else:
+                out.append(text)
+            group = []
+    return "".join(out + group)
+
+
+def _figures_section(figures: list[tuple[Figure, str, str]], test_equation: bool) -> str:
+    """Every drawn figure with its caption; the registered figures not drawn, with what they need."""
     if not figures:
         return '<p class="note">The file holds no run with data to draw.</p>'
     drawn = {entry.name for entry, _, _ in figures}
@@ -253,18 +519,75 @@ def _figures_section(figures: list[tuple[Figure, str, str]]) -> str:
     parts = [f'<p class="note">Not drawn for this file: {_e("; ".join(missing))}.</p>'] if missing else []
     for entry, name, data in figures:
         title = name.replace("_", " ")
+        text = caption(entry, test_equation)
+        if entry.name == "snapshots":
+            text += " Rows: the runs shown; columns: times spread over the run, all at one scale."
         parts.append(f'<figure id="figure-{_e(name)}"><img alt="{_e(title)}" src="data:image/png;base64,{data}">'
-                     f"<figcaption><b>{_e(title)}.</b> {_e(entry.caption)}</figcaption></figure>")
+                     f"<figcaption><b>{_e(title)}.</b> {_e(text)}</figcaption></figure>")
     return "".join(parts)
+
+
+# -- provenance -------------------------------------------------------------------------------------
+NOT_RECORDED = "not recorded"
+# Root attributes shown under these names, in this order (the rest after them, by their own names).
+PROVENANCE_ITEMS = (("simrun_version", "simrun version"), ("format_version", "format version"), ("created", "created"),
+                    ("config_hash", "config hash"), ("host", "host"), ("cpu", "CPU"),
+                    ("config_git_commit", "git commit of the config's folder"), ("command_line", "command line"))
+NOT_PROVENANCE = ("config", "resolved_config", "package_versions")
 
 
 def _provenance_section(results: Results, path: Path) -> str:
     provenance = results.provenance
-    versions = provenance.pop("package_versions", {})
+    versions = provenance.get("package_versions", {})
     if isinstance(versions, dict):
         versions = ", ".join(f"{name} {version}" for name, version in versions.items())
-    items = [("results file", str(path))] + [(key.replace("_", " "), value) for key, value in provenance.items()]
-    items.append(("package versions", versions))
-    listing = "".join(f"<dt>{_e(key)}</dt><dd>{_e(value)}</dd>" for key, value in items)
-    return f"<dl>{listing}</dl><h3>Config (after --set overrides)</h3><pre>{_e(results.config_text)}</pre>"
+    items = [("results file", str(path))]
+    for key, name in PROVENANCE_ITEMS:
+        items.append((name, _attribute_text(provenance[key]) if key in provenance else None))
+    known = {key for key, _ in PROVENANCE_ITEMS} | set(NOT_PROVENANCE)
+    items += [(key.replace("_", " "), _attribute_text(value)) for key, value in provenance.items() if key not in known]
+    items.append(("package versions", versions or None))
+    listing = "".join(f"<dt>{_e(key)}</dt><dd>{_e(value) if value not in (None, '') else _missing()}</dd>"
+                      for key, value in items)
+    written = f"<pre>{_e(results.config_text)}</pre>"
+    resolved = _resolved_config(results)
+    if resolved is None:
+        configs = (f"<h3>Config as written (after --set overrides)</h3>{written}<p class=\"note\">The resolved config "
+                   "(every default filled in) is not recorded in this file (written by an older simrun).</p>")
+    else:
+        configs = ('<div class="configs"><div><h3>Config as written (after --set overrides)</h3>'
+                   f"{written}</div><div><h3>Resolved (every default filled in)</h3><pre>{_e(resolved)}</pre></div></div>")
+    return f"<dl>{listing}</dl>{configs}"
 
+
+def _missing() -> str:
+    return f'<span class="missing">{NOT_RECORDED}</span>'
+
+
+def _attribute_text(value) -> str:
+    """A root attribute as text: lists (a command line) joined with spaces, JSON lists likewise."""
+    if isinstance(value, str) and value.startswith("["):
+        try:
+            value = json.loads(value)
+        except ValueError:
+            return value
+    if isinstance(value, (list, tuple, np.ndarray)):
+        import shlex
+
+        return shlex.join(str(item) for item in value)
+    return str(value)
+
+
+def _resolved_config(results: Results) -> str | None:
+    """The resolved config (root attribute ``resolved_config``) as YAML text; None when the file has none."""
+    value = results.attrs.get("resolved_config")
+    if value is None or value == "":
+        return None
+    text = value.decode() if isinstance(value, bytes) else str(value)
+    try:
+        parsed = json.loads(text)
+    except ValueError:
+        return text
+    import yaml
+
+    return yaml.safe_dump(parsed, sort_keys=False, allow_unicode=True) if isinstance(parsed, dict) else text

@@ -2,8 +2,9 @@
 
 Each finished run is committed at once (group written, summary row appended, file flushed), so the
 file always opens and holds every run that finished. The policies around the writer live here too:
-whether a sweep may write where it is asked to, whether it fits, and whether an existing file is
-resumed or refused.
+whether a sweep fits, and whether an existing file is resumed or refused (whether it may write where
+it is asked to: ``simrun.lock.check_writable``). The root attributes carry the provenance: versions,
+host, cpu, the command line, the config's git commit and the resolved config.
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ import json
 import os
 import platform
 import shutil
-import tempfile
+import socket
+import subprocess
 from importlib import metadata
 from pathlib import Path
 
@@ -21,8 +23,9 @@ import h5py
 import numpy as np
 
 from simrun import __version__
-from simrun.config import Run
+from simrun.config import RecordParams, Run
 from simrun.errors import ConfigError, ResultsFileError
+from simrun.lock import existing_ancestor
 from simrun.results import FORMAT_VERSION, SUMMARY_DTYPE, summary_row
 from simrun.results import load_summary  # noqa: F401  (deprecated alias, one version: simrun.load(path).summary)
 from simrun.simulate import RunResult
@@ -37,18 +40,26 @@ PER_STEP_BYTES = 3 * 4 + 8 + 1
 SAMPLE_SCALARS = 12  # t, energies, dissipated energy, momentum, angular momentum, radius, energy parts
 
 
-def estimate_run_bytes(run: Run) -> int:
-    """An upper bound of what one run holds in memory and writes to the file (uncompressed), in bytes."""
+def estimate_run_parts(run: Run) -> dict[str, int]:
+    """What one run holds in memory and writes to the file (uncompressed), in bytes, by what sets it:
+    ``per_step`` (solver counts of every step: steps = duration / dt), ``samples`` (the recorded
+    series: record.every or record.max_samples) and ``frames`` (vertex positions of the systems that
+    keep frames: record.frames_every or record.max_frames)."""
     steps = run.step_count
     dof = run.system.dof_count
     samples = steps // run.record.stride(steps) + 2
     per_sample = SAMPLE_SCALARS
-    total = steps * PER_STEP_BYTES
+    frames = 0
     if run.system.system_class.records_state_per_sample:
         per_sample += 2 * dof
     else:  # frames of the vertex positions, at their own cadence
-        total += (steps // run.record.frame_stride(steps) + 2) * dof * 8
-    return total + samples * per_sample * 8
+        frames = (steps // run.record.frame_stride(steps) + 2) * dof * 8
+    return {"per_step": steps * PER_STEP_BYTES, "samples": samples * per_sample * 8, "frames": frames}
+
+
+def estimate_run_bytes(run: Run) -> int:
+    """An upper bound of what one run holds in memory and writes to the file (uncompressed), in bytes."""
+    return sum(estimate_run_parts(run).values())
 
 
 def package_versions() -> dict[str, str]:
@@ -61,46 +72,86 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
-# -- before a sweep starts: may it write there, does it fit, is it a resume? ----------------------
-def check_writable(output: Path) -> None:
-    """Refuse an output folder we cannot write before any run starts (and before creating anything)."""
-    existing = _existing_ancestor(output)
-    if not existing.is_dir():
-        raise ConfigError(f"output: {str(existing)!r} is a file, not a folder")
+def cpu_description() -> str:
+    """The processor's model name and the number of logical cores, e.g. "AMD EPYC 7B13 (8 cores)"."""
+    model = ""
     try:
-        with tempfile.TemporaryFile(dir=existing):
-            pass
+        with open("/proc/cpuinfo", encoding="utf-8") as stream:
+            model = next((line.split(":", 1)[1].strip() for line in stream if line.startswith("model name")), "")
     except OSError:
-        raise ConfigError(f"output: cannot write in {str(existing)!r}; choose another --output") from None
+        pass
+    model = model or platform.processor() or platform.machine() or "unknown"
+    return f"{model} ({os.cpu_count()} cores)"
 
 
+GIT_TIMEOUT = 10.0  # s; a hung git (a network file system) must not hold the sweep up
+
+
+def git_commit(config_path: Path) -> str:
+    """The commit checked out in the config file's folder, plus "+dirty" when git sees the file changed
+    (or untracked); empty when the folder is not in a git work tree or git is not available."""
+    config_path = Path(config_path)
+    folder = config_path.parent
+
+    def git(*arguments: str) -> str:
+        done = subprocess.run(["git", "-C", str(folder), *arguments], capture_output=True, text=True,
+                              timeout=GIT_TIMEOUT, check=True)
+        return done.stdout.strip()
+
+    try:
+        commit = git("rev-parse", "HEAD")
+        changed = git("status", "--porcelain", "--", config_path.name)
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return commit + ("+dirty" if changed else "")
+
+
+# -- before a sweep starts: does it fit, is it a resume? ------------------------------------------
 def admit_size(runs: list[Run], output: Path, jobs: int, max_size_gb: float = DEFAULT_MAX_SIZE_GB) -> None:
     """Refuse a sweep whose results would not fit on the disk, under the limit, or (jobs at once) in memory."""
-    sizes = [estimate_run_bytes(run) for run in runs]
+    parts = [estimate_run_parts(run) for run in runs]
+    sizes = [sum(part.values()) for part in parts]
     total = sum(sizes)
-    free = shutil.disk_usage(_existing_ancestor(output)).free
+    free = shutil.disk_usage(existing_ancestor(output)).free
     limit = min(max_size_gb * 1e9, free)
     if total > limit:
         reason = f"the --max-size limit of {max_size_gb:g} GB" if max_size_gb * 1e9 <= free else f"the {free / 1e9:.3g} GB free"
         raise ConfigError(f"sweep: the results would take about {total / 1e9:.3g} GB, more than {reason}; "
-                          "record fewer samples (record.max_samples, record.max_frames) or shorten the sweep")
+                          + size_advice(runs, parts))
     memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    in_flight = sum(sorted(sizes)[-jobs:])
+    largest = sorted(range(len(runs)), key=sizes.__getitem__)[-jobs:]
+    in_flight = sum(sizes[index] for index in largest)
     if in_flight > 0.8 * memory:
         raise ConfigError(f"sweep: {jobs} runs at once would hold about {in_flight / 1e9:.3g} GB in memory, "
-                          f"more than 80 % of the {memory / 1e9:.3g} GB here; use fewer --jobs or record fewer samples")
+                          f"more than 80 % of the {memory / 1e9:.3g} GB here; use fewer --jobs, or "
+                          + size_advice([runs[index] for index in largest], [parts[index] for index in largest]))
 
 
-def _existing_ancestor(path: Path) -> Path:
-    while not path.exists():
-        path = path.parent
-    return path
+def size_advice(runs: list[Run], parts: list[dict[str, int]]) -> str:
+    """What to change to shrink these runs' estimate: the part that dominates it, named by its config key."""
+    totals = {key: sum(part[key] for part in parts) for key in parts[0]}
+    dominant = max(totals, key=totals.get)
+    share = f"{totals[dominant] / max(1, sum(totals.values())):.0%} of the estimate"
+    longest = max(runs, key=lambda run: run.step_count)
+    if dominant == "per_step":
+        return (f"the per-step arrays dominate ({share}; {longest.step_count:,} steps in the longest run): "
+                "shorten duration or use a larger dt, or sweep fewer runs")
+    if dominant == "frames":
+        if any(run.record.frames_every is not None for run in runs):
+            return (f"the frames dominate ({share}): use a larger record.frames_every, or drop it and "
+                    f"keep at most record.max_frames frames (default {RecordParams.model_fields['max_frames'].default})")
+        return f"the frames dominate ({share}): lower record.max_frames"
+    if any(run.record.every is not None for run in runs):
+        return (f"the recorded samples dominate ({share}): use a larger record.every, or drop it and "
+                f"keep at most record.max_samples samples (default {RecordParams.model_fields['max_samples'].default})")
+    return f"the recorded samples dominate ({share}): lower record.max_samples"
 
 
-def open_writer(path: Path, config_text: str, digest: str, name: str, force: bool) -> "ResultsWriter":
+def open_writer(path: Path, config_text: str, digest: str, name: str, force: bool, **provenance) -> "ResultsWriter":
     """The resume policy: a new file; the existing one when it holds the same config (resume); else a refusal.
 
-    ``force`` starts over whatever the file holds."""
+    ``force`` starts over whatever the file holds. ``provenance``: the keywords of ``ResultsWriter.create``
+    (a resumed file keeps the provenance of its creation)."""
     if path.exists() and not force:
         try:
             with h5py.File(path, "r") as file:
@@ -112,7 +163,7 @@ def open_writer(path: Path, config_text: str, digest: str, name: str, force: boo
             raise ConfigError(f"output: {str(path)!r} holds the results of a different config; "
                               "start over with --force, or choose another --output")
         return ResultsWriter.resume(path)
-    return ResultsWriter.create(path, config_text, digest, name)
+    return ResultsWriter.create(path, config_text, digest, name, **provenance)
 
 
 class ResultsWriter:
@@ -128,7 +179,11 @@ class ResultsWriter:
         self.path = Path(file.filename)
 
     @classmethod
-    def create(cls, path: Path, config_text: str, config_hash: str, name: str) -> "ResultsWriter":
+    def create(cls, path: Path, config_text: str, config_hash: str, name: str, *, command_line: str = "",
+               config_path: Path | None = None, resolved_config: str = "") -> "ResultsWriter":
+        """A new file with the root attributes (docs/results-format.md), provenance included: host, cpu,
+        ``command_line`` (what started the sweep), the git commit of ``config_path`` (the config file,
+        None when the config was not a file) and ``resolved_config`` (the validated experiment as YAML)."""
         file = h5py.File(path, "w")
         attrs = file.attrs
         attrs["format_version"] = FORMAT_VERSION
@@ -138,6 +193,11 @@ class ResultsWriter:
         attrs["config"] = config_text
         attrs["config_hash"] = config_hash
         attrs["package_versions"] = json.dumps(package_versions())
+        attrs["host"] = socket.gethostname()
+        attrs["cpu"] = cpu_description()
+        attrs["command_line"] = command_line
+        attrs["config_git_commit"] = git_commit(config_path) if config_path is not None else ""
+        attrs["resolved_config"] = resolved_config
         file.create_group("runs")
         file.create_dataset("summary", shape=(0,), maxshape=(None,), dtype=SUMMARY_DTYPE, chunks=True)
         file.flush()
@@ -166,7 +226,7 @@ class ResultsWriter:
         attrs["system"] = run.system.type
         attrs["system_params"] = json.dumps(run.system.model_dump(mode="json"))
         attrs["integrator"] = run.integrator.name
-        attrs["integrator_label"] = run.integrator.label
+        attrs["integrator_label"] = run.integrator_label
         attrs["order"] = run.integrator.order
         attrs["explicit"] = run.integrator.explicit
         attrs["solver"] = json.dumps(run.solver.model_dump(mode="json"))

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import asdict, dataclass
+import textwrap
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from simrun import analysis
 from simrun.figures import FigureData
-from simrun.figures.convergence import order_fits
 from simrun.figures.theory import predictions_for, test_equation_runs
 from simrun.results import Status
 
@@ -27,8 +28,18 @@ DAMPING_TOLERANCE = 0.02
 DETERMINANT_TOLERANCE = 1e-12
 # |d/w| below this is round-off of a method without artificial damping (rho = 1 to the last bits).
 ROUND_OFF_DAMPING = 1e-12
+# A predicted |d/w| below this is no damping: a measured rate is compared with it absolutely, not relatively.
+ZERO_DAMPING = 1e-9
 # Without a closed form to check, determinant rows are listed only up to this many.
 MAX_DETERMINANT_ROWS = 60
+# `simrun show` fits a terminal this wide by default (--wide: every column).
+TERMINAL_WIDTH = 100
+# Longer integrator labels are cut (with an ellipsis) in the terminal table unless --wide.
+MAX_LABEL_WIDTH = 32
+
+# What a solver's iterations are called in the tables: the solver's own name for its iteration.
+SOLVER_ITERATION_NAMES = {"newton": "Newton", "projected_newton": "Newton", "lbfgs": "L-BFGS",
+                          "gradient_descent": "gradient descent", "jacobi_chebyshev": "Jacobi-Chebyshev"}
 
 
 @dataclass
@@ -39,15 +50,21 @@ class SummaryRow:
     run_id: str
     integrator: str  # the label
     group: str
+    solver: str  # the solver type of an implicit method, "+" its fallbacks ("" for explicit methods: they solve nothing)
     dt: float  # s
     hw: float  # dt w on the test equation, else NaN
     status: str
     steps: int
     order: int  # the method's order of accuracy with these parameters
-    max_rel_energy_drift: float
-    final_rel_energy_drift: float
-    final_error: float  # m
-    mean_newton_iterations: float
+    energy_reference: float  # J: E_ref, what the drifts are relative to
+    energy_reference_name: str  # what E_ref is, e.g. "E0 (initial energy)"
+    max_rel_energy_drift: float  # max |E - E0| / E_ref
+    final_rel_energy_drift: float  # (E_end - E0) / E_ref
+    error_time: float  # s, when `error` was measured (NaN: the run stopped before it)
+    error: float  # m, distance from the exact solution (or the reference) at error_time
+    error_from_reference: bool  # error against a reference solution, not an exact one
+    final_error: float  # m, max |x - x_exact| at the last sample (NaN without an exact solution)
+    mean_newton_iterations: float  # the solver's iterations per step (Newton, L-BFGS, ... per `solver`)
     mean_linear_iterations: float
     wall_time: float  # s
     measured_damping: float  # d_method / w from the energy decay (NaN where not measured)
@@ -56,12 +73,48 @@ class SummaryRow:
 
     @property
     def damping_difference(self) -> float:
-        """(measured - predicted) / predicted; 0 when both are round-off (no damping)."""
+        """(measured - predicted) / |predicted|; where the prediction is no damping (|d/w| below
+        ZERO_DAMPING), there is nothing to be relative to: then measured - predicted (in units of w)."""
         if not (np.isfinite(self.measured_damping) and np.isfinite(self.predicted_damping)):
             return math.nan
-        if abs(self.predicted_damping) < 1e-9 and abs(self.measured_damping) < 1e-9:
-            return 0.0
-        return (self.measured_damping - self.predicted_damping) / abs(self.predicted_damping) if self.predicted_damping else math.inf
+        if abs(self.predicted_damping) < ZERO_DAMPING:
+            return self.measured_damping - self.predicted_damping
+        return (self.measured_damping - self.predicted_damping) / abs(self.predicted_damping)
+
+    @property
+    def damping_relative(self) -> bool:
+        """damping_difference is relative (False: absolute, the prediction being no damping)."""
+        return abs(self.predicted_damping) >= ZERO_DAMPING
+
+    @property
+    def damping_agrees(self) -> bool | None:
+        """Measured and predicted damping agree (within DAMPING_TOLERANCE relative, or, where no damping is
+        predicted, within the resolution of a fit, analysis.RESOLVED_ABSOLUTE_ERROR); None when not both known."""
+        difference = self.damping_difference
+        if not np.isfinite(difference):
+            return None if math.isnan(difference) else False
+        tolerance = DAMPING_TOLERANCE if self.damping_relative else analysis.RESOLVED_ABSOLUTE_ERROR
+        return abs(difference) <= tolerance
+
+
+def run_error(run) -> tuple[float, float, bool]:
+    """(error (m), error time (s), from a reference) of a run (``RunData``): the stored error at the run's
+    error time (``StoredRun.error``), or the reference's error that figure_data put in its place. Files
+    written before runs stored an error time measured at the last sample: their ``final_error`` there."""
+    if isinstance(getattr(type(run), "error", None), property):  # RunData says it itself
+        return run.error, run.error_time, run.error_from_reference
+    stored = run.stored
+    if run.error_from_reference:
+        time = stored.error_time
+        return run.final_error, time if np.isfinite(time) else _last_time(stored), True
+    if "error" in stored.attrs or stored.format_version == 1:
+        return stored.error, stored.error_time, False
+    return stored.final_error, _last_time(stored), False
+
+
+def _last_time(stored) -> float:
+    t = stored.series("t")
+    return float(t[-1]) if t.size else math.nan
 
 
 def summary_rows(data: FigureData) -> list[SummaryRow]:
@@ -76,13 +129,17 @@ def summary_rows(data: FigureData) -> list[SummaryRow]:
         predicted = math.nan
         if run.frequency is not None and run.method is not None:
             predicted = _predicted_damping(run.method, run.hw)
+        error, error_time, from_reference = run_error(run)
         rows.append(SummaryRow(
             index=run.index, run_id=run.run_id, integrator=run.label, group=titles.get(id(run), ""),
+            solver="" if run.explicit else solver_text(run.stored.solver),
             dt=run.dt, hw=run.hw, status=str(run.status), steps=run.steps,
             order=run.method.order_of_accuracy if run.method is not None else run.order,
+            energy_reference=_energy_reference(run.stored)[0], energy_reference_name=_energy_reference(run.stored)[1],
             max_rel_energy_drift=float(row["max_rel_energy_drift"]),
             final_rel_energy_drift=float(row["final_rel_energy_drift"]),
-            final_error=run.final_error,
+            error_time=error_time, error=error, error_from_reference=from_reference,
+            final_error=run.stored.final_error,
             mean_newton_iterations=float(row["mean_newton_iterations"]),
             mean_linear_iterations=float(row["mean_linear_iterations"]),
             wall_time=run.wall_time,
@@ -92,55 +149,219 @@ def summary_rows(data: FigureData) -> list[SummaryRow]:
     return rows
 
 
+def _energy_reference(stored) -> tuple[float, str]:
+    """(E_ref (J), its name) of a stored run; a reader without ``energy_reference`` (older simrun) has energy_scale."""
+    if hasattr(stored, "energy_reference_name"):
+        return float(stored.energy_reference), str(stored.energy_reference_name)
+    return float(stored.energy_scale), str(stored.attrs.get("energy_reference_name", "the system's energy scale"))
+
+
 def _predicted_damping(method, hw: float) -> float:
     rho = analysis.spectral_radius(analysis.amplification_matrix(method, hw))
     return float(analysis.damping_over_frequency(rho, hw)) + 0.0
 
 
-TABLE_COLUMNS = (  # heading, width, formatter
-    ("#", 4, lambda row: str(row.index)),
-    ("integrator", 34, lambda row: row.integrator),
-    ("dt (s)", 9, lambda row: f"{row.dt:.4g}"),
-    ("h w", 7, lambda row: "" if not np.isfinite(row.hw) else f"{row.hw:.3g}"),
-    ("status", 13, lambda row: row.status),
-    ("steps", 7, lambda row: str(row.steps)),
-    ("max drift", 9, lambda row: number_text(row.max_rel_energy_drift)),
-    ("error (m)", 9, lambda row: number_text(row.final_error)),
-    ("Newton/step", 11, lambda row: f"{row.mean_newton_iterations:.2f}"),
-    ("wall (s)", 8, lambda row: f"{row.wall_time:.3g}"),
-    ("d/w meas.", 10, lambda row: damping_text(row.measured_damping) + ("" if row.measured_resolved or not np.isfinite(row.measured_damping) else "?")),
-    ("d/w pred.", 10, lambda row: damping_text(row.predicted_damping)),
-)
+# -- what the columns are called --------------------------------------------------------------------
+def solver_text(solver: dict) -> str:
+    """A run's solver type and its fallbacks, e.g. "newton+projected_newton"."""
+    fallbacks = [item.get("type", "") if isinstance(item, dict) else str(item) for item in solver.get("fallback") or []]
+    return "+".join(filter(None, [str(solver.get("type", ""))] + fallbacks))
 
 
-def format_table(rows: list[SummaryRow], name: str = "") -> str:
-    """The summary as fixed-width text for the terminal; groups separated by a heading line."""
-    header = "  ".join(f"{heading:<{width}}" if heading == "integrator" else f"{heading:>{width}}"
-                       for heading, width, _ in TABLE_COLUMNS)
-    lines = [f"{name}: {len(rows)} runs" if name else f"{len(rows)} runs", header, "-" * len(header)]
+def _iteration_kinds(rows: list[SummaryRow]) -> set[str]:
+    return {SOLVER_ITERATION_NAMES.get(kind, kind) for row in rows for kind in row.solver.split("+") if kind}
+
+
+def iteration_name(rows: list[SummaryRow]) -> str:
+    """What the solver iterations of these rows count: "Newton", "L-BFGS", ... when every implicit run uses
+    solvers of one kind (fallbacks included), "solver" when they mix (a solver column then tells them apart)."""
+    kinds = _iteration_kinds(rows)
+    return kinds.pop() if len(kinds) == 1 else "solver"
+
+
+def mixed_solvers(rows: list[SummaryRow]) -> bool:
+    return len(_iteration_kinds(rows)) > 1
+
+
+def energy_reference_text(rows: list[SummaryRow]) -> str:
+    """"E_ref = E0 (initial energy) = 50 J" when the runs share it; otherwise what it is and its range."""
+    names = sorted({row.energy_reference_name for row in rows})
+    values = [row.energy_reference for row in rows if np.isfinite(row.energy_reference)]
+    name = names[0] if len(names) == 1 else " or ".join(names)
+    if not values:
+        return f"E_ref = {name}"
+    low, high = min(values), max(values)
+    if math.isclose(low, high, rel_tol=1e-12):
+        return f"E_ref = {name} = {low:.4g} J"
+    return f"E_ref = {name}, {low:.4g} to {high:.4g} J (per run: E_ref column)"
+
+
+def error_time_text(rows: list[SummaryRow]) -> str:
+    """When the errors were measured: "t = 1.34 s" or "t = 1.25 to 1.35 s" (the step nearest record.error_time)."""
+    times = [row.error_time for row in rows if np.isfinite(row.error) and np.isfinite(row.error_time)]
+    if not times:
+        return ""
+    low, high = min(times), max(times)
+    return f"t = {low:.4g} s" if math.isclose(low, high, rel_tol=1e-9) else f"t = {low:.4g} to {high:.4g} s"
+
+
+def energy_reference_differs(rows: list[SummaryRow]) -> bool:
+    values = [row.energy_reference for row in rows if np.isfinite(row.energy_reference)]
+    return bool(values) and not math.isclose(min(values), max(values), rel_tol=1e-12)
+
+
+# -- the terminal table -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Column:
+    """A column of the terminal table: two heading lines, its cells, and when it is shown."""
+
+    key: str
+    heading: tuple[str, str]
+    cell: Callable[[SummaryRow], str]
+    keep: int  # columns of lower rank are hidden first when the table is narrowed to TERMINAL_WIDTH
+    text: bool = False  # left-aligned
+    shown: Callable[[list[SummaryRow]], bool] = lambda rows: True
+
+
+def _any(value: Callable[[SummaryRow], float]) -> Callable[[list[SummaryRow]], bool]:
+    """Shown when some row has a finite, non-zero value."""
+    return lambda rows: any(np.isfinite(value(row)) and value(row) != 0 for row in rows)
+
+
+def _measured_text(row: SummaryRow) -> str:
+    unresolved = np.isfinite(row.measured_damping) and not row.measured_resolved
+    return damping_text(row.measured_damping).replace("–", "") + ("?" if unresolved else "")
+
+
+def terminal_columns(rows: list[SummaryRow]) -> list[Column]:
+    """The columns of `simrun show`, each named by what it counts; those with nothing to show are left out."""
+    iterations = iteration_name(rows)
+    columns = [
+        Column("index", ("", "#"), lambda row: str(row.index), 9),
+        Column("integrator", ("", "integrator"), lambda row: row.integrator, 9, text=True),
+        Column("solver", ("", "solver"), lambda row: row.solver or "–", 8, text=True, shown=mixed_solvers),
+        Column("dt", ("dt", "(s)"), lambda row: f"{row.dt:.4g}", 9),
+        Column("hw", ("", "h w"), lambda row: "" if not np.isfinite(row.hw) else f"{row.hw:.3g}", 3, shown=_any(lambda row: row.hw)),
+        Column("status", ("", "status"), lambda row: row.status, 9, text=True),
+        Column("steps", ("", "steps"), lambda row: str(row.steps), 1),
+        Column("max_drift", ("max", "drift"), lambda row: number_text(row.max_rel_energy_drift), 8),
+        Column("e_ref", ("E_ref", "(J)"), lambda row: number_text(row.energy_reference), 2,
+               shown=energy_reference_differs),
+        Column("error", ("error", "(m)"), lambda row: number_text(row.error).replace("–", ""), 8,
+               shown=_any(lambda row: row.error)),
+        Column("iterations", (iterations, "it/step"), lambda row: f"{row.mean_newton_iterations:.2f}" if row.solver else "",
+               7, shown=_any(lambda row: row.mean_newton_iterations)),
+        Column("linear", ("linear", "it/step"), lambda row: number_text(row.mean_linear_iterations) if row.solver else "",
+               4, shown=_any(lambda row: row.mean_linear_iterations)),
+        Column("wall", ("wall", "(s)"), lambda row: f"{row.wall_time:.3g}", 8),
+        Column("measured", ("d/w", "meas."), _measured_text, 6, shown=_any(lambda row: row.measured_damping)),
+        Column("predicted", ("d/w", "pred."), lambda row: damping_text(row.predicted_damping).replace("–", ""), 5,
+               shown=_any(lambda row: row.predicted_damping)),
+    ]
+    return [column for column in columns if column.shown(rows)]
+
+
+def format_table(rows: list[SummaryRow], name: str = "", wide: bool = False, width: int = TERMINAL_WIDTH) -> str:
+    """The summary as fixed-width text for the terminal; groups separated by a heading line.
+
+    Columns with nothing to show are left out; unless ``wide``, the least needed ones are hidden (and
+    long labels cut) until a line fits ``width`` characters, and a last line says which."""
+    columns = terminal_columns(rows)
+    label_width = max([len("integrator")] + [len(row.integrator) for row in rows])
+    if not wide:
+        label_width = min(label_width, MAX_LABEL_WIDTH)
+
+    def cells(column: Column, row: SummaryRow) -> str:
+        text = column.cell(row)
+        if column.key == "integrator" and len(text) > label_width:
+            text = text[:label_width - 1] + "…"
+        return text
+
+    def widths(shown: list[Column]) -> list[int]:
+        return [max([len(part) for part in column.heading] + [len(cells(column, row)) for row in rows]) for column in shown]
+
+    hidden: list[Column] = []
+    if not wide:
+        while sum(widths(columns)) + 2 * (len(columns) - 1) > width:
+            candidates = [column for column in columns if column.keep < 9]
+            if not candidates:
+                break
+            dropped = min(candidates, key=lambda column: column.keep)
+            columns.remove(dropped)
+            hidden.append(dropped)
+    sizes = widths(columns)
+
+    def line(texts: list[str]) -> str:
+        return "  ".join(f"{text:<{size}}" if column.text else f"{text:>{size}}"
+                         for column, text, size in zip(columns, texts, sizes)).rstrip()
+
+    header = [line([column.heading[0] for column in columns]), line([column.heading[1] for column in columns])]
+    rule = "-" * max(len(text) for text in header)
+    lines = [f"{name}: {len(rows)} runs" if name else f"{len(rows)} runs"]
+    frequencies = sorted({row.hw / row.dt for row in rows if np.isfinite(row.hw) and row.dt > 0})
+    if frequencies and any(column.key == "hw" for column in hidden):
+        lines.append("w = " + ", ".join(f"{value:.4g}" for value in frequencies) + " rad/s (h w = dt w)")
+    lines += [header[0], header[1], rule] if header[0].strip() else [header[1], rule]
     group = None
     for row in rows:
         if row.group != group and any(other.group for other in rows):
             lines.append(f"[{row.group}]")
             group = row.group
-        cells = []
-        for heading, width, format_cell in TABLE_COLUMNS:
-            text = format_cell(row)
-            cells.append(f"{text:<{width}}" if heading == "integrator" else f"{text:>{width}}")
-        lines.append("  ".join(cells))
-    lines.append("drift: max |E - E0| / |E0|; d/w: artificial damping d_method / w (meas.: energy decay, "
-                 "? = not resolved by the run; pred.: amplification matrix)")
-    return "\n".join(lines)
+        lines.append(line([cells(column, row) for column in columns]))
+    lines.append(rule)
+    notes = [f"drift: max |E - E0| / E_ref, {energy_reference_text(rows)}"]
+    if any(column.key == "error" for column in columns):
+        reference = any(row.error_from_reference for row in rows)
+        notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
+                     f"{error_time_text(rows)}")
+    if any(column.key in ("measured", "predicted") for column in columns):
+        notes.append("d/w: artificial damping d_method / w (meas.: energy decay, ? = not resolved by the run; "
+                     "pred.: amplification matrix)")
+    if hidden:
+        notes.append("not shown: " + ", ".join(" ".join(filter(None, column.heading)) for column in hidden)
+                     + " (--wide: every column)")
+    if not wide:  # the notes fit the width too
+        notes = [textwrap.fill(note, width, subsequent_indent="  ", break_on_hyphens=False) for note in notes]
+    return "\n".join(lines + notes)
+
+
+# -- CSV: every column, full precision, units in the headers --------------------------------------
+CSV_COLUMNS = (  # header (with its unit), value
+    ("index", lambda row: row.index),
+    ("run_id", lambda row: row.run_id),
+    ("integrator", lambda row: row.integrator),
+    ("group", lambda row: row.group),
+    ("solver", lambda row: row.solver),
+    ("dt_s", lambda row: row.dt),
+    ("hw", lambda row: row.hw),  # dimensionless: dt times the test frequency
+    ("status", lambda row: row.status),
+    ("steps", lambda row: row.steps),
+    ("order", lambda row: row.order),
+    ("energy_reference_J", lambda row: row.energy_reference),
+    ("energy_reference_name", lambda row: row.energy_reference_name),
+    ("max_rel_energy_drift", lambda row: row.max_rel_energy_drift),  # dimensionless: max |E - E0| / E_ref
+    ("final_rel_energy_drift", lambda row: row.final_rel_energy_drift),  # (E_end - E0) / E_ref
+    ("error_time_s", lambda row: row.error_time),
+    ("error_m", lambda row: row.error),
+    ("error_from_reference", lambda row: row.error_from_reference),
+    ("final_error_m", lambda row: row.final_error),
+    ("solver_iterations_per_step", lambda row: row.mean_newton_iterations),
+    ("linear_iterations_per_step", lambda row: row.mean_linear_iterations),
+    ("wall_time_s", lambda row: row.wall_time),
+    ("measured_damping_over_w", lambda row: row.measured_damping),  # dimensionless: d_method / w
+    ("measured_damping_resolved", lambda row: row.measured_resolved),
+    ("predicted_damping_over_w", lambda row: row.predicted_damping),
+    ("damping_relative_difference", lambda row: row.damping_difference),
+)
 
 
 def write_csv(rows: list[SummaryRow], stream) -> None:
-    fields = list(SummaryRow.__dataclass_fields__) + ["damping_difference"]
+    """Every column at full precision; a header names its unit (dt_s, wall_time_s, error_m, energy_reference_J)
+    or is a dimensionless ratio (max_rel_energy_drift, hw, *_damping_over_w)."""
     writer = csv.writer(stream)
-    writer.writerow(fields)
+    writer.writerow([header for header, _ in CSV_COLUMNS])
     for row in rows:
-        values = asdict(row)
-        values["damping_difference"] = row.damping_difference
-        writer.writerow([csv_number(values[field]) for field in fields])
+        writer.writerow([csv_number(value(row)) for _, value in CSV_COLUMNS])
 
 
 def csv_number(value):
@@ -177,14 +398,35 @@ class OrderRow:
     observed: float
     dt_range: str
     exact: bool
+    reason: str = ""  # why there is no slope (analysis.OrderFit.reason)
+    error_time: str = ""  # when the errors were measured, e.g. "t = 1.34 s"
 
     @property
     def verdict(self) -> str:
         if self.exact:
             return "exact (errors at round-off)"
         if not np.isfinite(self.observed):
-            return "not enough asymptotic points"
+            return self.reason or "not enough asymptotic points"
         return "agrees" if abs(self.observed - self.declared) <= ORDER_TOLERANCE else "differs"
+
+
+def error_runs(data: FigureData) -> list:
+    """Runs that reached their end with a known error at their error time (exact, or against a reference)."""
+    return [run for run in data.runs if not run.status.stopped and np.isfinite(run_error(run)[0])]
+
+
+def order_fits(data: FigureData) -> dict[tuple[str, str], tuple["analysis.OrderFit", list]]:
+    """(group title, label) -> (observed order fit of the errors at the error time, runs sorted by dt)."""
+    fits = {}
+    usable = set(map(id, error_runs(data)))
+    for title, runs in data.groups:
+        for label in data.labels:
+            mine = sorted((run for run in runs if run.label == label and id(run) in usable), key=lambda run: run.dt)
+            if mine:
+                fit = analysis.observed_order([run.dt for run in mine], [run_error(run)[0] for run in mine],
+                                              scale=mine[0].length_scale)
+                fits[(title, label)] = (fit, mine)
+    return fits
 
 
 def order_rows(data) -> list[OrderRow]:
@@ -193,8 +435,15 @@ def order_rows(data) -> list[OrderRow]:
         method = runs[0].method
         declared = method.order_of_accuracy if method is not None else runs[0].order
         used = [run.dt for run, flag in zip(runs, fit.used) if flag]
-        span = f"{min(used):.3g} – {max(used):.3g} s ({len(used)} dts)" if used else "–"
-        rows.append(OrderRow(title, label, declared, fit.order, span, fit.exact))
+        span = (f"{used[0]:.3g} s (1 dt)" if len(used) == 1 else
+                f"{min(used):.3g} – {max(used):.3g} s ({len(used)} dts)" if used else "–")
+        times = [run_error(run)[1] for run in runs]
+        times = [time for time in times if np.isfinite(time)]
+        when = ""
+        if times:
+            low, high = min(times), max(times)
+            when = f"t = {low:.4g} s" if math.isclose(low, high, rel_tol=1e-9) else f"t = {low:.4g} to {high:.4g} s"
+        rows.append(OrderRow(title, label, declared, fit.order, span, fit.exact, getattr(fit, "reason", ""), when))
     return rows
 
 

@@ -12,6 +12,7 @@ import multiprocessing
 import multiprocessing.forkserver
 import os
 import select
+import signal
 import threading
 import time
 
@@ -36,8 +37,22 @@ def process_pool(jobs: int) -> concurrent.futures.ProcessPoolExecutor:
 
 
 def _start_worker(threads: int, owner: int) -> None:
+    # Ctrl-C reaches the whole process group: the main process handles it (it commits what finished and
+    # stops the workers); a worker that took it too would die with a traceback of its own
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _limit_blas_threads(threads)
     _exit_with(owner)
+
+
+def stop_workers(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """End the pool's workers now, in the middle of their runs (they ignore Ctrl-C): the sweep was
+    interrupted, and a shutdown would wait for every run in flight to finish."""
+    terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+    if terminate is not None:
+        terminate()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
 
 
 def _exit_with(owner: int) -> None:

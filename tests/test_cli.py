@@ -196,6 +196,8 @@ def test_help_and_list_through_the_console_script():
     listing = subprocess.run([executable, "list"], capture_output=True, text=True, check=True).stdout
     for name in [*SYSTEMS, *INTEGRATORS, "newton", "direct", "stiffness", "angular_velocity"]:
         assert name in listing, name
+    bare = subprocess.run([executable], capture_output=True, text=True)  # no command: the help, as an error
+    assert bare.returncode == 2 and bare.stdout == "" and "usage: simrun" in bare.stderr
 
 
 def test_summary_drift_matches_the_exact_energy_factor(tmp_path):

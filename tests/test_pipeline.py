@@ -31,7 +31,7 @@ QUICKSTART = ROOT / "configs" / "quickstart.yaml"
 SHORT = "duration=1.0"  # the quickstart's 10 s of simulated time take ~10 s per call; 1 s keeps its 18 runs and figures
 EULERS = ["forward_euler", "symplectic_euler", "backward_euler"]
 # what differs between two writes of the same config: when (root) and how long (each run, its summary row)
-TIMING_ROOT_ATTRIBUTES = {"created"}
+TIMING_ROOT_ATTRIBUTES = {"created", "command_line"}  # when, and how it was asked for (argv or simrun.run)
 TIMING_RUN_ATTRIBUTES = {"wall_time"}
 TIMING_SUMMARY_COLUMNS = {"wall_time"}
 TINY_YAML = """\

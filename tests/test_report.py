@@ -133,7 +133,7 @@ def test_report_is_one_self_contained_html_page(orders, orders_report):
         assert caption.split(".")[0] in text
     with h5py.File(orders, "r") as file:  # config and provenance are on the page
         assert file.attrs["config_hash"] in orders_report
-    assert {"summary", "orders", "stability", "determinants", "figures", "provenance"} <= set(page.sections)
+    assert list(page.sections) == ["findings", "summary", "orders", "stability", "determinants", "figures", "provenance"]
 
 
 def test_observed_orders_in_the_report_equal_the_methods_orders(orders, orders_report):
@@ -207,22 +207,27 @@ def test_the_shipped_configs_are_valid():
     assert [integrator.name for integrator in orbits.integrators] == ["forward_euler", "symplectic_euler", "backward_euler"]
 
 
+def show_args(results: Path, **options) -> argparse.Namespace:
+    return argparse.Namespace(**{"results": str(results), "csv": False, "output": None, "wide": False, **options})
+
+
 def test_show_prints_the_summary_and_writes_csv(orders, capsys, tmp_path):
-    assert show_command.handle(argparse.Namespace(results=str(orders), csv=None)) == 0
+    assert show_command.handle(show_args(orders, wide=True)) == 0
     table = capsys.readouterr().out
     count = len(ORDERS["integrators"]) * 5
-    assert f"orders: {count} runs" in table and "rk4" in table and "d/w meas." in table
-    assert show_command.handle(argparse.Namespace(results=str(orders), csv="-")) == 0
+    assert f"orders: {count} runs" in table and "rk4" in table and "meas." in table
+    assert show_command.handle(show_args(orders, csv=True)) == 0
     rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
     assert len(rows) == count
-    assert {"run_id", "integrator", "dt", "status", "max_rel_energy_drift", "measured_damping", "predicted_damping"} <= set(rows[0])
+    assert {"run_id", "integrator", "dt_s", "status", "max_rel_energy_drift", "measured_damping_over_w",
+            "predicted_damping_over_w"} <= set(rows[0])
     be = next(row for row in rows if row["integrator"] == "backward_euler")
     # backward Euler on the undamped spring: d/w = ln(1 + x^2)/x exactly, measured and predicted
     x = float(be["hw"])
-    assert float(be["predicted_damping"]) == pytest.approx(math.log1p(x * x) / x, rel=1e-10)
-    assert float(be["measured_damping"]) == pytest.approx(math.log1p(x * x) / x, rel=1e-6)
+    assert float(be["predicted_damping_over_w"]) == pytest.approx(math.log1p(x * x) / x, rel=1e-10)
+    assert float(be["measured_damping_over_w"]) == pytest.approx(math.log1p(x * x) / x, rel=1e-6)
     target = tmp_path / "table" / "summary.csv"
-    assert show_command.handle(argparse.Namespace(results=str(orders), csv=str(target))) == 0
+    assert show_command.handle(show_args(orders, output=str(target))) == 0
     assert len(list(csv.DictReader(target.open()))) == count
 
 
@@ -264,7 +269,7 @@ def test_report_and_show_refuse_what_is_not_a_results_file(tmp_path):
         with pytest.raises(ConfigError, match="results"):
             report_command.handle(report_args(path))
         with pytest.raises(ConfigError, match="results"):
-            show_command.handle(argparse.Namespace(results=str(path), csv=None))
+            show_command.handle(show_args(path))
 
 
 def test_parsers_register_their_handlers():
@@ -276,7 +281,10 @@ def test_parsers_register_their_handlers():
     args = parser.parse_args(["report", "r.h5", "--reference", "none"])
     assert args.handler is report_command.handle and args.reference == "none"
     assert parser.parse_args(["report", "r.h5"]).reference == "dop853"
-    assert parser.parse_args(["show", "r.h5", "--csv"]).csv == "-"
+    assert parser.parse_args(["show", "r.h5", "--csv"]).csv is True
+    args = parser.parse_args(["show", "--csv", "r.h5"])  # the flag leaves the results file alone
+    assert args.csv is True and args.results == "r.h5"
+    assert parser.parse_args(["show", "r.h5", "--output", "t.csv"]).output == "t.csv"
     args = parser.parse_args(["analyze", "--integrators", "backward_euler", "generalized_alpha:rho_inf=0.5", "--output", "d"])
     assert args.handler is analyze_command.handle and args.integrators == ["backward_euler", "generalized_alpha:rho_inf=0.5"]
 
@@ -313,3 +321,39 @@ def _closed(figures):
     for _, name, figure in figures:
         plt.close(figure)
         yield name, figure
+
+
+def test_a_cloth_report_leaves_out_what_does_not_apply(cloth, tmp_path):
+    """No test equation: no stability limits, no determinants, no h w or d/w columns, captions without the
+    spring's h w; no reference: no orders, and Findings say once what could not be measured and why. The
+    snapshots are one grid of runs x times."""
+    output = tmp_path / "cloth.html"
+    assert report_command.handle(report_args(cloth, output=str(output), reference="none")) == 0
+    page = parse(output.read_text())
+    assert list(page.sections) == ["findings", "summary", "figures", "provenance"]
+    findings_text = " ".join(page.sections["findings"])
+    assert "no run is on the undamped test equation" in findings_text
+    assert "no exact solution and no reference solution was asked for" in findings_text
+    summary = " ".join(page.sections["summary"])
+    assert "Not shown, empty for every run: h w, error, d/w." in summary and "E_ref = max(M |g| L" in summary
+    assert summary.count("h w") == 1 and "d/w measured" not in summary  # only in that note
+    assert "h w" not in " ".join(page.sections["figures"])
+    figures = [attributes["id"] for tag, attributes in page.tags if tag == "figure"]
+    assert "figure-snapshots" in figures and not any(name.startswith("figure-cloth_") for name in figures)
+    provenance = " ".join(page.sections["provenance"])
+    assert "host" in provenance and "command line" in provenance
+    # with a reference the errors are known: orders (against it) come back, stability and determinants do not
+    assert report_command.handle(report_args(cloth, output=str(output))) == 0
+    page = parse(output.read_text())
+    assert list(page.sections) == ["findings", "summary", "orders", "figures", "provenance"]
+    assert "reference" in " ".join(page.sections["findings"])
+
+
+def test_captions_drop_what_holds_only_on_the_test_equation():
+    from simrun.report import caption
+
+    for entry in FIGURES.values():
+        assert caption(entry, True) == entry.caption
+        text = caption(entry, False)
+        assert "h w" not in text and text.count("(") == text.count(")")
+    assert caption(FIGURES["stability_map"], False).startswith("Integrators × dt")

@@ -1,19 +1,21 @@
-"""Options that several subcommands share."""
+"""Options and steps that several subcommands share: the reference option, the results file, and the
+outputs they write (checked before any work, written so that a failure leaves nothing half-written)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 
-def add_reference_option(parser, default: str | None = None) -> None:
-    """``--reference``: what the error of runs without an exact solution (the cloth) is measured against."""
+def add_reference_option(parser, default: str = "none") -> None:
+    """``--reference METHOD_OR_RUN``: what the error of runs without an exact solution (the cloth) is measured
+    against. It always takes a value, so that it never takes the results file for one."""
     from simrun.reference import REFERENCE_CHOICES, REFERENCE_RTOL
 
     parser.add_argument(
-        "--reference", nargs="?", const="dop853", default=default, metavar="METHOD_OR_RUN",
-        help="reference for the convergence of runs without an exact solution (the cloth): scipy solve_ivp with "
-             f"DOP853 at rtol {REFERENCE_RTOL:g} (default{' here' if default else ' with the bare option'}), another method, "
-             f"a run_id of the file (e.g. the smallest dt), or none; one of {REFERENCE_CHOICES}")
+        "--reference", default=default, metavar="METHOD_OR_RUN",
+        help="reference for the convergence of runs without an exact solution (the cloth): dop853 (scipy solve_ivp "
+             f"with DOP853 at rtol {REFERENCE_RTOL:g}), another method, a run_id of the file (e.g. the smallest dt), "
+             f"or none; one of {REFERENCE_CHOICES} (default: {default})")
 
 
 def load_results(text: str):
@@ -23,6 +25,36 @@ def load_results(text: str):
     return load(Path(text))
 
 
+def writable_output(path: str | Path, field: str, *, kind: str = "file") -> Path:
+    """The output ``path`` that option ``field`` names, refused before any work when it cannot be written.
+
+    kind: "file" (a file to write: not a folder, and its folder can be created or written in) or
+    "folder" (a folder to write into). Raises ConfigError ``field: ...`` (one line, exit status 2)."""
+    from simrun.lock import check_writable
+
+    path = Path(path)
+    check_writable(path, field, kind=kind)
+    return path
+
+
+def writing_file(path: str | Path, field: str):
+    """``with writing_file(path, field) as temporary:`` write ``temporary`` (same suffix as path); it
+    replaces ``path`` at once at the end, and is removed on any error. An OSError (disk full,
+    permission) becomes ConfigError ``field: cannot write 'path': reason``."""
+    from simrun.lock import replacing
+
+    return replacing(Path(path), field)
+
+
+def writing_folder(path: str | Path, field: str):
+    """``with writing_folder(folder, field) as temporary:`` write files into the empty folder
+    ``temporary``; at the end they move into ``folder`` (created if needed); on any error nothing
+    is left. An OSError becomes ConfigError ``field: cannot write 'folder': reason``."""
+    from simrun.lock import filling
+
+    return filling(Path(path), field)
+
+
 def say(text: str) -> None:
     """Progress for the user, on standard error (standard output carries the command's result)."""
     import sys
@@ -30,4 +62,4 @@ def say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-__all__ = ["add_reference_option", "load_results", "say"]
+__all__ = ["add_reference_option", "load_results", "say", "writable_output", "writing_file", "writing_folder"]

@@ -6,9 +6,11 @@ import csv
 import math
 from pathlib import Path
 
+from simrun.commands._options import writable_output, writing_folder
 from simrun.errors import ConfigError
 
 DEFAULT_OUTPUT = Path("results") / "analysis"
+TABLE_NAME = "predicted.csv"
 
 
 def add_parser(commands) -> None:
@@ -21,7 +23,7 @@ def add_parser(commands) -> None:
                               "backward_euler implicit_midpoint 'generalized_alpha:rho_inf=0.5' (default: every integrator)")
     analyze.add_argument("--range", nargs=2, type=float, metavar=("LOW", "HIGH"), default=None,
                          help="the h w range of the curves (default: 0.01 100)")
-    analyze.add_argument("--output", help=f"folder for the figures and predicted.csv (default: {DEFAULT_OUTPUT})")
+    analyze.add_argument("--output", help=f"folder for the figures and {TABLE_NAME} (default: {DEFAULT_OUTPUT})")
     analyze.set_defaults(handler=handle)
 
 
@@ -41,21 +43,21 @@ def handle(args) -> int:
         raise ConfigError(f"--range: expected 0 < LOW < HIGH, got {low:g} {high:g}")
     if math.log10(high / low) > 12:
         raise ConfigError(f"--range: at most 12 decades, got {low:g} to {high:g}")
-    output = Path(args.output) if args.output else DEFAULT_OUTPUT
-    output.mkdir(parents=True, exist_ok=True)
+    field = "--output" if args.output else "output"
+    output = writable_output(Path(args.output) if args.output else DEFAULT_OUTPUT, field, kind="folder")
     predictions = {}
     for integrator in integrators:
         predictions.setdefault(integrator.label, analysis.predict(integrator, low, high))
-    written = draw_predicted_figures(predictions, output)
-    table = output / "predicted.csv"
-    with open(table, "w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(["integrator", "hw", "spectral_radius", "damping_over_w", "relative_period_error"])
-        for label, prediction in predictions.items():
-            for row in zip(prediction.hw, prediction.rho, prediction.damping, prediction.period_error):
-                writer.writerow([label] + [csv_number(value) for value in row])
+    with writing_folder(output, field) as folder:  # the figures and the table, or nothing
+        written = draw_predicted_figures(predictions, folder)
+        with open(folder / TABLE_NAME, "w", newline="") as stream:
+            writer = csv.writer(stream)
+            writer.writerow(["integrator", "hw", "spectral_radius", "damping_over_w", "relative_period_error"])
+            for label, prediction in predictions.items():
+                for row in zip(prediction.hw, prediction.rho, prediction.damping, prediction.period_error):
+                    writer.writerow([label] + [csv_number(value) for value in row])
     print(format_predictions(predictions))
-    print(f"figures: {output}  ({len(written)} files); curves: {table}")
+    print(f"figures: {output}  ({len(written)} files); curves: {output / TABLE_NAME}")
     return 0
 
 

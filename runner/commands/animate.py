@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from simrun.commands._options import load_results
+from simrun.commands._options import load_results, writable_output, writing_file
 from simrun.errors import ConfigError
+from simrun.lock import FIGURES_NAME
 
 
 def add_parser(commands) -> None:
@@ -13,7 +14,7 @@ def add_parser(commands) -> None:
                                   description="Write an animated GIF of one cloth run's frames (from the results file alone).")
     animate.add_argument("results", help="a results file, e.g. results/cloth_hang/results.h5")
     animate.add_argument("run_id", nargs="?", help="the run to animate (default: the first cloth run); `simrun animate RESULTS --list` lists them")
-    animate.add_argument("--output", help="GIF path (default: figures/<run_id>.gif beside the results file)")
+    animate.add_argument("--output", help=f"GIF path (default: {FIGURES_NAME}/<run_id>.gif beside the results file)")
     animate.add_argument("--fps", type=int, default=20, help="frames per second (default 20)")
     animate.add_argument("--list", action="store_true", help="list the cloth runs that can be animated")
     animate.set_defaults(handler=handle)
@@ -34,6 +35,9 @@ def handle(args) -> int:
         raise ConfigError(f"run_id: {run_id!r} is not a cloth run of this file; valid: " + ", ".join(runs))
     if args.fps < 1:
         raise ConfigError(f"--fps: must be >= 1, got {args.fps}")
-    output = Path(args.output) if args.output else results.path.parent / "figures" / f"{run_id}.gif"
-    print(f"animation: {write_gif(results, run_id, output, fps=args.fps)}")
+    field = "--output" if args.output else "output"
+    output = writable_output(Path(args.output) if args.output else results.path.parent / FIGURES_NAME / f"{run_id}.gif", field)
+    with writing_file(output, field) as gif:
+        write_gif(results, run_id, gif, fps=args.fps)
+    print(f"animation: {output}")
     return 0

@@ -4,16 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from simrun.commands._options import add_reference_option, load_results, say
+from simrun.commands._options import add_reference_option, load_results, say, writable_output, writing_folder
+from simrun.lock import FIGURES_NAME
 
 
 def add_parser(commands) -> None:
     plot = commands.add_parser("plot", help="redraw the figures from a results file alone",
                                description="Draw every figure that RESULTS supports into its folder's figures/ (PNG and SVG).")
     plot.add_argument("results", nargs="?", help="a results file, e.g. results/quickstart/results.h5")
-    plot.add_argument("--output", help="figure folder (default: figures/ beside the results file)")
+    plot.add_argument("--output", help=f"figure folder (default: {FIGURES_NAME}/ beside the results file)")
     plot.add_argument("--list", action="store_true", help="list the figures simrun draws, with what each needs, and exit")
-    add_reference_option(plot)  # simrun plot RESULTS --reference [dop853|...|none|RUN_ID]
+    add_reference_option(plot)  # simrun plot RESULTS --reference dop853|...|none|RUN_ID
     plot.set_defaults(handler=handle)
 
 
@@ -29,12 +30,14 @@ def handle(args) -> int:
 
         raise ConfigError("results: give a results file, e.g. simrun plot results/quickstart/results.h5 (or --list)")
     results = load_results(args.results)
+    field = "--output" if args.output else "output"
+    out = writable_output(Path(args.output) if args.output else results.path.parent / FIGURES_NAME, field, kind="folder")
     errors = None
     if args.reference is not None and args.reference.lower() != "none":
         from simrun.reference import reference_errors
 
         errors = reference_errors(results, args.reference, say=say)
-    out = Path(args.output) if args.output else results.path.parent / "figures"
-    figures = draw_figures(results, out, reference_errors=errors)
-    print(f"figures: {out}  ({len(figures)} files)")
+    with writing_folder(out, field) as folder:
+        written = draw_figures(results, folder, reference_errors=errors)
+    print(f"figures: {out}  ({len(written)} files)")
     return 0

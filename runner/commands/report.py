@@ -4,14 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from simrun.commands._options import add_reference_option, load_results, say
-
-REPORT_NAME = "report.html"  # beside the results file, unless --output says otherwise
+from simrun.commands._options import add_reference_option, load_results, say, writable_output, writing_file
+from simrun.lock import REPORT_NAME  # beside the results file, unless --output says otherwise
 
 
 def add_parser(commands) -> None:
     report = commands.add_parser(
-        "report", help="write OUTPUT/report.html: config, provenance, summary table and every figure in one page",
+        "report", help=f"write OUTPUT/{REPORT_NAME}: config, provenance, summary table and every figure in one page",
         description="Write one self-contained HTML page (figures embedded, no external files) from a results file: "
                     "config, provenance, summary of the runs, observed orders, stability limits, determinants, "
                     "and every figure with a caption.")
@@ -25,6 +24,9 @@ def handle(args) -> int:
     from simrun.report import write_report
 
     results = load_results(args.results)  # refuses anything but a results file before any work
-    output = Path(args.output) if args.output else results.path.parent / REPORT_NAME
-    print(f"report: {write_report(results.path, output, reference=args.reference, say=say)}")
+    field = "--output" if args.output else "output"
+    output = writable_output(Path(args.output) if args.output else results.path.parent / REPORT_NAME, field)
+    with writing_file(output, field) as page:
+        write_report(results.path, page, reference=args.reference, say=say)
+    print(f"report: {output}")
     return 0

@@ -23,7 +23,8 @@ def add_parser(commands) -> None:
                      help="process: a process pool on this machine (default; `local` is the same); "
                           "dask: a Dask cluster (pip install 'simrun[dask]')")
     run.add_argument("--scheduler", metavar="ADDRESS", help="with --executor dask: an existing scheduler, e.g. tcp://host:8786 (default: a local cluster)")
-    run.add_argument("--force", action="store_true", help="start over even if OUTPUT/results.h5 holds other results (default: resume an unchanged config)")
+    run.add_argument("--force", action="store_true", help="start over even if OUTPUT/results.h5 holds other results, removing "
+                                                          "its old figures and report first (default: resume an unchanged config)")
     run.add_argument("--max-size", type=float, default=DEFAULT_MAX_SIZE_GB, metavar="GB",
                      help=f"refuse a sweep whose results would exceed this size (default {DEFAULT_MAX_SIZE_GB:g} GB)")
     run.add_argument("-q", "--quiet", action="store_true", help="print only errors and the final paths")
@@ -37,7 +38,8 @@ def handle(args) -> int:
         results = run(args.config, output=args.output, jobs=args.jobs,
                       executor=EXECUTOR_ALIASES.get(args.executor, args.executor), scheduler=args.scheduler,
                       force=args.force, progress=not args.quiet, figures=not args.no_plots,
-                      overrides=args.overrides, max_size_gb=args.max_size)
+                      overrides=args.overrides, max_size_gb=args.max_size,
+                      command_line=getattr(args, "command_line", None))
     except Interrupted as interrupted:
         print(f"simrun: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -1,4 +1,10 @@
-"""`simrun show RESULTS`: the summary table in the terminal, or as CSV."""
+"""`simrun show RESULTS`: the summary table in the terminal, or as CSV.
+
+    simrun show results.h5                      # the table, fitted to 100 columns
+    simrun show results.h5 --wide               # every column
+    simrun show --csv results.h5                # CSV on standard output (every column, units in the headers)
+    simrun show results.h5 --output table.csv   # CSV into a file (written whole or not at all)
+"""
 
 from __future__ import annotations
 
@@ -6,16 +12,23 @@ import os
 import sys
 from pathlib import Path
 
-from simrun.commands._options import load_results
+from simrun.commands._options import load_results, writable_output, writing_file
 
 
 def add_parser(commands) -> None:
+    from simrun.tables import TERMINAL_WIDTH
+
     show = commands.add_parser("show", help="print the summary table of a results file (or write it as CSV)",
-                               description="Print one row per run: status, drift, error, iterations, cost, "
+                               description="Print one row per run: status, drift, error, solver iterations, cost, "
                                            "and measured against predicted artificial damping.")
     show.add_argument("results", help="a results file, e.g. results/quickstart/results.h5")
-    show.add_argument("--csv", nargs="?", const="-", metavar="FILE",
-                      help="write the table as CSV to FILE (to standard output without FILE)")
+    show.add_argument("--wide", action="store_true",
+                      help=f"every column (by default the table is fitted to {TERMINAL_WIDTH} characters)")
+    show.add_argument("--csv", action="store_true",
+                      help="write the table as CSV (every column, full precision, units in the headers: dt_s, "
+                           "wall_time_s, error_m, ...) to standard output, or to --output")
+    show.add_argument("--output", "-o", metavar="FILE",
+                      help="write the CSV to FILE instead (implies --csv); the file is replaced whole, or not at all")
     show.set_defaults(handler=handle)
 
 
@@ -23,20 +36,20 @@ def handle(args) -> int:
     from simrun.figures import figure_data
     from simrun.tables import format_table, summary_rows, write_csv
 
+    output = getattr(args, "output", None)
+    target = writable_output(Path(output), "--output") if output else None  # refused before any work
     results = load_results(args.results)
     with results.opened():
         rows = summary_rows(figure_data(results))
-    if args.csv is not None:
-        if args.csv == "-":
-            _to_stdout(lambda: write_csv(rows, sys.stdout))
-        else:
-            target = Path(args.csv)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            with open(target, "w", newline="") as stream:
-                write_csv(rows, stream)
-            print(f"summary: {target}  ({len(rows)} runs)")
+    if target is not None:
+        with writing_file(target, "--output") as temporary, open(temporary, "w", newline="") as stream:
+            write_csv(rows, stream)
+        print(f"summary: {target}  ({len(rows)} runs)")
         return 0
-    _to_stdout(lambda: print(format_table(rows, results.name)))
+    if getattr(args, "csv", False):
+        _to_stdout(lambda: write_csv(rows, sys.stdout))
+        return 0
+    _to_stdout(lambda: print(format_table(rows, results.name, wide=getattr(args, "wide", False))))
     return 0
 
 

@@ -42,58 +42,62 @@ class Figure:
 
 FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
     Figure("energy_over_time", energy_over_time,
-           "E/E₀ against time, one panel per time step. Look for: growth (forward Euler: by 1 + (h w)² per step), "
-           "decay (backward Euler and the damped implicit methods), and a bounded oscillation around E₀ (symplectic "
-           "and energy-conserving methods). An ✕ ends a run that diverged.",
+           "The energy change (E − E₀)/E_ref against time (0: conserved; E_ref is the energy scale the system "
+           "declares, named on the axis), one panel per time step, a row per setting of the swept keys (and per "
+           "family of methods when there are many). Look for growth (an explicit method past its stability limit), "
+           "decay towards −E₀/E_ref (the damped implicit methods) and a bounded oscillation about 0 (symplectic and "
+           "energy-conserving methods). An ✕ ends a run that diverged; a note says which time steps are shown.",
            "runs with recorded energy"),
     Figure("energy_drift_vs_dt", energy_drift_vs_dt,
-           "The largest relative energy change over each run against dt (log-log). Look for the slope (the drift "
-           "shrinks like dt^p) and for methods at round-off (energy-conserving on this problem).",
+           "The largest energy change max |E − E₀|/E_ref over each run against dt (log-log). Look for the slope (the "
+           "drift shrinks like dt^p) and for methods at round-off (energy-conserving on this problem).",
            "runs with recorded energy"),
     Figure("stability_map", stability_map,
-           "Integrators × dt, coloured by the largest energy growth in decades (blue: lost, red: gained). The black "
-           "bar in a row is the predicted stability limit dt = (h w)*/w from the amplification matrix: cells right of "
-           "it should be red or diverged (✕), cells left of it not.",
+           "Integrators × dt (and swept settings), every run a cell, coloured by the largest energy change in decades "
+           "on a scale symmetric about 0 (blue: lost, red: gained). Where the system is the undamped test equation, a black "
+           "bar in a row marks the predicted stability limit dt = (h w)*/w: cells right of it should be red or "
+           "diverged (✕), cells left of it not.",
            "runs with recorded energy"),
     Figure("newton_iterations_vs_dt", newton_iterations_vs_dt,
-           "Mean (solid) and largest (dotted) Newton iterations per step of the implicit methods. Look for the growth "
-           "with dt: larger steps start Newton farther from the solution.",
+           "Mean (solid) and largest (dotted) solver iterations per step of the implicit methods. Look for the growth "
+           "with dt: larger steps start the solver farther from the solution.",
            "implicit methods"),
     Figure("orbits", orbits,
            "Trajectories of a body moving in the x-y plane against the circle through its start (the exact orbit of "
-           "circular motion). Look for forward Euler spiralling out, backward Euler spiralling in, and symplectic "
-           "Euler staying on a (slightly deformed) closed orbit.",
+           "circular motion). Look for orbits that spiral out (energy gained), spiral in (energy lost) or stay on a "
+           "(slightly deformed) closed curve.",
            "a planar system (one body in the x-y plane, e.g. circular motion)"),
     Figure("artificial_damping", artificial_damping,
            "d_method/w = −2 ln ρ/(h w) against h w (Ascher's damping curves). Lines: predicted from the probed "
            "amplification matrix of each method; markers: measured from each run's energy decay (hollow where the "
-           "run is too short to resolve it). Look for markers on their lines, backward Euler's damping ~ h w at small "
-           "steps (peak near h w = 2), second-order methods damping only at large h w, and the generalized-α and θ "
-           "families ordered by their parameter.",
+           "run is too short to resolve it). Look for markers on their lines, first-order methods damping ~ h w at "
+           "small steps, second-order methods damping only at large h w, and parameter families ordered by their "
+           "parameter.",
            "runs on the undamped test equation (a system that declares a test frequency: spring without damping, "
            "linear circular motion)"),
     Figure("spectral_radius_and_period", spectral_radius_and_period,
            "Top: the spectral radius ρ(h w); ρ < 1 damps, ρ > 1 grows (a hollow circle marks a stability limit). "
            "Bottom: the relative period error T_h/T − 1 of the principal eigenvalue (up to h w = π), with the periods "
-           "measured from the runs' zero crossings. Look for methods with ρ = 1 that still lag in phase (implicit "
-           "midpoint).",
+           "measured from the runs' zero crossings. A curve identical to an earlier one is dashed over it. Look for "
+           "methods with ρ = 1 that still lag in phase.",
            "runs on the undamped test equation"),
     Figure("convergence", convergence,
-           "The error at the end time against dt (log-log), with the least-squares slope over the smallest time steps "
-           "(dashed) in the legend. Look for slopes equal to each method's order; runs at round-off are exact on this "
-           "problem, saturated ones (error ~ amplitude) are left out of the fit.",
+           "Each run's error at its error time (a fixed time for the whole sweep, named on the axis) against dt "
+           "(log-log), with the least-squares slope over the smallest time steps (dashed) in the legend, or why no "
+           "slope could be fitted. Look for slopes equal to each method's order; runs at round-off are exact on this "
+           "problem, saturated ones (error ~ the length scale) are left out of the fit.",
            "runs with an exact solution, or a reference (systems without one: --reference)"),
     Figure("work_precision", work_precision,
            "The same error against the wall time of each run. Lower left is better: a higher-order or cheaper method "
            "reaches a given accuracy sooner.",
            "runs with an exact solution, or a reference (systems without one: --reference)"),
     Figure("wall_time_per_step_vs_dt", wall_time_per_step_vs_dt,
-           "Wall time per step against dt, per integrator (and per group, e.g. per solver). Look for implicit methods "
-           "getting dearer at large dt (more Newton iterations).",
+           "Wall time per step against dt, one line per method (or per swept solver setting), one panel per setting "
+           "of the other swept keys. Look for implicit methods getting dearer at large dt (more solver iterations).",
            "runs that took at least one step"),
     Figure("energy_budget", energy_budget,
            "Where the energy goes, at one time step: kinetic and potential energy (each potential term), the work "
-           "done by the physical damping, stacked; the grey gap up to the initial energy (dashed) is the "
+           "done by the physical damping, stacked, over E_ref; the grey gap up to the initial energy (dashed) is the "
            "integrator's own numerical dissipation, an orange band above it a numerical gain. With damping 0 the gap "
            "is all of the drift; with damping it separates the model's loss from the method's.",
            "runs with at least two samples"),

@@ -1,4 +1,10 @@
-"""Convergence and work-precision: the error at the end time against dt (with the observed order) and against wall time."""
+"""Convergence and work-precision: each run's error at its error time against dt (with the observed order) and
+against its wall time.
+
+The error is ``RunData.error``: max |x − x_exact| (in phase space on the test equation) at the run's
+error time, a fixed horizon shorter than the duration (or against a reference solution on request); the
+axis says at which time. Files from before error times have the error at the end of the run.
+"""
 
 from __future__ import annotations
 
@@ -8,107 +14,169 @@ import numpy as np
 from matplotlib.lines import Line2D
 
 from simrun.figures import _layout as layout
-from simrun.figures._data import FigureData, RunData
+from simrun.figures._data import FigureData, RunData, Series
 
 if TYPE_CHECKING:
     from simrun import analysis
 
 # An error of exactly zero cannot sit on a log axis: drawn at this floor (m).
 ERROR_FLOOR = 1e-16
+# Room (in) per entry of the legend of orders under each panel when there are several.
+ORDER_LEGEND_LINE = 0.16
+NOTE_LINE = 0.16
 
 
-def _error_runs(data: FigureData) -> list[RunData]:
-    """Runs that reached the end time with a known error (exact solution, or a reference on request)."""
-    return [run for run in data.runs if not run.status.stopped and np.isfinite(run.final_error)]
+def _usable(run: RunData) -> bool:
+    """A run that reached its error time with a known error (exact solution, or a reference on request)."""
+    return not run.status.stopped and np.isfinite(run.error)
 
 
-def order_fits(data: FigureData) -> dict[tuple[str, str], tuple["analysis.OrderFit", list[RunData]]]:
-    """(group title, label) -> (observed order fit, runs sorted by dt) for every label with errors."""
+def error_runs(data: FigureData) -> list[RunData]:
+    return [run for run in data.runs if _usable(run)]
+
+
+def order_fits(data: FigureData) -> dict[tuple[str, Series], tuple["analysis.OrderFit", list[RunData]]]:
+    """(panel title, series) -> (observed order fit, runs sorted by dt) for every line with errors."""
     from simrun import analysis  # on first use: importing the figures loads no integrator
 
     fits = {}
-    usable = set(map(id, _error_runs(data)))
-    for title, runs in data.groups:
-        for label in data.labels:
-            mine = sorted((run for run in runs if run.label == label and id(run) in usable), key=lambda run: run.dt)
-            if mine:
-                fit = analysis.observed_order([run.dt for run in mine], [run.final_error for run in mine],
-                                              scale=mine[0].length_scale)
-                fits[(title, label)] = (fit, mine)
+    for panel in layout.summary_panels(data, _usable):
+        for series in panel.series:
+            mine = sorted((run for run in panel.runs if data.series_of(run) is series), key=lambda run: run.dt)
+            fit = analysis.observed_order([run.dt for run in mine], [run.error for run in mine],
+                                          scale=mine[0].length_scale)
+            fits[(panel.title, series)] = (fit, mine)
     return fits
 
 
-def order_text(fit: "analysis.OrderFit") -> str:
+def order_text(fit: "analysis.OrderFit", footnotes: dict[str, int] | None = None) -> str:
+    """"p = 1.98", "exact (round-off)", or "no slope (1)" with the reason as footnote 1 (``footnotes``: reason -> number)."""
     if np.isfinite(fit.order):
         return f"p = {fit.order:.2f}"
-    return "exact (round-off)" if fit.exact else "p: too few points"
+    if fit.exact:
+        return "exact (round-off)"
+    reason = getattr(fit, "reason", "") or "too few points in the asymptotic range"
+    if footnotes is None:
+        return f"no slope: {reason}"
+    number = footnotes.setdefault(reason, len(footnotes) + 1)
+    return f"no slope ({number})"
+
+
+def error_axis_label(runs: list[RunData]) -> str:
+    """'error at t = 2.1 s (m)': the time at which the runs' errors were measured (each at its nearest step)."""
+    times = np.array([run.error_time for run in runs if np.isfinite(run.error_time)])
+    reference = " vs reference" if any(run.error_from_reference for run in runs) else ""
+    if times.size == 0:
+        return f"error (m){reference}"
+    spread = max(run.dt for run in runs)
+    if times.max() - times.min() <= spread * (1.0 + 1e-9):
+        return f"error at t = {float(np.median(times)):.3g} s (m){reference}"
+    return f"error at the run's error time (m){reference}\n({times.min():.3g} to {times.max():.3g} s)"
 
 
 def convergence(data: FigureData):
-    """Error at the end time against dt (log-log); the fitted slope (observed order) of each label in the legend."""
+    """Error at the error time against dt (log-log); each line's fitted slope (observed order) in its legend."""
     from simrun import analysis  # on first use: importing the figures loads no integrator
 
     fits = order_fits(data)
     if not fits:
         return None
-    panels = [(title, runs) for title, runs in data.groups[:layout.MAX_GROUPS] if any((title, label) in fits for label in data.labels)]
-    rows = [panels[start:start + layout.PANEL_COLUMNS] for start in range(0, len(panels), layout.PANEL_COLUMNS)]
+    capped: list[str] = []
+    panels = layout.summary_panels(data, _usable, capped)
+    curves = [[(series, _curve(fits[(panel.title, series)][1])) for series in panel.series] for panel in panels]
+    merged, overlaid = layout.twins(curves, merge=data.colour_per_series)
+    rows = layout.wrap(panels, columns=3)
     single = len(panels) == 1
-    figure, axes = layout.panel_grid(rows, panel_size=layout.SUMMARY_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH + 0.4 if single else 0.0)
-    handles = []
-    for (title, _), ax in zip(layout.flatten(rows), axes):
-        for number, label in enumerate(data.labels):
-            if (title, label) not in fits:
+    figure, axes = layout.panel_grid(rows, panel_size=layout.SUMMARY_PANEL_SIZE, sharey=True,
+                                     legend_width=layout.FIGURE_LEGEND_WIDTH + 0.6 if single else 0.0)
+    if not single:  # each panel's legend of orders under it
+        entries = [max(len(panel.series) for panel in row) for row in rows]
+        figure.set_figheight(figure.get_figheight() + ORDER_LEGEND_LINE * sum(entries) + 0.3 * len(rows))
+    footnotes: dict[str, int] = {}
+    errors = []
+    for number, (panel, ax) in enumerate(zip(panels, axes)):
+        handles = []
+        for index, series in enumerate(panel.series):
+            if series in merged:
                 continue
-            fit, mine = fits[(title, label)]
-            style = layout.label_style(data, label, number)
-            dts = np.array([run.dt for run in mine])
-            errors = np.maximum([run.final_error for run in mine], ERROR_FLOOR)
-            ax.plot(dts, errors, "-", lw=1.2, **{**style, "label": f"{label}: {order_text(fit)}"})
+            fit, mine = fits[(panel.title, series)]
+            style = layout.series_style(series, index)
+            if (number, series) in overlaid:
+                style["ls"] = layout.OVERLAY_DASHES
+            dts, values = _curve(mine)
+            values = np.maximum(values, ERROR_FLOOR)
+            errors.append(values)
+            names = " = ".join([series.name] + [other.name for other in panel.series if merged.get(other) is series])
+            handles += ax.plot(dts, values, lw=1.2, label=f"{names}: {order_text(fit, footnotes)}", **style)
             if np.isfinite(fit.order):
                 ends = dts[fit.used][[0, -1]]
                 ax.plot(ends, np.exp(fit.intercept) * ends ** fit.order, "--", color="black", lw=0.9, zorder=5)
-        layout.log_log_panel(ax, title)
-        if single:
-            handles = ax.get_legend_handles_labels()[0]
-        else:
-            ax.legend(fontsize=6.5, loc="lower right", framealpha=0.85, handlelength=1.5)
-    reference = any(run.error_from_reference for run in _error_runs(data))
-    layout.label_outer(axes, rows, "time step dt (s)", "error at the end time (m)" + (" vs reference" if reference else ""))
-    fit_handle = Line2D([], [], ls="--", color="black", lw=0.9, label=f"least-squares fit (≤ {analysis.ORDER_FIT_POINTS} smallest dt)")
+        layout.log_log_panel(ax, panel.title)
+        if not single:
+            ax.legend(handles=handles, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), frameon=False,
+                      handlelength=2.2, borderaxespad=0.0)
+    limits = layout.log_limits(np.concatenate(errors))
+    if limits:
+        axes[0].set_ylim(*limits)
+    for ax in axes:
+        layout.tidy_log_axes(ax)
+    runs = error_runs(data)
+    layout.label_outer(axes, rows, "time step dt (s)", error_axis_label(runs))
+    fit_handle = Line2D([], [], ls="--", color="black", lw=0.9,
+                        label=f"least-squares fit (≤ {analysis.ORDER_FIT_POINTS} smallest dt)")
     if single:
-        figure.legend(handles=handles + [fit_handle], loc="outside right center", fontsize=8, frameon=False)
+        layout.figure_legend(figure, axes[0].get_legend_handles_labels()[0] + [fit_handle], data.legend_title)
     else:
-        axes[0].add_artist(axes[0].legend(handles=[fit_handle], fontsize=6.5, loc="upper left", framealpha=0.85))
-    figure.suptitle(f"{data.name}: convergence (observed order p)", fontsize=11)
+        layout.figure_legend(figure, [fit_handle], data.legend_title)
+    layout.suptitle(figure, data, "convergence (observed order p)")
+    notes = capped + [f"({number}) {reason}" for reason, number in footnotes.items()]
+    notes.append(layout.SAME_CURVE_NOTE if merged else "")
+    notes.append(_left_out_note(data, runs))
+    layout.add_notes(figure, notes)
+    figure.set_figheight(figure.get_figheight() + NOTE_LINE * len([note for note in notes if note]))
     return figure
+
+
+def _curve(runs: list[RunData]) -> tuple[np.ndarray, np.ndarray]:
+    return np.array([run.dt for run in runs]), np.array([run.error for run in runs])
+
+
+def _left_out_note(data: FigureData, runs: list[RunData]) -> str:
+    """Which runs have no error to draw, and why."""
+    stopped = sum(run.status.stopped for run in data.runs)
+    unknown = len(data.runs) - len(runs) - stopped
+    parts = ([f"{stopped} stopped before their error time"] if stopped else []) + \
+            ([f"{unknown} without a known error"] if unknown else [])
+    return f"{len(runs)} of {len(data.runs)} runs drawn ({'; '.join(parts)})" if parts else ""
 
 
 def work_precision(data: FigureData):
-    """Error at the end time against the wall time of the run (log-log), one line per label."""
-    fits = order_fits(data)
-    timed = {key: (fit, [run for run in runs if run.wall_time > 0]) for key, (fit, runs) in fits.items()}
-    timed = {key: value for key, value in timed.items() if value[1]}
-    if not timed:
+    """Error at the error time against the wall time of the run (log-log), one line per series."""
+    notes: list[str] = []
+    panels = layout.summary_panels(data, lambda run: _usable(run) and run.wall_time > 0, notes)
+    if not panels:
         return None
-    panels = [(title, runs) for title, runs in data.groups[:layout.MAX_GROUPS] if any((title, label) in timed for label in data.labels)]
-    rows = [panels[start:start + layout.PANEL_COLUMNS] for start in range(0, len(panels), layout.PANEL_COLUMNS)]
-    figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH)
-    labels = []
-    for (title, _), ax in zip(layout.flatten(rows), axes):
-        for number, label in enumerate(data.labels):
-            if (title, label) not in timed:
-                continue
-            _, mine = timed[(title, label)]
-            labels.append(label)
-            ax.plot([run.wall_time for run in mine], np.maximum([run.final_error for run in mine], ERROR_FLOOR),
-                    "-", lw=1.2, **layout.label_style(data, label, number))
-        layout.log_log_panel(ax, title, minor_grid=False)
-    layout.label_outer(axes, rows, "wall time of the run (s)", "error at the end time (m)")
-    handles = [Line2D([], [], ls="-", **{**layout.label_style(data, label, number), "ms": layout.LEGEND_MARKER_SIZE})
-               for number, label in enumerate(data.labels) if label in labels]
+    rows = layout.wrap(panels, columns=3)
+    figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE,
+                                     legend_width=layout.FIGURE_LEGEND_WIDTH, extra_height=NOTE_LINE)
+    errors = []
+    for panel, ax in zip(panels, axes):
+        for number, series in enumerate(panel.series):
+            mine = sorted((run for run in panel.runs if data.series_of(run) is series), key=lambda run: run.dt)
+            values = np.maximum([run.error for run in mine], ERROR_FLOOR)
+            errors.append(values)
+            ax.plot([run.wall_time for run in mine], values, lw=1.2, **layout.series_style(series, number))
+        layout.log_log_panel(ax, panel.title, minor_grid=False)
+    limits = layout.log_limits(np.concatenate(errors))
+    if limits:
+        axes[0].set_ylim(*limits)
+    for ax in axes:
+        layout.tidy_log_axes(ax)
+    runs = error_runs(data)
+    layout.label_outer(axes, rows, "wall time of the run (s)", error_axis_label(runs))
+    handles = layout.series_handles(data, [series for panel in panels for series in panel.series], lw=1.2)
     handles.append(Line2D([], [], ls="none", label="lower left is better"))
-    figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
-    figure.suptitle(f"{data.name}: work-precision (points: the time steps)", fontsize=11)
+    layout.figure_legend(figure, handles, data.legend_title)
+    layout.suptitle(figure, data, "work-precision (points: the time steps)")
+    layout.add_notes(figure, notes + [_left_out_note(data, runs)])
     return figure
-

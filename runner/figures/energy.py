@@ -1,8 +1,15 @@
-"""Energy figures: E/E0 over time, the relative drift against dt, and where the energy goes (the budget)."""
+"""Energy figures: the energy change over time, the largest change against dt, and where the energy goes (the budget).
+
+Every energy is divided by its run's one energy reference E_ref, which the run's system declared
+(``RunData.energy_ref``: E0 for the spring, |E0| for an orbit, max(M |g| L, |KE0| + |PE0|) for the
+cloth), never by E0 alone: a cloth that starts at rest has E0 = 0, and a nudge of 1e-8 m/s would
+make E/E0 a number of 1e16. The axis labels say what E_ref is.
+"""
 
 from __future__ import annotations
 
 import math
+import textwrap
 
 import numpy as np
 from matplotlib.lines import Line2D
@@ -13,117 +20,160 @@ from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, RunData
 from simrun.results import Status
 
-# Signed energies (bound orbits, E0 < 0) reaching this many times |E0| get a symlog axis.
-SYMLOG_RANGE = 10.0
-# A y range wider than this factor is drawn on a log axis (forward Euler grows by decades).
-LOG_AXIS_RANGE = 100.0
 # Exact conservation (zero drift) cannot sit on a log axis: drawn at double-precision round-off.
 DRIFT_FLOOR = 1e-16
+# Height (in) of one line of notes under the panels.
+NOTE_LINE = 0.16
 
 
 # -- energy over time ----------------------------------------------------------------------------
 def energy_over_time(data: FigureData):
-    """E/E0 against t: small multiples per dt (rows per group), one line per integrator label."""
-    rows, note = layout.dt_panels(data)
-    figure, axes = layout.panel_grid(rows, sharex=True, legend_width=layout.FIGURE_LEGEND_WIDTH)
-    for (title, runs), ax in zip(layout.flatten(rows), axes):
-        drawn = [run for run in runs if run.has_series]
-        for run in layout.in_label_order(drawn, data):
-            t, ratio = layout.finite(run.t, run.energy_ratio)
-            if ratio.size == 0:
+    """(E − E0) / E_ref against t: a row of small multiples (one per dt) per setting and family of lines.
+
+    Why (E − E0) / E_ref rather than E / E_ref: 0 means "conserved" for every system, whatever the sign
+    of E0: the spring (E0 > 0, where E / E_ref starts at 1), a bound orbit (E0 < 0: at −1) and a cloth
+    at rest (E0 = 0: at 0); so panels of different systems and figures read alike, and it is the
+    quantity whose largest value the drift figure and the stability map show. A decay reads as a fall
+    towards −E0 / E_ref (−1 on the spring); its rate, over decades, is the artificial damping figure's.
+    One y scale for the whole figure: linear while every |value| < 10, else symlog with its linear part
+    taken from the curves (layout.apply_signed_scale). The x axes end at the runs' duration.
+    """
+    rows, notes = layout.dt_grid(data)
+    if not rows:
+        return None
+    panels = layout.flatten(rows)
+    curves = []  # per panel: (series, (t, change), run) in drawing order
+    for panel in panels:
+        lines = []
+        for run in layout.in_label_order(panel.runs, data):
+            t, change = layout.finite(run.t, run.energy_change)
+            if change.size:
+                lines.append((data.series_of(run), (t, change), run))
+        curves.append(lines)
+    merged, overlaid = layout.twins([[(series, curve) for series, curve, _ in lines] for lines in curves],
+                                    merge=data.colour_per_series, unit=1.0)
+    if merged:
+        notes.append(layout.SAME_CURVE_NOTE)
+    notes.append(layout.no_data_note([run for panel in panels for run in panel.runs], data))
+    figure, axes = layout.panel_grid(rows, sharex=True, sharey=True, legend_width=layout.FIGURE_LEGEND_WIDTH,
+                                     extra_height=NOTE_LINE * len([note for note in notes if note]))
+    marks = set()
+    for number, (panel, ax, lines) in enumerate(zip(panels, axes, curves)):
+        for series, (t, change), run in lines:
+            if series in merged:
                 continue
-            stopped = run.status.stopped
-            ax.plot(t, ratio, color=data.colours[run.label], lw=1.1, label=layout.status_label(run),
-                    marker="x" if stopped else None, markevery=[ratio.size - 1], ms=7, mew=1.8)
-        layout.no_data_entries(ax, runs, data)
-        values = np.concatenate([layout.finite(run.t, run.energy_ratio)[1] for run in drawn] or [np.empty(0)])
-        _energy_axis(ax, values)
-        if values.size:  # the exact energy: E / E_ref stays at its start, +1 (or -1 for a bound orbit)
-            ax.axhline(np.sign(values[0]), color="0.6", lw=0.8, ls="--", zorder=0)
-        ax.set_title(title, fontsize=9)
-        layout.status_legend(ax)
+            dashed = (number, series) in overlaid
+            ax.plot(t, change, color=series.colour, ls=layout.OVERLAY_DASHES if dashed else series.linestyle, lw=1.2,
+                    zorder=3 if dashed else 2)
+            if run.status.stopped:
+                ax.plot(t[-1], change[-1], "x", color=series.colour, ms=7, mew=1.8, zorder=4)
+                marks.add("stopped")
+            elif run.status == Status.NOT_CONVERGED:
+                ax.plot(t[-1], change[-1], "o", mfc="none", mec=series.colour, ms=7, mew=1.4, zorder=4)
+                marks.add(Status.NOT_CONVERGED)
+        ax.axhline(0.0, color="0.6", lw=0.8, ls="--", zorder=0)
+        ax.set_title(panel.title, fontsize=9)
         ax.grid(True, which="major", alpha=0.3)
-    layout.label_outer(axes, rows, "time t (s)", _energy_label(data.runs))
-    handles = layout.label_handles(data, data.labels)
-    handles += [Line2D([], [], ls="--", color="0.6", lw=0.8, label="exact (E conserved)"),
-                Line2D([], [], ls="none", marker="x", color="0.3", ms=7, mew=1.8, label="run stopped (diverged/failed)")]
-    figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
-    figure.suptitle(f"{data.name}: energy over time" + note, fontsize=11)
+    scale = layout.apply_signed_scale(axes, [curve[1] for lines in curves for _, curve, _ in lines])
+    durations = [run.duration for panel in panels for run in panel.runs if np.isfinite(run.duration)]
+    if durations:
+        axes[0].set_xlim(0.0, max(durations))
+    layout.label_outer(axes, rows, "time t (s)", "")
+    layout.row_headers(axes, rows)
+    figure.supylabel(layout.energy_label(data.runs) + ("  (symlog)" if scale == "symlog" else ""), fontsize=9)
+    shown = list(dict.fromkeys(series for lines in curves for series, _, _ in lines))
+    handles = layout.series_handles(data, shown, merged, markers=False, lw=1.2)
+    handles.append(Line2D([], [], ls="--", color="0.6", lw=0.8, label="0: energy conserved"))
+    if "stopped" in marks:
+        handles.append(Line2D([], [], ls="none", marker="x", color="0.3", ms=7, mew=1.8, label="run stopped (diverged/failed)"))
+    if Status.NOT_CONVERGED in marks:
+        handles.append(Line2D([], [], ls="none", marker="o", mfc="none", mec="0.3", ms=7, mew=1.4,
+                              label="solver not converged in some steps"))
+    layout.figure_legend(figure, handles, data.legend_title)
+    layout.suptitle(figure, data, "energy change over time")
+    layout.add_notes(figure, notes)
     return figure
-
-
-def _energy_label(runs: list[RunData]) -> str:
-    if all(run.energy.size and run.energy[0] > 0 for run in runs if run.has_series):
-        return "energy E / E$_0$"
-    if any(run.energy.size and run.energy[0] == 0 for run in runs):
-        return "energy E / E$_{ref}$  (|E$_0$|, or |KE$_0$|+|PE$_0$| if E$_0$=0)"
-    return "energy E / |E$_0$|"
-
-
-def _energy_axis(ax, values: np.ndarray) -> None:
-    """Log axis when positive values span decades, symlog when signed values do, else linear."""
-    if values.size == 0:
-        return
-    if np.all(values > 0) and values.max() / values.min() > LOG_AXIS_RANGE:
-        ax.set_yscale("log")
-    elif np.any(values <= 0) and np.abs(values).max() > SYMLOG_RANGE:
-        ax.set_yscale("symlog", linthresh=1.0)  # linear within the initial energy scale
-    else:
-        ax.ticklabel_format(axis="y", useOffset=False)
 
 
 # -- energy drift against dt ---------------------------------------------------------------------
 def energy_drift_vs_dt(data: FigureData):
-    """max |E - E0| / |E0| against dt, log-log; one panel per group, one line per integrator label."""
-    panels = layout.group_panels(data)
-    figure, axes = layout.panel_grid(panels, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH)
-    floored, marked = False, set()
-    for (title, runs), ax in zip(layout.flatten(panels), axes):
-        top = blended_transform_factory(ax.transData, ax.transAxes)  # x in data, y in axes fraction
-        for number, label in enumerate(data.labels):
-            mine = sorted((run for run in runs if run.label == label), key=lambda run: run.dt)
-            style = layout.label_style(data, label, number)
+    """max |E − E0| / E_ref against dt, log-log; one panel per setting and family of lines, a line per series."""
+    notes: list[str] = []
+    panels = layout.summary_panels(data, notes=notes)
+    if not panels:
+        return None
+    curves = []  # per panel: (series, (dts, drifts), shown runs, all its runs)
+    for panel in panels:
+        lines = []
+        for series in panel.series:
+            mine = sorted((run for run in panel.runs if data.series_of(run) is series), key=lambda run: run.dt)
             shown = [run for run in mine if not run.status.stopped and run.has_change]
-            if shown:
-                dts = np.array([run.dt for run in shown])
-                drifts = np.array([_max_drift(run) for run in shown])
+            curve = (np.array([run.dt for run in shown]), np.array([_max_drift(run) for run in shown]))
+            lines.append((series, curve, shown, mine))
+        curves.append(lines)
+    merged, overlaid = layout.twins([[(series, curve) for series, curve, shown, _ in lines if shown] for lines in curves],
+                                    merge=data.colour_per_series)
+    rows = layout.wrap(panels)
+    figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE,
+                                     legend_width=layout.FIGURE_LEGEND_WIDTH, extra_height=NOTE_LINE)
+    floored, marked = False, set()
+    drawn_values, stopped_values = [], []
+    for number, (panel, ax, lines) in enumerate(zip(panels, axes, curves)):
+        top = blended_transform_factory(ax.transData, ax.transAxes)  # x in data, y in axes fraction
+        for index, (series, (dts, drifts), shown, mine) in enumerate(lines):
+            style = layout.series_style(series, index)
+            if shown and series not in merged:
                 floored |= bool(np.any(drifts < DRIFT_FLOOR))
                 drifts = np.maximum(drifts, DRIFT_FLOOR)
-                ax.plot(dts, drifts, "-", lw=1.3, **style)
+                drawn_values.append(drifts)
+                if (number, series) in overlaid:
+                    style["ls"] = layout.OVERLAY_DASHES
+                ax.plot(dts, drifts, lw=1.3, **style)
                 marked |= layout.ring_not_converged(ax, dts, drifts, shown)
             for run in mine:
                 if run.status == Status.DIVERGED:  # off the scale: hollow, at the top edge
-                    ax.plot(run.dt, layout.TOP_EDGE, transform=top, clip_on=False, **{**style, "mfc": "none", "mew": 1.6})
+                    ax.plot(run.dt, layout.TOP_EDGE, transform=top, clip_on=False,
+                            **{**style, "ls": "none", "mfc": "none", "mew": 1.6})
+                    if run.has_change:
+                        stopped_values.append(_max_drift(run))
                 elif run.status == Status.FAILED:
-                    ax.plot(run.dt, layout.TOP_EDGE, "X", color=style["color"], ms=8, transform=top, clip_on=False)
+                    ax.plot(run.dt, layout.TOP_EDGE, "X", color=series.colour, ms=8, transform=top, clip_on=False)
                 marked.add(run.status)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_title(title, fontsize=9)
-        ax.grid(True, which="major", alpha=0.3)
-        ax.grid(True, which="minor", alpha=0.1)
-        if any(run.status.stopped for run in runs):
-            layout.pad_top(ax)
-    handles = [Line2D([], [], ls="-", **{**layout.label_style(data, label, number), "ms": layout.LEGEND_MARKER_SIZE})
-               for number, label in enumerate(data.labels)]
+        layout.log_log_panel(ax, panel.title)
+    # one y range for the figure: the drifts drawn; when every run stopped, the drifts they reached
+    limits = layout.log_limits(np.concatenate(drawn_values) if drawn_values else np.array(stopped_values))
+    axes[0].set_ylim(*(limits or (1e-3, 1e3)))
+    if marked & {Status.DIVERGED, Status.FAILED}:
+        layout.pad_top(axes[0])
+    for ax in axes:
+        layout.tidy_log_axes(ax)
+    shown_series = [series for lines in curves for series, _, _, mine in lines if mine]
+    handles = layout.series_handles(data, list(dict.fromkeys(shown_series)), merged, lw=1.3)
     handles += layout.status_handles(marked, "(at top edge)")
-    if floored:
-        handles.append(Line2D([], [], ls="none", label=f"zero drift drawn at {DRIFT_FLOOR:g}"))
-    layout.label_outer(axes, panels, "time step dt (s)", "max |E − E$_0$| / |E$_0$| over the run")
-    figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
-    figure.suptitle(f"{data.name}: relative energy drift against time step", fontsize=11)
+    layout.label_outer(axes, rows, "time step dt (s)", "")
+    figure.supylabel(layout.energy_label(data.runs, "max |E − E$_0$| / E$_{ref}$ over the run"), fontsize=9)
+    layout.figure_legend(figure, handles, data.legend_title)
+    layout.suptitle(figure, data, "largest energy change against time step")
+    notes += [f"zero drift (exact conservation) drawn at {DRIFT_FLOOR:g}" if floored else "",
+             "every run stopped before its end: the axis spans the change they reached first"
+             if not drawn_values and stopped_values else "",
+             layout.SAME_CURVE_NOTE if merged else ""]
+    layout.add_notes(figure, notes)
     return figure
 
 
 def _max_drift(run: RunData) -> float:
-    energy = run.energy[np.isfinite(run.energy)]
-    return float(np.max(np.abs(energy - energy[0])) / run.energy_ref)
-
+    change = run.energy_change
+    change = change[np.isfinite(change)]
+    return float(np.max(np.abs(change))) if change.size else math.nan
 
 
 # -- where the energy goes -----------------------------------------------------------------------
-BUDGET_PANELS = 16
+# More panels than this (runs at the chosen dt) are left out, with a note: the figure would outgrow a page.
+BUDGET_PANELS = 24
 BUDGET_PANEL_SIZE = (3.6, 2.5)
+# A panel title longer than this (characters at 8.5 pt) is wrapped onto more lines: it would run into its neighbours.
+BUDGET_TITLE_CHARACTERS = 52
 # The stack is cut at this multiple of the budget: a method that gains energy leaves the panel.
 BUDGET_AXIS_TOP = 1.6
 BUDGET_TERMS = (  # dataset, legend text, colour
@@ -140,54 +190,98 @@ BUDGET_VISIBLE = 1e-3
 
 
 def energy_budget(data: FigureData):
-    """Where the energy goes, for each label at one dt: kinetic + potential terms + physical damping work,
-    stacked over time; the gap to the initial energy is the integrator's numerical loss (or gain)."""
-    if not data.groups:
+    """Where the energy goes, for each line (an integrator at a setting) of each section at one dt: kinetic +
+    potential terms + physical damping work, stacked over time, divided by E_ref; the gap up to the initial
+    budget is the integrator's numerical loss (or gain)."""
+    if not data.runs:
         return None
-    title, runs = data.groups[0]
-    dt = _budget_dt(runs)
-    chosen = [run for run in layout.in_label_order([run for run in runs if run.dt == dt], data) if run.t.size >= 2][:BUDGET_PANELS]
+    dt = _budget_dt(data.runs)
+    candidates = [(title, run) for title, runs in data.sections
+                  for run in layout.in_label_order([run for run in runs if run.dt == dt], data)]
+    chosen = [(title, run) for title, run in candidates if run.t.size >= 2]
     if not chosen:
         return None
-    budgets = {run.run_id: _budget(run) for run in chosen}
-    panels = [(run.label + run.status_note(), run) for run in chosen]
-    rows = [panels[start:start + layout.PANEL_COLUMNS] for start in range(0, len(panels), layout.PANEL_COLUMNS)]
-    figure, axes = layout.panel_grid(rows, sharex=True, sharey=True, panel_size=BUDGET_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH + 0.3)
+    notes = []
+    if len({run.dt for run in data.runs}) > 1:
+        notes.append(f"at one time step, dt = {data.dt_names[dt]} s: the one nearest the geometric middle of the swept "
+                     "time steps where every run reached its end (every time step: energy over time)")
+    short = [run for _, run in candidates if run.t.size < 2]
+    if short:
+        notes.append("no budget (fewer than two samples): " + ", ".join(data.series_of(run).name for run in short))
+    budgets = {run.run_id: _budget(run) for _, run in chosen}
+    # runs of one section with the same budget to round-off (e.g. linear solvers that all converge): one panel
+    panels: list[tuple[str, RunData, list[RunData]]] = []
+    for title, run in chosen:
+        twin = next((panel for panel in panels if panel[0] == title and _same_budget(budgets[panel[1].run_id],
+                                                                                     budgets[run.run_id])), None)
+        if twin is not None:
+            twin[2].append(run)
+        else:
+            panels.append((title, run, [run]))
+    if len(panels) < len(chosen):
+        notes.append("A = B in a title: their budgets agree to round-off, drawn once")
+    if len(panels) > BUDGET_PANELS:
+        notes.append(f"{BUDGET_PANELS} of {len(panels)} panels shown (runs at this time step): the first ones")
+        panels = panels[:BUDGET_PANELS]
+    panels = [(_panel_title(title, members, data), run) for title, run, members in panels]
+    rows = layout.wrap(panels)
+    figure, axes = layout.panel_grid(rows, sharex=True, sharey=True, panel_size=BUDGET_PANEL_SIZE,
+                                     legend_width=layout.FIGURE_LEGEND_WIDTH + 0.3, extra_height=NOTE_LINE * len(notes))
     shown: dict[str, str] = {}
     gained = False
+    tops = []
     for (panel_title, run), ax in zip(layout.flatten(rows), axes):
         t, terms, budget = budgets[run.run_id]
+        reference = run.energy_ref
         bottom = np.zeros_like(t)
         for key, text, colour in BUDGET_TERMS:
             if key in terms:
-                ax.fill_between(t, bottom / budget, (bottom + terms[key]) / budget, color=colour, lw=0)
+                ax.fill_between(t, bottom / reference, (bottom + terms[key]) / reference, color=colour, lw=0)
                 bottom = bottom + terms[key]
                 if np.nanmax(terms[key]) > BUDGET_VISIBLE * budget:
                     shown[text] = colour
         # what is left of the budget: the integrator's own loss (below the line) or gain (above)
-        ax.fill_between(t, bottom / budget, 1.0, where=bottom <= budget, interpolate=True,
+        level = budget / reference
+        ax.fill_between(t, bottom / reference, level, where=bottom <= budget, interpolate=True,
                         facecolor=NUMERICAL_LOSS_COLOUR, lw=0)
         if np.any(bottom > budget * (1.0 + BUDGET_VISIBLE)):
             # hatched over the stack: the terms above the line are there, but only through the method's gain
-            ax.fill_between(t, 1.0, np.minimum(bottom / budget, BUDGET_AXIS_TOP), where=bottom > budget, interpolate=True,
-                            facecolor="none", edgecolor=NUMERICAL_GAIN_COLOUR, hatch="xx", lw=0)
+            ax.fill_between(t, level, np.minimum(bottom / reference, BUDGET_AXIS_TOP * level), where=bottom > budget,
+                            interpolate=True, facecolor="none", edgecolor=NUMERICAL_GAIN_COLOUR, hatch="xx", lw=0)
             gained = True
-        ax.axhline(1.0, color="black", lw=0.9, ls="--")
-        if t.size > 1:
-            ax.set_xlim(t[0], t[-1])
+        tops.append(level)
+        ax.axhline(level, color="black", lw=0.9, ls="--")
         ax.set_title(panel_title, fontsize=8.5)
         ax.grid(True, alpha=0.25)
-    axes[0].set_ylim(0.0, BUDGET_AXIS_TOP if gained else 1.05)
-    layout.label_outer(axes, rows, "time t (s)", "energy / initial budget")
+    axes[0].set_ylim(0.0, max(tops) * (BUDGET_AXIS_TOP if gained else 1.05))
+    durations = [run.duration for _, run in panels if np.isfinite(run.duration)]
+    if durations:
+        axes[0].set_xlim(0.0, max(durations))
+    layout.label_outer(axes, rows, "time t (s)", "")
+    figure.supylabel(layout.energy_label([run for _, run in panels], "energy / E$_{ref}$"), fontsize=9)
     handles = [Patch(facecolor=colour, label=text) for text, colour in shown.items()]
     handles.append(Patch(facecolor=NUMERICAL_LOSS_COLOUR, label="numerical loss (the integrator)"))
     if gained:
         handles.append(Patch(facecolor="none", edgecolor=NUMERICAL_GAIN_COLOUR, hatch="xx", label="numerical gain (the integrator)"))
     handles.append(Line2D([], [], ls="--", color="black", lw=0.9, label="initial energy (the budget)"))
-    figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
-    where = f", {title}" if title else ""
-    figure.suptitle(f"{data.name}: where the energy goes (dt = {data.dt_names[dt]} s{where})", fontsize=11)
+    layout.figure_legend(figure, handles)
+    who = f"{data.labels[0]}, " if len(data.labels) == 1 else ""
+    layout.suptitle(figure, data, f"where the energy goes ({who}dt = {data.dt_names[dt]} s)")
+    layout.add_notes(figure, notes)
     return figure
+
+
+def _panel_title(section: str, runs: list[RunData], data: FigureData) -> str:
+    """The section and the runs' lines ("A = B" for runs drawn once), wrapped to the panel's width."""
+    names = " = ".join(data.series_of(run).name + run.status_note() for run in runs)
+    return textwrap.fill(layout.join_titles(section, names), BUDGET_TITLE_CHARACTERS)
+
+
+def _same_budget(a, b) -> bool:
+    (ta, terms_a, budget_a), (tb, terms_b, budget_b) = a, b
+    if ta.shape != tb.shape or set(terms_a) != set(terms_b) or not math.isclose(budget_a, budget_b, rel_tol=layout.SAME_CURVE):
+        return False
+    return all(layout.same_curve((ta, terms_a[key]), (tb, terms_b[key]), unit=budget_a) for key in terms_a)
 
 
 def _budget_dt(runs: list[RunData]) -> float:

@@ -10,7 +10,7 @@ import numpy as np
 from matplotlib import pyplot as plt
 from matplotlib.animation import FuncAnimation, PillowWriter
 
-from simrun.figures._data import FigureData
+from simrun.figures._data import FigureData, format_value
 from simrun.results import Results, Status, StoredRun
 
 SNAPSHOT_COUNT = 4
@@ -28,7 +28,8 @@ def frame_runs(results: Results) -> list[str]:
 
 
 def snapshot_runs(results: Results) -> list[str]:
-    """Every frame run, or for big sweeps one per integrator label and swept setting: the largest dt."""
+    """Every frame run, or for big sweeps one per integrator label and swept setting (its largest dt), at most
+    MAX_SNAPSHOT_FIGURES of them, spread over the sweep."""
     runs = frame_runs(results)
     if len(runs) <= MAX_SNAPSHOT_FIGURES:
         return runs
@@ -39,13 +40,20 @@ def snapshot_runs(results: Results) -> list[str]:
         key = (run.label, setting)
         if key not in chosen or run.dt > chosen[key][0]:
             chosen[key] = (run.dt, run_id)
-    return sorted(run_id for _, run_id in chosen.values())[:MAX_SNAPSHOT_FIGURES]
+    picks = sorted(run_id for _, run_id in chosen.values())
+    if len(picks) <= MAX_SNAPSHOT_FIGURES:
+        return picks
+    # spread over the sweep (every method and swept value has a chance to appear), not its first settings
+    return [picks[index] for index in np.unique(np.linspace(0, len(picks) - 1, MAX_SNAPSHOT_FIGURES).round().astype(int))]
 
 
 def snapshots(data: FigureData) -> list[tuple[str, object]] | None:
     """One figure per frame run (see snapshot_runs): the vertex grid at SNAPSHOT_COUNT times spread over the run."""
     figures = []
-    for run_id in snapshot_runs(data.results):
+    chosen, every = snapshot_runs(data.results), frame_runs(data.results)
+    note = (f"\n{len(chosen)} of {len(every)} runs with frames drawn (one per method and setting at its largest dt, "
+            "spread over the sweep; `simrun animate` draws any run)" if len(chosen) < len(every) else "")
+    for run_id in chosen:
         run = data.results.runs[run_id]
         frames, times = run["frames"], run["frame_t"]
         picks = np.unique(np.linspace(0, frames.shape[0] - 1, SNAPSHOT_COUNT).round().astype(int))
@@ -57,7 +65,8 @@ def snapshots(data: FigureData) -> list[tuple[str, object]] | None:
             axes = figure.add_subplot(1, len(picks), column + 1, projection="3d")
             _draw_scene(axes, frames[index], run, limits)
             axes.set_title(f"t = {times[index]:.3g} s", fontsize=9)
-        figure.suptitle(f"{run.label}, dt = {run.dt:g} s ({run.status})", fontsize=10)
+        settings = "".join(f", {key} = {format_value(value)}" for key, value in run.swept.items())
+        figure.suptitle(f"{run.label}{settings}, dt = {run.dt:g} s ({run.status}){note}", fontsize=10 if not note else 9)
         figure.tight_layout()
         figures.append((f"cloth_{run_id}", figure))
     return figures or None

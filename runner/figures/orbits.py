@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 from matplotlib.lines import Line2D
 
@@ -17,28 +15,28 @@ ORBIT_BOX_RADII = 3.0
 
 
 def orbits(data: FigureData):
-    """x-y trajectories of the planar runs per dt (rows per group), with the circle through the start dashed:
-    the exact orbit of circular motion, for both of its force laws."""
+    """x-y trajectories of the planar runs: a row of panels (one per dt) per setting and family of lines, with the
+    circle through the start dashed: the exact orbit of circular motion, for both of its force laws."""
     planar = [run for run in data.runs if run.stored.planar]
     if not planar:
         return None
-    groups = [(title, [run for run in runs if run.stored.planar]) for title, runs in data.groups]
-    subset = dataclasses.replace(data, runs=planar, groups=[group for group in groups if group[1]])
-    rows, note = layout.dt_panels(subset)
-    figure, axes = layout.panel_grid(rows, panel_size=ORBIT_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH)
+    rows, notes = layout.dt_grid(data, lambda run: run.stored.planar)
+    notes.append(layout.no_data_note(planar, data))
+    figure, axes = layout.panel_grid(rows, panel_size=ORBIT_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH,
+                                     extra_height=0.16 * len([note for note in notes if note]))
     circle = np.linspace(0.0, 2.0 * np.pi, 361)
-    for (title, runs), ax in zip(layout.flatten(rows), axes):
-        radius = _start_radius(runs)
+    clipped_any, stopped_any = False, False
+    for panel, ax in zip(layout.flatten(rows), axes):
+        radius = _start_radius(panel.runs)
         reach = radius
-        for run in layout.in_label_order(runs, data):
-            colour = data.colours[run.label]
-            xy = run.xy if run.xy is not None else np.empty((0, 2))
-            xy = xy[np.all(np.isfinite(xy), axis=1)]
+        for run in layout.in_label_order(panel.runs, data):
+            series = data.series_of(run)
+            xy = run.xy[np.all(np.isfinite(run.xy), axis=1)]
             if xy.shape[0] == 0:
-                ax.plot([], [], ls=":", color=colour, label=f"{run.label} (failed, no data)")
                 continue
             stopped = run.status.stopped
-            ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.0, alpha=0.9, label=layout.status_label(run),
+            stopped_any |= stopped
+            ax.plot(xy[:, 0], xy[:, 1], color=series.colour, ls=series.linestyle, lw=1.0, alpha=0.9,
                     marker="x" if stopped else None, markevery=[xy.shape[0] - 1], ms=7, mew=1.8)
             reach = max(reach, float(np.abs(xy).max()))
         ax.plot(radius * np.cos(circle), radius * np.sin(circle), "--", color="black", lw=1.0)
@@ -48,18 +46,22 @@ def orbits(data: FigureData):
         ax.set_ylim(-limit, limit)
         ax.set_aspect("equal")
         clipped = reach > ORBIT_BOX_RADII * radius
-        ax.set_title(title + (f"\n(clipped to ±{ORBIT_BOX_RADII:g} r)" if clipped else ""), fontsize=9)
-        layout.status_legend(ax)
+        clipped_any |= clipped
+        ax.set_title(panel.title + (" (clipped)" if clipped else ""), fontsize=9)
         ax.grid(True, alpha=0.3)
-    handles = layout.label_handles(data, [label for label in data.labels if any(run.label == label for run in planar)])
+    handles = layout.series_handles(data, list(dict.fromkeys(data.series_of(run) for run in planar)), markers=False, lw=1.0)
     handles += [Line2D([], [], ls="--", color="black", label="exact orbit (the circle through the start)"),
-                Line2D([], [], ls="none", marker="o", color="black", ms=4, label="start"),
-                Line2D([], [], ls="none", marker="x", color="0.3", ms=7, mew=1.8, label="run stopped (diverged/failed)")]
+                Line2D([], [], ls="none", marker="o", color="black", ms=4, label="start")]
+    if stopped_any:
+        handles.append(Line2D([], [], ls="none", marker="x", color="0.3", ms=7, mew=1.8, label="run stopped (diverged/failed)"))
     layout.label_outer(axes, rows, "x (m)", "y (m)")
-    figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
-    figure.suptitle(f"{data.name}: orbits" + note, fontsize=11)
+    layout.row_headers(axes, rows)
+    layout.figure_legend(figure, handles, data.legend_title)
+    layout.suptitle(figure, data, "orbits")
+    if clipped_any:
+        notes.append(f"(clipped): the view is cut at {ORBIT_BOX_RADII:g} times the start radius")
+    layout.add_notes(figure, notes)
     return figure
-
 
 
 def _start_radius(runs) -> float:

@@ -4,93 +4,132 @@ from __future__ import annotations
 
 import numpy as np
 from matplotlib.lines import Line2D
+from matplotlib.ticker import FuncFormatter
 
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, RunData
 from simrun.results import Status
 
+# Height (in) of the line of notes under the panels.
+NOTE_LINE = 0.16
+# Iterations spanning more than this factor (Newton's few, a first-order method's hundreds) get a log axis.
+ITERATIONS_LOG_RANGE = 30.0
+STOPPED_HANDLE = dict(ls="none", marker="o", mfc="white", mec="0.4", mew=1.6, ms=8, label="run stopped early (diverged/failed)")
+
+
 def newton_iterations_vs_dt(data: FigureData):
-    """Mean (and largest) Newton iterations per step against dt, implicit integrators only."""
+    """Mean (and largest) Newton iterations per step against dt, implicit integrators only; one panel per
+    setting and family of lines."""
     def counted(run: RunData) -> bool:
         return not run.explicit and run.newton_iterations.size > 0
 
-    implicit = [run for run in data.runs if counted(run)]
-    if not implicit:
+    notes: list[str] = []
+    panels = layout.summary_panels(data, counted, notes)
+    if not panels:
         return None
-    panels = [(title, [run for run in runs if counted(run)]) for title, runs in data.groups[:layout.MAX_GROUPS]]
-    panels = [panel for panel in panels if panel[1]]
-    rows = [panels[start:start + layout.PANEL_COLUMNS] for start in range(0, len(panels), layout.PANEL_COLUMNS)]
-    figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH)
+    rows = layout.wrap(panels)
+    figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE,
+                                     legend_width=layout.FIGURE_LEGEND_WIDTH)
+    curves = []  # per panel: (series, its runs sorted by dt, (dts, mean iterations))
+    for panel in panels:
+        lines = []
+        for series in panel.series:
+            mine = sorted((run for run in panel.runs if data.series_of(run) is series), key=lambda run: run.dt)
+            lines.append((series, mine, (np.array([run.dt for run in mine]),
+                                         np.array([run.newton_iterations.mean() for run in mine]))))
+        curves.append(lines)
+    # identical counts (a solver that ignores the swept linear solver): drawn once, both names in the legend
+    merged, overlaid = layout.twins([[(series, curve) for series, _, curve in lines] for lines in curves],
+                                    merge=data.colour_per_series)
+    peak_curves = [[(series, (curve[0], np.array([run.newton_iterations.max() for run in mine], dtype=float)))
+                    for series, mine, curve in lines if series not in merged] for lines in curves]
+    _, peaks_overlaid = layout.twins(peak_curves, merge=False)
+    peaks = np.concatenate([curve[1] for lines in peak_curves for _, curve in lines])
+    means = np.concatenate([curve[1] for lines in curves for _, _, curve in lines])
+    logarithmic = peaks.max() > ITERATIONS_LOG_RANGE * max(means.min(), 1.0)
     marked = set()
-    labels = [label for label in data.labels if any(run.label == label for run in implicit)]
-    for (title, runs), ax in zip(layout.flatten(rows), axes):
-        for number, label in enumerate(labels):
-            mine = sorted((run for run in runs if run.label == label), key=lambda run: run.dt)
-            if not mine:
+    for number, (panel, ax, lines) in enumerate(zip(panels, axes, curves)):
+        for index, (series, mine, (dts, mean)) in enumerate(lines):
+            if series in merged:
                 continue
-            style = layout.label_style(data, label, number)
-            dts = np.array([run.dt for run in mine])
-            mean = np.array([run.newton_iterations.mean() for run in mine])
+            style = layout.series_style(series, index)
+            if (number, series) in overlaid:
+                style["ls"] = layout.OVERLAY_DASHES
             peak = np.array([run.newton_iterations.max() for run in mine])
-            ax.plot(dts, mean, "-", lw=1.3, **style)
-            ax.plot(dts, peak, ":", lw=1.0, color=style["color"])
+            ax.plot(dts, mean, lw=1.3, **style)
+            # the largest: dotted (or, where line styles tell settings apart, the line's own style, faded); dashed
+            # over an identical one
+            ls = ":" if data.colour_per_series else series.linestyle
+            ax.plot(dts, peak, ls=layout.OVERLAY_DASHES if (number, series) in peaks_overlaid else ls, lw=1.0,
+                    color=series.colour, alpha=1.0 if data.colour_per_series else 0.45)
             stopped = np.array([run.status.stopped for run in mine])
             if stopped.any():  # the mean over the steps before the run stopped
-                ax.plot(dts[stopped], mean[stopped], ls="none", **{**style, "mfc": "white", "mew": 1.6, "label": None})
+                ax.plot(dts[stopped], mean[stopped], **{**style, "ls": "none", "mfc": "white", "mew": 1.6})
                 marked |= {run.status for run in mine if run.status.stopped}
             marked |= layout.ring_not_converged(ax, dts, mean, mine)
         ax.set_xscale("log")
-        ax.set_ylim(0, max(ax.get_ylim()[1], 1.0) * 1.12)
-        ax.yaxis.get_major_locator().set_params(integer=True)
-        ax.set_title(title, fontsize=9)
+        ax.set_title(panel.title, fontsize=9)
         ax.grid(True, which="major", alpha=0.3)
-    handles = [Line2D([], [], ls="-", **{**layout.label_style(data, label, number), "ms": layout.LEGEND_MARKER_SIZE})
-               for number, label in enumerate(labels)]
+    if logarithmic:  # one scale for the figure: Newton's few iterations and a first-order method's hundreds
+        axes[0].set_yscale("log")
+        axes[0].set_ylim(max(0.8 * min(means.min(), peaks.min()), 0.5), 1.5 * peaks.max())
+        axes[0].yaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    else:
+        axes[0].set_ylim(0, max(peaks.max(), 1.0) * 1.12)
+        axes[0].yaxis.get_major_locator().set_params(integer=True)
+    for ax in axes:
+        layout.tidy_log_axes(ax)
+    handles = layout.series_handles(data, [series for panel in panels for series in panel.series], merged, lw=1.3)
     handles += [Line2D([], [], ls="-", color="0.4", label="mean per step"),
-                Line2D([], [], ls=":", color="0.4", label="largest in one step")]
+                Line2D([], [], ls=":" if data.colour_per_series else "-", alpha=1.0 if data.colour_per_series else 0.45,
+                       color="0.4", label="largest in one step")]
     if marked & {Status.DIVERGED, Status.FAILED}:
-        handles.append(Line2D([], [], ls="none", marker="o", mfc="white", mec="0.4", mew=1.6, ms=8,
-                              label="run stopped early (diverged/failed)"))
+        handles.append(Line2D([], [], **STOPPED_HANDLE))
     handles += layout.status_handles(marked & {Status.NOT_CONVERGED}, "")
     layout.label_outer(axes, rows, "time step dt (s)", "Newton iterations per step")
-    figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
-    figure.suptitle(f"{data.name}: Newton iterations against time step", fontsize=11)
+    layout.figure_legend(figure, handles, data.legend_title)
+    layout.suptitle(figure, data, "Newton iterations against time step")
+    explicit = sorted({run.label for run in data.runs if run.explicit})
+    layout.add_notes(figure, notes + [f"explicit methods (no solver): {', '.join(explicit)}" if explicit else "",
+                                      layout.SAME_CURVE_NOTE if merged else ""])
     return figure
-
 
 
 def wall_time_per_step_vs_dt(data: FigureData):
-    """Wall time per step against dt, one line per label, one panel per group (e.g. per solver)."""
-    timed = [run for run in data.runs if run.steps > 0 and run.wall_time > 0]
-    if not timed:
+    """Wall time per step against dt, one line per series, one panel per setting and family of lines."""
+    notes: list[str] = []
+    panels = layout.summary_panels(data, lambda run: run.steps > 0 and run.wall_time > 0, notes)
+    if not panels:
         return None
-    chosen = set(map(id, timed))
-    panels = [(title, [run for run in runs if id(run) in chosen]) for title, runs in data.groups[:layout.MAX_GROUPS]]
-    panels = [panel for panel in panels if panel[1]]
-    rows = [panels[start:start + layout.PANEL_COLUMNS] for start in range(0, len(panels), layout.PANEL_COLUMNS)]
-    figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH)
+    rows = layout.wrap(panels)
+    figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE,
+                                     legend_width=layout.FIGURE_LEGEND_WIDTH)
     stopped_any = False
-    for (title, runs), ax in zip(layout.flatten(rows), axes):
-        for number, label in enumerate(data.labels):
-            mine = sorted((run for run in runs if run.label == label), key=lambda run: run.dt)
-            if not mine:
-                continue
-            style = layout.label_style(data, label, number)
+    costs = []
+    for panel, ax in zip(panels, axes):
+        for number, series in enumerate(panel.series):
+            mine = sorted((run for run in panel.runs if data.series_of(run) is series), key=lambda run: run.dt)
+            style = layout.series_style(series, number)
             dts = np.array([run.dt for run in mine])
             cost = np.array([run.wall_time / run.steps for run in mine]) * 1e3
-            ax.plot(dts, cost, "-", lw=1.2, **style)
+            costs.append(cost)
+            ax.plot(dts, cost, lw=1.2, **style)
             stopped = np.array([run.status.stopped for run in mine])
             if stopped.any():
-                ax.plot(dts[stopped], cost[stopped], ls="none", **{**style, "mfc": "white", "mew": 1.6, "label": None})
+                ax.plot(dts[stopped], cost[stopped], **{**style, "ls": "none", "mfc": "white", "mew": 1.6})
                 stopped_any = True
-        layout.log_log_panel(ax, title)
+        layout.log_log_panel(ax, panel.title)
+    limits = layout.log_limits(np.concatenate(costs), pad=1.3)
+    if limits:
+        axes[0].set_ylim(*limits)
+    for ax in axes:
+        layout.tidy_log_axes(ax)
     layout.label_outer(axes, rows, "time step dt (s)", "wall time per step (ms)")
-    handles = [Line2D([], [], ls="-", **{**layout.label_style(data, label, number), "ms": layout.LEGEND_MARKER_SIZE})
-               for number, label in enumerate(data.labels)]
+    handles = layout.series_handles(data, [series for panel in panels for series in panel.series], lw=1.2)
     if stopped_any:
-        handles.append(Line2D([], [], ls="none", marker="o", mfc="white", mec="0.4", mew=1.6, ms=8,
-                              label="run stopped early (diverged/failed)"))
-    figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
-    figure.suptitle(f"{data.name}: cost per step against time step", fontsize=11)
+        handles.append(Line2D([], [], **STOPPED_HANDLE))
+    layout.figure_legend(figure, handles, data.legend_title)
+    layout.suptitle(figure, data, "cost per step against time step")
+    untimed = [run for run in data.runs if not (run.steps > 0 and run.wall_time > 0)]
+    layout.add_notes(figure, notes + [f"{len(untimed)} of {len(data.runs)} runs took no step: not drawn" if untimed else ""])
     return figure
-

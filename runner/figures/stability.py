@@ -6,7 +6,8 @@ import math
 
 import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.colors import TwoSlopeNorm
+from matplotlib.colors import Normalize
+from matplotlib.ticker import MaxNLocator
 
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, RunData
@@ -18,59 +19,89 @@ from simrun.results import Status
 MIN_GROWTH_DECADES = 1.0
 # The stability map's key (two lines of 7.5-pt text) needs this width (in).
 MAP_MIN_WIDTH = 6.0
+# Tables of several sections sit side by side up to this width (in), one above the other beyond.
+MAP_MAX_WIDTH = 16.0
 # More stability-map columns than this get slanted dt labels.
 MAP_COLUMNS_UPRIGHT = 8
 
 
 def stability_map(data: FigureData):
-    """Integrators (rows) x dt (columns), coloured by log10 of the largest energy growth."""
-    panels = [(title, runs) for title, runs in data.groups[:layout.MAX_GROUPS]]
+    """Lines (integrators, at a setting of the keys drawn as lines; rows) x dt (columns), one table per section,
+    coloured by the largest energy change in decades: every run of the file, a number in each cell.
+
+    The colour scale is symmetric about 0 (as much blue for a loss as red for a gain of as many decades), so
+    that its ticks read on both sides of 0."""
+    if not data.runs:
+        return None
+    panels = [(title, runs) for title, runs in data.sections]
     signed = not all(run.energy.size and run.energy[0] > 0 and np.nanmin(run.energy) >= 0
+                     and math.isclose(run.energy_ref, run.energy[0], rel_tol=1e-9)
                      for run in data.runs if run.has_series)
-    tables = [_growth_table(runs, data.labels, signed) for _, runs in panels]
+    tables = [_growth_table(runs, data, signed) for _, runs in panels]
     values = np.concatenate([table[2].ravel() for table in tables])
     values = values[np.isfinite(values)]
-    low = min(float(values.min()) if values.size else 0.0, -MIN_GROWTH_DECADES)
-    high = max(float(values.max()) if values.size else 0.0, MIN_GROWTH_DECADES)
-    norm = TwoSlopeNorm(vcenter=0.0, vmin=low, vmax=high)
+    half = max(float(np.max(np.abs(values))) if values.size else 0.0, MIN_GROWTH_DECADES)
+    norm = Normalize(vmin=-half, vmax=half)
     cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.93")
     widest = max(len(table[1]) for table in tables)
-    size = (max(MAP_MIN_WIDTH, 1.0 + 0.75 * widest + 0.11 * max(map(len, data.labels))),
-            0.9 + sum(0.45 * len(table[0]) + 0.7 for table in tables))
-    figure, axes = plt.subplots(len(panels), 1, figsize=size, layout="constrained", squeeze=False)
-    axes = axes.ravel()
+    longest = max(len(series.name) for table in tables for series in table[0])
+    # tables side by side while they fit the width of a page, else one above the other
+    table_width = 0.75 * widest + 0.075 * longest + 0.6
+    columns = max(1, min(len(tables), int(MAP_MAX_WIDTH // table_width)))
+    grid: list[list[int]] = []  # consecutive tables with as many rows share a row of the grid (and its height)
+    for number, table in enumerate(tables):
+        if grid and len(grid[-1]) < columns and len(tables[grid[-1][0]][0]) == len(table[0]):
+            grid[-1].append(number)
+        else:
+            grid.append([number])
+    heights = [max(len(tables[number][0]) for number in row) for row in grid]
+    size = (max(MAP_MIN_WIDTH, 1.4 + table_width * max(len(row) for row in grid)),
+            1.3 + sum(0.42 * height + 0.8 for height in heights))
+    figure, cells = plt.subplots(len(grid), max(len(row) for row in grid), figsize=size, layout="constrained",
+                                 squeeze=False, height_ratios=[height + 1.5 for height in heights])
+    axes = [cells[number, column] for number, row in enumerate(grid) for column in range(len(row))]
+    for number, row in enumerate(grid):
+        for ax in cells[number, len(row):]:
+            ax.set_visible(False)
+    first_column = {id(cells[number, 0]) for number in range(len(grid))}
     image, names = None, data.dt_names
     predictions = predictions_for(data) if test_equation_runs(data) else {}
     limits_drawn = False
-    for (title, runs), (labels, dts, growth, statuses), ax in zip(panels, tables, axes):
+    for (title, runs), (rows, dts, growth, statuses), ax in zip(panels, tables, axes):
         image = ax.imshow(np.ma.masked_invalid(growth), cmap=cmap, norm=norm, aspect="auto", interpolation="nearest")
         for row, column in np.ndindex(growth.shape):
             _annotate_cell(ax, row, column, growth[row, column], statuses[row][column], norm)
-        limits_drawn |= _draw_predicted_limits(ax, labels, dts, runs, predictions)
-        ax.set_xticks(range(len(dts)), [names[dt] for dt in dts], fontsize=8,
-                      rotation=45 if len(dts) > MAP_COLUMNS_UPRIGHT else 0, ha="right" if len(dts) > MAP_COLUMNS_UPRIGHT else "center",
-                      rotation_mode="anchor")
-        ax.set_yticks(range(len(labels)), labels, fontsize=8)
+        limits_drawn |= _draw_predicted_limits(ax, [series.label for series in rows], dts, runs, predictions)
+        slanted = len(dts) > MAP_COLUMNS_UPRIGHT
+        ax.set_xticks(range(len(dts)), [names[dt] for dt in dts], fontsize=8, rotation=45 if slanted else 0,
+                      ha="right" if slanted else "center", rotation_mode="anchor")
+        ax.set_yticks(range(len(rows)), [series.name for series in rows], fontsize=8)
         ax.set_xticks(np.arange(len(dts) + 1) - 0.5, minor=True)
-        ax.set_yticks(np.arange(len(labels) + 1) - 0.5, minor=True)
+        ax.set_yticks(np.arange(len(rows) + 1) - 0.5, minor=True)
         ax.grid(which="minor", color="white", lw=1.5)
         ax.tick_params(which="minor", length=0)
-        ax.set_xlabel("time step dt (s)", fontsize=9)
+        ax.set_xlabel("time step dt (s)", fontsize=8)
+        if data.legend_title and id(ax) in first_column:
+            ax.set_ylabel(data.legend_title.rstrip(":"), fontsize=8)
         if title:
             ax.set_title(title, fontsize=9)
-    what = "sign(ΔE)·log$_{10}$(1 + |ΔE| / |E$_0$|)" if signed else "log$_{10}$ (E / E$_0$)"
-    colourbar = figure.colorbar(image, ax=list(axes), shrink=0.9, pad=0.02)
-    colourbar.set_label(f"largest energy growth\n{what}", fontsize=8)
+    if signed:
+        what = "sign(ΔE)·log$_{10}$(1 + |E − E$_0$| / E$_{ref}$)"
+    else:
+        what = "log$_{10}$(E / E$_{ref}$)"
+    colourbar = figure.colorbar(image, ax=list(axes), shrink=min(0.9, 4.0 / size[1] + 0.3), pad=0.02, aspect=30)
+    colourbar.locator = MaxNLocator(nbins=8, symmetric=True)
+    colourbar.update_ticks()
+    reference = layout.energy_label(data.runs, "").strip()
+    colourbar.set_label(f"largest energy change (decades)\n{what}\n{reference}", fontsize=8)
     colourbar.ax.tick_params(labelsize=7)
     present = {run.status for run in data.runs}
     marks = [note for status, note in ((Status.DIVERGED, "X diverged (value at divergence)"), (Status.FAILED, "! failed"),
                                        (Status.NOT_CONVERGED, "* solver did not converge in some steps")) if status in present]
     if limits_drawn:
         marks.append("┃ predicted stability limit (ρ > 1 to its right)")
-    key = "blue: energy lost, red: gained" + ("\n" + ",   ".join(marks) if marks else "")
-    more = f"  (first {layout.MAX_GROUPS} of {len(data.groups)} groups)" if len(data.groups) > layout.MAX_GROUPS else ""
-    figure.suptitle(f"{data.name}: stability map" + more, fontsize=11)
-    figure.supxlabel(key, fontsize=7.5, color="0.25")
+    layout.suptitle(figure, data, "stability map (every run)")
+    layout.add_notes(figure, ["blue: energy lost, red: gained", ",   ".join(marks)])
     return figure
 
 
@@ -101,14 +132,14 @@ def _draw_predicted_limits(ax, labels: list[str], dts: list[float], runs: list[R
     return drawn
 
 
-def _growth_table(runs: list[RunData], labels: list[str], signed: bool):
-    """(row labels, sorted dts, growth (rows x dts; NaN where no value), statuses)."""
-    rows = [label for label in labels if any(run.label == label for run in runs)]
+def _growth_table(runs: list[RunData], data: FigureData, signed: bool):
+    """(row series, sorted dts, growth (rows x dts; NaN where no value), statuses)."""
+    rows = list(dict.fromkeys(data.series_of(run) for run in layout.in_label_order(runs, data)))
     dts = sorted({run.dt for run in runs})
     growth = np.full((len(rows), len(dts)), np.nan)
     statuses = [[""] * len(dts) for _ in rows]
     for run in runs:
-        row, column = rows.index(run.label), dts.index(run.dt)
+        row, column = rows.index(data.series_of(run)), dts.index(run.dt)
         statuses[row][column] = run.status
         if run.has_change:
             growth[row, column] = _growth(run, signed)
@@ -121,8 +152,8 @@ def _growth(run: RunData, signed: bool) -> float:
     if signed:
         change = (energy - energy[0]) / run.energy_ref
         values = np.sign(change) * np.log10(1.0 + np.abs(change))
-    else:
-        values = np.log10(np.maximum(energy / energy[0], np.finfo(float).tiny))
+    else:  # E_ref = E0 > 0 and E >= 0: decades of growth or loss
+        values = np.log10(np.maximum(energy / run.energy_ref, np.finfo(float).tiny))
     return float(values[np.argmax(np.abs(values))])
 
 

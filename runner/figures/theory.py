@@ -102,13 +102,17 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
     top, bottom, growth, marked = 0.0, 0.0, False, set()
     diverged_marks = []
     for (panel_title, labels), ax in zip(layout.flatten(rows), axes):
+        drawn = []  # this panel's curves so far: a later identical one is dashed over them
         for number, label in enumerate(labels):
             prediction, colour = predictions[label], colours[label]
             stable = prediction.rho <= 1.0 + analysis.GROWTH_TOLERANCE
             damping = prediction.damping + 0.0  # no "-0" for rho = 1
             # later labels thinner, so that coinciding curves (backward Euler and its one-Newton-step twin) both show
             width = max(1.0, 2.0 - 0.3 * number)
-            ax.plot(prediction.hw, np.where(stable, damping, np.nan), "-", color=colour, lw=width, zorder=3)
+            curve = (prediction.hw, np.where(stable, damping, np.nan))
+            hidden = any(layout.same_curve(earlier, curve, unit=1.0) for earlier in drawn)
+            drawn.append(curve)
+            ax.plot(*curve, color=colour, lw=width, ls=layout.OVERLAY_DASHES if hidden else "-", zorder=3)
             if not stable.all():
                 # dashed where rho > 1, joined to the solid part at the crossing
                 unstable = ~stable | np.r_[~stable[1:], False]
@@ -203,14 +207,18 @@ def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict
     measured = limits = False
     for column, (panel_title, labels) in enumerate(panels):
         radius_ax, period_ax = grid[0, column], grid[1, column]
+        drawn = {"rho": [], "period": []}  # the curves of this column so far: a later identical one is dashed over them
         for number, label in enumerate(labels):
             prediction, colour = predictions[label], colours[label]
-            radius_ax.plot(prediction.hw, prediction.rho, "-", color=colour, lw=1.5)
+            for ax, key, values in ((radius_ax, "rho", prediction.rho), (period_ax, "period", prediction.period_error)):
+                curve = (prediction.hw, np.asarray(values, dtype=float))
+                hidden = any(layout.same_curve(earlier, curve, unit=1.0) for earlier in drawn[key])
+                ax.plot(*curve, color=colour, lw=1.5, ls=layout.OVERLAY_DASHES if hidden else "-", zorder=3 if hidden else 2)
+                drawn[key].append(curve)
             limit = prediction.stability_limit
             if 0.0 < limit < prediction.hw[-1]:
                 radius_ax.plot(limit, 1.0, "o", color=colour, mfc="white", mew=1.4, ms=6, zorder=5)
                 limits = True
-            period_ax.plot(prediction.hw, prediction.period_error, "-", color=colour, lw=1.5)
             for run in (run for run in runs if run.label == label):
                 if np.isfinite(run.period_error):
                     period_ax.plot(run.hw, run.period_error, ls="none", marker=markers[label], color=colour,
@@ -236,7 +244,7 @@ def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict
     grid[1, 0].set_ylabel("relative period error T$_h$/T − 1", fontsize=9)
     grid[1, 0].text(math.pi, 0.97 * PERIOD_ERROR_RANGE[1], "h w = π ", fontsize=7, color="0.4", va="top", ha="right")
     handles = [Line2D([], [], color=colours[label], lw=1.5, marker=markers[label] if measured else None,
-                      ms=layout.LEGEND_MARKER_SIZE, label=label + _limit_note(prediction))
+                      ms=layout.LEGEND_MARKER_SIZE, label=label + _twin_note(label, predictions) + _limit_note(prediction))
                for label, prediction in predictions.items()]
     if limits:
         handles.append(Line2D([], [], ls="none", marker="o", mfc="white", mec="0.3", mew=1.4, ms=6,
@@ -246,6 +254,18 @@ def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict
     figure.legend(handles=handles, loc="outside right center", fontsize=8, frameon=False)
     figure.suptitle(title, fontsize=11)
     return figure
+
+
+def _twin_note(label: str, predictions: dict[str, "analysis.Prediction"]) -> str:
+    """'  (= backward_euler here)' when an earlier label has the same ρ and period error curves (drawn dashed over it)."""
+    mine = predictions[label]
+    for other, prediction in predictions.items():
+        if other == label:
+            return ""
+        if all(layout.same_curve((prediction.hw, np.asarray(a, dtype=float)), (mine.hw, np.asarray(b, dtype=float)), unit=1.0)
+               for a, b in ((prediction.rho, mine.rho), (prediction.period_error, mine.period_error))):
+            return f"  (= {other} here)"
+    return ""
 
 
 def _limit_note(prediction: "analysis.Prediction") -> str:

@@ -1,0 +1,494 @@
+"""What a results file answers, first: findings as sentences, each with the numbers behind it.
+
+The report opens with these. Each ``Finding`` is a sentence, the anchor of the table or figure on the
+report's page that shows it, and its evidence: the numbers it states, by name, so that tests check a
+sentence against known values rather than its wording. No finding claims more than the file holds:
+
+- stability: per integrator, the largest dt that ran to its end without diverging and the smallest
+  that diverged (measured: only from runs at those dts), beside the predicted limit (runs on the
+  undamped test equation only: the limit is a property of the method on q'' + w^2 q = 0);
+- artificial damping: the energy a method gains or loses per period T = 2 pi / w at the sweep's h w,
+  predicted from the probed amplification matrix (test equation only): per step the energy scales by
+  rho^2 and a period is 2 pi / (h w) steps, so the fraction lost per period is
+  1 - rho^(4 pi / (h w)) = 1 - exp(-2 pi d_method / w); and how the measured damping agrees with it;
+- accuracy and cost: rankings only among runs that reached their end with a known error (exact
+  solution, or a reference), by the wall time of the cheapest run within an error budget;
+- what could not be measured, and why, said once.
+
+The numbers come from ``simrun.tables`` (which reads the file through ``simrun.figures.figure_data``)
+and ``simrun.analysis``; this module only selects, compares and words them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from simrun import analysis
+from simrun.figures import FigureData
+from simrun.figures.theory import predictions_for, test_equation_runs
+from simrun.results import Status
+from simrun.tables import (DAMPING_TOLERANCE, ORDER_TOLERANCE, ROUND_OFF_DAMPING, OrderRow, SummaryRow,
+                           energy_reference_text, error_runs, order_rows, run_error, summary_rows)
+
+# The damping budget of the ranking: at most this fraction of the energy gained or lost per period.
+DAMPING_BUDGET = 0.01
+# Error budgets are decades of the length scale, from this fraction down to the smallest error that
+# two methods reach; at most MAX_ERROR_BUDGETS of them are stated (the loosest, the tightest, one between).
+LOOSEST_ERROR_BUDGET, MAX_ERROR_BUDGETS = 0.1, 3
+# Wall times closer than this fraction are not ranked (≈): timing noise, runs sharing the cores.
+WALL_TIME_NOISE = 0.1
+# The damping per period is stated at the sweep's h w, at most this many of them (spread over the sweep).
+MAX_DAMPING_POINTS = 6
+# Bisection steps (in log h w) for the largest h w within the damping budget: 2^-40 of a decade.
+BUDGET_BISECTION_STEPS = 40
+# Where the budget search looks below the predicted grid: a method is within any budget at small enough h w.
+SMALLEST_BUDGET_HW = 1e-8
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One answer of the file: a sentence, where the page shows it, and the numbers it states."""
+
+    sentence: str
+    link_anchor: str  # "#stability", "#figure-stability_map", ...: the table or figure that shows it
+    evidence: dict = field(default_factory=dict)
+    topic: str = ""  # stability | damping | accuracy | energy | not measured
+
+
+def findings(data: FigureData, rows: list[SummaryRow] | None = None, orders: list[OrderRow] | None = None
+             ) -> list[Finding]:
+    """The findings of a file's runs, in reading order (stability, damping, accuracy, energy, not measured)."""
+    rows = summary_rows(data) if rows is None else rows
+    orders = order_rows(data) if orders is None else orders
+    predictions = predictions_for(data) if test_equation_runs(data) else {}
+    several = len(data.groups) > 1
+    result = _stability(data, rows, predictions, several)
+    result += _largest_dt(data, several)
+    result += _damping(data, predictions, several)
+    result += _measured_damping(rows)
+    result += _damping_budget(data, predictions)
+    result += _accuracy(data, several)
+    result += _orders(orders, several)
+    if not predictions:
+        result += _energy(data, rows, several)
+    result += _not_measured(data, orders, several)
+    return result
+
+
+# -- wording ----------------------------------------------------------------------------------------
+def _who(title: str, label: str, several: bool) -> str:
+    return f"{label} ({title})" if several and title else label
+
+
+def _dts(values: list[float]) -> str:
+    return ", ".join(f"{value:g}" for value in values) + " s"
+
+
+def _and(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def energy_lost_per_period(damping_over_w: float) -> float:
+    """Fraction of the energy lost over one period T = 2 pi / w at the damping rate d = (d/w) w: 1 - exp(-2 pi d/w);
+    negative for a gain."""
+    return -math.expm1(-2.0 * math.pi * damping_over_w)
+
+
+def per_period_text(lost: float, damping_over_w: float) -> str:
+    """The energy change over a period: "loses 6.09 %", "gains 3 %", "grows × 79", "none (ρ = 1)"."""
+    if abs(damping_over_w) < ROUND_OFF_DAMPING:
+        return "none (ρ = 1)"
+    if lost >= 0:
+        percent = 100 * lost
+        return "loses > 99.9 %" if percent >= 99.95 else f"loses {percent:.3g} %"
+    factor = 1 - lost
+    return f"gains {100 * (factor - 1):.3g} %" if factor < 2 else f"grows × {factor:.3g}"
+
+
+def _per_period_list(hws: list[float], lost: list[float], damping: list[float]) -> str:
+    """"loses 6.09 % at h w = 0.01, 17.2 % at 0.03; none (ρ = 1) at 0.1 and 0.3": a verb once per run of the same verb."""
+    segments: list[tuple[str, list[str]]] = []
+    for hw, fraction, value in zip(hws, lost, damping):
+        verb, _, amount = per_period_text(fraction, value).partition(" ")
+        if verb == "none":
+            verb, amount = "none (ρ = 1)", ""
+        at = f"{amount} at {hw:.3g}" if amount else f"{hw:.3g}"
+        if segments and segments[-1][0] == verb:
+            segments[-1][1].append(at)
+        else:
+            segments.append((verb, [at]))
+    texts = []
+    for verb, items in segments:
+        items = [items[0].replace(" at ", " at h w = ", 1) if " at " in items[0] else f"at h w = {items[0]}"] + items[1:]
+        texts.append(f"{verb} " + (_and(items) if verb.startswith("none") else ", ".join(items)))
+    return "; ".join(texts)
+
+
+def drift_text(drift: float) -> str:
+    """An energy change relative to E_ref: "4.26 %", or "2.1e+04 × E_ref" for growth beyond ten times it."""
+    if not np.isfinite(drift):
+        return "–"
+    return f"{100 * drift:.3g} %" if drift < 10 else f"{drift:.3g} × E_ref"
+
+
+# -- stability --------------------------------------------------------------------------------------
+def _stability(data, rows, predictions, several) -> list[Finding]:
+    drift = {row.run_id: row.max_rel_energy_drift for row in rows}
+    per_label, all_bounded = [], []
+    for title, runs in data.groups:
+        for label in data.labels:
+            mine = sorted((run for run in runs if run.label == label), key=lambda run: run.dt)
+            if not mine:
+                continue
+            reached = [run.dt for run in mine if not run.status.stopped]
+            diverged = [run.dt for run in mine if run.status is Status.DIVERGED]
+            failed = [run.dt for run in mine if run.status is Status.FAILED]
+            frequency = next((run.frequency for run in mine if run.frequency), None)
+            prediction = predictions.get(label) if frequency else None
+            evidence = {"integrator": label, "group": title, "bounded_dts": reached, "diverged_dts": diverged,
+                        "failed_dts": failed, "largest_bounded_dt": max(reached, default=math.nan),
+                        "smallest_diverged_dt": min(diverged, default=math.nan)}
+            if not diverged and not failed and prediction is None:
+                all_bounded.append((title, label, reached))
+                continue
+            parts = [_measured_stability(reached, diverged, failed)]
+            if prediction is not None:
+                limit = prediction.stability_limit
+                evidence.update(predicted_limit_hw=limit, predicted_limit_dt=limit / frequency, frequency=frequency)
+                parts.append(_predicted_stability(limit, frequency, prediction))
+                beyond = [run for run in mine if not run.status.stopped and run.dt * frequency > limit * (1 + 1e-9)]
+                if beyond:
+                    growth = max(drift[run.run_id] for run in beyond)
+                    parts.append(f"beyond the limit, the runs at dt = {_dts([run.dt for run in beyond])} grew "
+                                 f"(max |E − E0| up to {drift_text(growth)}) without reaching the divergence bound")
+                    evidence["beyond_limit_dts"] = [run.dt for run in beyond]
+                below = [dt for dt in diverged if dt * frequency < limit * (1 - 1e-9)]
+                if below:
+                    parts.append(f"diverged below the predicted limit at dt = {_dts(below)}")
+            anchor = "#stability" if prediction is not None else "#figure-stability_map"
+            per_label.append((_who(title, label, several), "; ".join(parts), anchor, evidence))
+    result = []
+    if all_bounded:
+        dts = sorted({dt for _, _, reached in all_bounded for dt in reached})
+        labels = list(dict.fromkeys(_who(title, label, several) for title, label, _ in all_bounded))
+        whom = "Every run" if not per_label else f"Every run of {_and(labels)}"
+        result.append(Finding(f"{whom} reached its end without diverging (measured; dt up to {max(dts):g} s).",
+                              "#figure-stability_map",
+                              {"integrators": labels, "bounded_dts": dts, "diverged_dts": []}, "stability"))
+    return _said_once(per_label) + result
+
+
+def _said_once(items: list[tuple[str, str, str, dict]]) -> list[Finding]:
+    """(who, what, anchor, evidence) as findings; integrators of which the same is said share one sentence
+    (their evidence under "integrators", each one's under "each")."""
+    alike: dict[tuple[str, str], list[tuple[str, dict]]] = {}
+    for who, what, anchor, evidence in items:
+        alike.setdefault((what, anchor), []).append((who, evidence))
+    result = []
+    for (what, anchor), members in alike.items():
+        if len(members) == 1:
+            who, evidence = members[0]
+        else:
+            who = _and([name for name, _ in members])
+            evidence = {"integrators": [item["integrator"] for _, item in members], "each": [item for _, item in members]}
+        result.append(Finding(f"{who}: {what}.", anchor, evidence, "stability"))
+    return result
+
+
+def _measured_stability(reached, diverged, failed) -> str:
+    if not diverged and not failed:
+        text = f"measured: reached the end without diverging at every dt run (up to {max(reached):g} s)"
+    elif not reached:
+        text = f"measured: stopped at every dt run (from {min(diverged + failed):g} s)"
+        if diverged:
+            text += f", diverged at dt = {_dts(diverged)}"
+    elif diverged and max(reached) < min(diverged):
+        text = (f"measured: reached the end without diverging up to dt = {max(reached):g} s, "
+                f"diverged from dt = {min(diverged):g} s")
+    else:
+        text = f"measured: reached the end at dt = {_dts(reached)}"
+        if diverged:
+            text += f", diverged at dt = {_dts(diverged)}"
+    if failed:
+        text += f", failed at dt = {_dts(failed)}"
+    return text
+
+
+def _predicted_stability(limit: float, frequency: float, prediction) -> str:
+    if limit == 0:
+        return "predicted: unstable at every step size (spectral radius ρ > 1 at every h w)"
+    if math.isinf(limit):
+        return f"predicted: stable at every h w (ρ ≤ 1 up to h w = {prediction.hw[-1]:g})"
+    return f"predicted: stable up to h w = {limit:.4g} (dt = {limit / frequency:.4g} s at w = {frequency:.4g} rad/s)"
+
+
+def _largest_dt(data, several) -> list[Finding]:
+    """Who survives the largest dt of each group (measured: only the runs at that dt), when not all did."""
+    result = []
+    for title, runs in data.groups:
+        largest = max(run.dt for run in runs)
+        at = [run for run in runs if run.dt == largest]
+        stopped = [run for run in at if run.status.stopped]
+        if not stopped:
+            continue
+        bounded = [run.label for run in at if not run.status.stopped]
+        diverged = [run.label for run in at if run.status is Status.DIVERGED]
+        failed = [run.label for run in at if run.status is Status.FAILED]
+        hws = {f"{run.hw:.3g}" for run in at if np.isfinite(run.hw)}
+        where = f"dt = {largest:g} s" + (f" (h w = {hws.pop()})" if len(hws) == 1 else "")
+        where += f" ({title})" if several and title else ""
+        if bounded:
+            sentence = f"At the largest dt, {where}, only {_and(bounded)} reached the end without diverging"
+        else:
+            sentence = f"At the largest dt, {where}, no method reached the end"
+        if diverged:
+            sentence += f"; {_and(diverged)} diverged"
+        if failed:
+            sentence += f"; {_and(failed)} failed"
+        result.append(Finding(sentence + " (measured).", "#figure-stability_map",
+                              {"group": title, "dt": largest, "bounded": bounded, "diverged": diverged, "failed": failed},
+                              "stability"))
+    return result
+
+
+# -- artificial damping -------------------------------------------------------------------------------
+def _damping(data, predictions, several) -> list[Finding]:
+    result = []
+    for title, runs in data.groups:
+        for label in data.labels:
+            if label not in predictions:
+                continue
+            hws = sorted({run.hw for run in runs if run.label == label and np.isfinite(run.hw) and run.hw > 0})
+            if not hws:
+                continue
+            if len(hws) > MAX_DAMPING_POINTS:
+                hws = [hws[index] for index in np.unique(np.linspace(0, len(hws) - 1, MAX_DAMPING_POINTS - 1).round().astype(int))]
+            damping = [predictions[label].at(hw)[1] for hw in hws]
+            lost = [energy_lost_per_period(value) for value in damping]
+            told = _per_period_list(hws, lost, damping)
+            result.append(Finding(
+                f"Artificial damping of {_who(title, label, several)} (predicted from the amplification matrix; the "
+                f"energy change per period T = 2π/w of the test equation): {told}.", "#figure-artificial_damping",
+                {"integrator": label, "group": title, "hw": hws, "damping_over_w": damping, "energy_lost_per_period": lost},
+                "damping"))
+    return result
+
+
+def _measured_damping(rows: list[SummaryRow]) -> list[Finding]:
+    on_test = [row for row in rows if np.isfinite(row.hw)]
+    if not on_test:
+        return []
+    measured = [row for row in on_test if np.isfinite(row.measured_damping) and np.isfinite(row.predicted_damping)]
+    resolved = [row for row in measured if row.measured_resolved]
+    agree = [row for row in resolved if row.damping_agrees]
+    differ = [row for row in resolved if not row.damping_agrees]
+    unresolved = len(measured) - len(resolved)
+    not_measured = len(on_test) - len(measured)
+    if resolved:
+        sentence = (f"Measured artificial damping (fitted to each run's energy decay) agrees with the prediction within "
+                    f"{100 * DAMPING_TOLERANCE:g} % (where none is predicted: within {analysis.RESOLVED_ABSOLUTE_ERROR:g} w) "
+                    f"in {len(agree)} of the {len(resolved)} runs that resolve it")
+    else:
+        sentence = "No run resolves its artificial damping (the energy decay of a run of a few steps is not fitted)"
+    if differ:
+        sentence += "; it differs in " + ", ".join(
+            f"#{row.index} {row.integrator} ("
+            + (f"{100 * row.damping_difference:+.1f} %" if row.damping_relative else f"d/w {row.measured_damping:.2g}, none predicted")
+            + ")" for row in differ)
+    notes = []
+    if unresolved:
+        notes.append(f"{unresolved} run{'s are' if unresolved != 1 else ' is'} too short to resolve it")
+    if not_measured:
+        notes.append(f"{not_measured} run{'s' if not_measured != 1 else ''} that stopped early (diverged or failed) or "
+                     f"kept no energy {'are' if not_measured != 1 else 'is'} not fitted")
+    sentence += (" (" + "; ".join(notes) + ")") if notes else ""
+    return [Finding(sentence + ".", "#summary",
+                    {"resolved": len(resolved), "agree": len(agree), "differ": [row.run_id for row in differ],
+                     "unresolved": unresolved, "not_measured": not_measured}, "damping")]
+
+
+def largest_hw_within(prediction, budget: float = DAMPING_BUDGET) -> float:
+    """The largest h w up to which the method's predicted energy change per period stays within ``budget``
+    (and rho <= 1 + analysis.GROWTH_TOLERANCE); inf when it does over the whole predicted range."""
+    def within(hw: float) -> bool:
+        rho, damping = prediction.at(hw)
+        return rho <= 1 + analysis.GROWTH_TOLERANCE and abs(energy_lost_per_period(damping)) <= budget
+
+    lost = -np.expm1(-2.0 * np.pi * prediction.damping)
+    ok = (np.abs(lost) <= budget) & (prediction.rho <= 1 + analysis.GROWTH_TOLERANCE)
+    if ok.all():
+        return math.inf
+    first = int(np.argmin(ok))
+    if first:
+        low, high = float(prediction.hw[first - 1]), float(prediction.hw[first])
+    elif within(SMALLEST_BUDGET_HW):
+        low, high = SMALLEST_BUDGET_HW, float(prediction.hw[0])
+    else:
+        return 0.0
+    for _ in range(BUDGET_BISECTION_STEPS):
+        middle = math.sqrt(low * high)
+        low, high = (middle, high) if within(middle) else (low, middle)
+    return low
+
+
+def _damping_budget(data, predictions) -> list[Finding]:
+    if not predictions:
+        return []
+    frequencies = sorted({run.frequency for run in test_equation_runs(data)})
+    largest = {label: (largest_hw_within(prediction) if prediction.stability_limit > 0 else 0.0)
+               for label, prediction in predictions.items()}
+    parts = []
+    for label in sorted(largest, key=lambda name: -largest[name]):
+        value, prediction = largest[label], predictions[label]
+        limit = prediction.stability_limit
+        if limit == 0:
+            parts.append(f"{label} at no h w (unstable at every step size)")
+            continue
+        if math.isinf(value):
+            parts.append(f"{label} at every h w up to {prediction.hw[-1]:g}")
+            continue
+        if value == 0:
+            parts.append(f"{label} at no h w")
+            continue
+        notes = [f"dt = {value / frequencies[0]:.2g} s"] if len(frequencies) == 1 else []
+        if limit < math.inf and math.isclose(value, limit, rel_tol=1e-3):
+            notes.append("its stability limit")
+        parts.append(f"{label} up to h w = {value:.2g}" + (f" ({'; '.join(notes)})" if notes else ""))
+    at = f" at w = {frequencies[0]:.4g} rad/s" if len(frequencies) == 1 else ""
+    sentence = (f"Largest step within a damping budget of {100 * DAMPING_BUDGET:g} % of the energy gained or lost per "
+                f"period (predicted{at}): " + "; ".join(parts) + ".")
+    return [Finding(sentence, "#figure-artificial_damping", {"budget": DAMPING_BUDGET, "largest_hw": largest}, "damping")]
+
+
+# -- accuracy and cost ------------------------------------------------------------------------------
+def _accuracy(data, several) -> list[Finding]:
+    result = []
+    usable = set(map(id, error_runs(data)))
+    for title, runs in data.groups:
+        mine = [run for run in runs if id(run) in usable]
+        if not mine:
+            continue
+        scale = max(run.length_scale for run in mine)
+        errors = {id(run): run_error(run) for run in mine}
+        # the tightest budget is the smallest error that two methods reach (one, in a file of one), above round-off:
+        # a method exact on the problem (errors at round-off) would otherwise rank alone at 1e-14
+        best = sorted(min(errors[id(run)][0] for run in mine if run.label == label)
+                      for label in dict.fromkeys(run.label for run in mine))
+        smallest = max(best[min(1, len(best) - 1)], analysis.ROUND_OFF_ERROR * scale)
+        times = [time for _, time, _ in errors.values() if np.isfinite(time)]
+        when = (f"t = {min(times):.4g} s" if math.isclose(min(times), max(times), rel_tol=1e-9)
+                else f"t = {min(times):.4g} to {max(times):.4g} s") if times else "the end"
+        against = "a reference solution" if any(reference for _, _, reference in errors.values()) else "the exact solution"
+        budgets = []
+        budget = LOOSEST_ERROR_BUDGET * scale
+        while smallest <= budget:
+            budgets.append(budget)
+            budget /= 10
+        if len(budgets) > MAX_ERROR_BUDGETS:
+            budgets = [budgets[0], budgets[len(budgets) // 2], budgets[-1]]
+        labels = list(dict.fromkeys(run.label for run in runs))
+        for budget in budgets:
+            cheapest = {}
+            for run in mine:
+                if errors[id(run)][0] <= budget and (run.label not in cheapest or run.wall_time < cheapest[run.label].wall_time):
+                    cheapest[run.label] = run
+            ranking = sorted(cheapest.values(), key=lambda run: run.wall_time)
+            missing = [label for label in labels if label not in cheapest]
+            listed = ""
+            for number, run in enumerate(ranking):  # ≈: within the noise of a wall time, no rank between them
+                if number:
+                    listed += " ≈ " if run.wall_time <= (1 + WALL_TIME_NOISE) * ranking[number - 1].wall_time else ", "
+                listed += f"{run.label} {run.wall_time:.3g} s (dt = {run.dt:g} s)"
+            sentence = (f"Error ≤ {budget:.1g} m ({100 * budget / scale:g} % of the length scale {scale:g} m) against {against} "
+                        f"at {when}{f' ({title})' if several and title else ''}, cheapest first (measured wall time of "
+                        f"the whole run; ≈: within {100 * WALL_TIME_NOISE:g} %): {listed}")
+            if missing:
+                sentence += f"; not reached at any dt run by {_and(missing)}"
+            result.append(Finding(sentence + ".", "#figure-work_precision",
+                                  {"group": title, "budget": budget,
+                                   "ranking": [(run.label, run.wall_time, run.dt, errors[id(run)][0]) for run in ranking],
+                                   "not_reached": missing}, "accuracy"))
+    return result
+
+
+def _orders(orders: list[OrderRow], several: bool) -> list[Finding]:
+    fitted = [row for row in orders if np.isfinite(row.observed)]
+    exact = [row for row in orders if row.exact]
+    result = []
+    if fitted:
+        when = {row.error_time for row in fitted if row.error_time}
+        items = []
+        for row in fitted:
+            verdict = "agrees" if abs(row.observed - row.declared) <= ORDER_TOLERANCE else "differs"
+            items.append(f"{_who(row.group, row.integrator, several)} {row.observed:.2f} (declared {row.declared}, {verdict})")
+        result.append(Finding(
+            f"Observed order of convergence (measured: slope of the error at {_and(sorted(when)) if when else 'the end'} "
+            f"against dt): " + "; ".join(items) + ".", "#orders",
+            {"orders": {(row.group, row.integrator): row.observed for row in fitted},
+             "declared": {(row.group, row.integrator): row.declared for row in fitted}}, "accuracy"))
+    if exact:
+        names = _and([_who(row.group, row.integrator, several) for row in exact])
+        result.append(Finding(f"{names} {'is' if len(exact) == 1 else 'are'} exact on this problem (every error at "
+                              "round-off).", "#orders", {"exact": [row.integrator for row in exact]}, "accuracy"))
+    return result
+
+
+# -- energy (systems without the test equation) ----------------------------------------------------
+def _energy(data, rows, several) -> list[Finding]:
+    by_id = {row.run_id: row for row in rows}
+    result = []
+    damped = any(float(run.stored.system_params.get("damping", 0.0) or 0.0) != 0.0 for run in data.runs)
+    for title, runs in data.groups:
+        dts = sorted({run.dt for run in runs}, reverse=True)
+        chosen = [dt for dt in dts if len({run.label for run in runs if run.dt == dt and not run.status.stopped}) >= 2]
+        for dt in dict.fromkeys(chosen[:1] + chosen[-1:]):
+            at = sorted((by_id[run.run_id] for run in runs if run.dt == dt and not run.status.stopped),
+                        key=lambda row: row.max_rel_energy_drift)
+            at = [row for row in at if np.isfinite(row.max_rel_energy_drift)]
+            if len(at) < 2:
+                continue
+            listed = ", ".join(f"{row.integrator} {drift_text(row.max_rel_energy_drift)}" for row in at)
+            sentence = (f"Largest energy change over the run at dt = {dt:g} s{f' ({title})' if several and title else ''} "
+                        f"(measured, max |E − E0| / E_ref, {energy_reference_text(at)}"
+                        + ("; it includes the physical damping's loss" if damped else "") + f"): {listed}.")
+            result.append(Finding(sentence, "#figure-energy_drift_vs_dt",
+                                  {"group": title, "dt": dt,
+                                   "max_rel_energy_drift": {row.integrator: row.max_rel_energy_drift for row in at}},
+                                  "energy"))
+    return result
+
+
+# -- what could not be measured ---------------------------------------------------------------------
+def _not_measured(data, orders: list[OrderRow], several: bool) -> list[Finding]:
+    result = []
+    if not test_equation_runs(data):
+        result.append(Finding(
+            "Not measured: stability limits, artificial damping and h w, because no run is on the undamped test equation "
+            "(a system that declares a test frequency w: the spring without damping, linear circular motion).",
+            "#summary", {"missing": ["stability limits", "artificial damping"]}, "not measured"))
+    if not error_runs(data):
+        reached = [run for run in data.runs if not run.status.stopped]
+        if not reached:
+            why = "every run stopped (diverged or failed) before its end"
+        elif any(np.isfinite(run.stored.error_time) or "error" not in run.stored.attrs for run in reached):
+            why = ("the system has no exact solution and no reference solution was asked for "
+                   "(simrun report --reference dop853, or a run_id)")
+        else:
+            why = "no run reached its error time"
+        result.append(Finding(f"Not measured: errors, observed orders and the accuracy ranking, because {why}.",
+                              "#summary", {"missing": ["errors", "orders"], "why": why}, "not measured"))
+    unfitted: dict[str, list[str]] = {}
+    for row in orders:
+        if not np.isfinite(row.observed) and not row.exact:
+            unfitted.setdefault(row.reason or "not enough asymptotic points", []).append(
+                _who(row.group, row.integrator, several))
+    for reason, labels in unfitted.items():
+        result.append(Finding(f"Not measured: the observed order of {_and(labels)}: {reason}.", "#orders",
+                              {"integrators": labels, "reason": reason}, "not measured"))
+    return result
+
+
+__all__ = ["Finding", "drift_text", "energy_lost_per_period", "findings", "largest_hw_within", "per_period_text"]

@@ -1,0 +1,103 @@
+"""Every figure of every shipped config names what it draws: each integrator label and each swept value of the file
+appears in each figure that draws that kind of data (in a legend, a panel title, a table's tick labels or a row
+header), or the figure says in a note how much it shows ("4 of 21 ...").
+
+Each shipped config (configs/*.yaml, found by glob: a new config is tested without editing this file) runs with
+shortened settings (fewer and larger time steps, a shorter duration, a coarser cloth) serially into tmp_path; the
+figures are drawn through ``simrun.figures.render_figures``, as ``simrun plot`` and the report draw them.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+from matplotlib.text import Text
+
+from simrun.cli import main
+from simrun.figures import figure_data, render_figures
+from simrun.figures._data import format_value
+from simrun.reference import reference_errors
+from simrun.results import load
+
+CONFIGS = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
+CLOTH = ["system.resolution=[4,4]"]
+# per config: --set overrides that keep every integrator and every swept value but cut the work
+SHORT = {
+    "quickstart": ["duration=1.0", "sweep.dt=[0.01,0.1,0.25]"],
+    "spring_stability": ["duration=1.0", "sweep.dt=[0.01,0.19,0.25]"],
+    "circular_orbits": ["duration=3.0", "sweep.dt=[0.1,0.3]"],
+    "damping_curves": ["duration=12.0", "sweep.dt=[0.3,1.0,3.0]"],
+    "cloth_hang": [*CLOTH, "duration=0.06", "sweep.dt=[0.02,0.03]"],
+    "cloth_sphere": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
+    "cloth_convergence": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
+    # the point Jacobi iteration diverges on the cloth: its runs use every iteration they are given
+    "solver_comparison": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]", "solver.max_iterations=20",
+                          "solver.linear_max_iterations=50"],
+}
+DEFAULT_SHORT = ["duration=0.1"]  # a config added without an entry above: at least not its full length
+
+# figure name -> which runs it draws (default: every run) and whether it tells the swept settings apart
+THEORY = {"artificial_damping", "spectral_radius_and_period"}  # per integrator, in h w: no settings
+
+
+def draws(name: str, run) -> bool:
+    if name == "newton_iterations_vs_dt":
+        return not run.explicit and run.newton_iterations.size > 0
+    if name in ("convergence", "work_precision"):
+        return not run.status.stopped and np.isfinite(run.error)
+    if name in THEORY:
+        return run.frequency is not None
+    if name == "orbits":
+        return run.stored.planar
+    if name.startswith("cloth_"):  # one snapshot figure per run
+        return name == f"cloth_{run.run_id}"
+    return True
+
+
+# a note that says how much the figure shows: "12 of 45 runs", "4 of 21 time steps"
+PART_SHOWN = re.compile(r"\b\d+ of \d+\b")
+
+
+def texts(figure) -> list[str]:
+    """Every text of a figure: legends (and their titles), titles, axis and tick labels, notes."""
+    return [artist.get_text() for artist in figure.findobj(Text) if artist.get_visible() and artist.get_text()]
+
+
+def named(value: str, text: str) -> bool:
+    """`value` occurs in `text` as a whole name: "cg" not inside "pcg", "newton" not inside "projected_newton"."""
+    return re.search(r"(?<![\w.\[=])" + re.escape(value) + r"(?![\w\[])", text) is not None
+
+
+def shortened(config: Path) -> list[str]:
+    return [argument for override in SHORT.get(config.stem, DEFAULT_SHORT) for argument in ("--set", override)]
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=[config.stem for config in CONFIGS])
+def test_every_figure_names_every_integrator_and_swept_value(config, tmp_path):
+    output = tmp_path / config.stem
+    assert main([str(config), "--output", str(output), "-q", "--no-plots", "-j", "1", *shortened(config)]) == 0
+    results = load(output / "results.h5")
+    # systems without an exact solution: errors against a reference, so that convergence is drawn (and checked) too
+    errors = reference_errors(results, "dop853")
+    runs = figure_data(results, errors).runs
+    missing = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no figure may warn
+        for entry, name, figure in render_figures(results, errors or None):
+            try:
+                drawn = [run for run in runs if draws(name, run)]
+                words = "\n".join(texts(figure))
+                wanted = {run.label for run in drawn}
+                if entry.name not in THEORY:
+                    wanted |= {format_value(value) for run in drawn for value in run.stored.swept.values()}
+                absent = sorted(value for value in wanted if not named(value, words))
+                if absent and not PART_SHOWN.search(words):
+                    missing[name] = absent
+            finally:
+                plt.close(figure)
+    assert not missing, f"{config.stem}: figures that leave out integrators or swept values without saying so: {missing}"
