@@ -31,7 +31,7 @@ from simrun.figures import FigureData
 from simrun.figures.theory import predictions_for, test_equation_runs
 from simrun.results import Status
 from simrun.tables import (DAMPING_TOLERANCE, ORDER_TOLERANCE, ROUND_OFF_DAMPING, OrderRow, SummaryRow,
-                           energy_reference_text, error_runs, order_rows, run_error, summary_rows)
+                           energy_reference_text, error_runs, order_rows, summary_rows)
 
 # The damping budget of the ranking: at most this fraction of the energy gained or lost per period.
 DAMPING_BUDGET = 0.01
@@ -372,7 +372,7 @@ def _accuracy(data, several) -> list[Finding]:
         if not mine:
             continue
         scale = max(run.length_scale for run in mine)
-        errors = {id(run): run_error(run) for run in mine}
+        errors = {id(run): (run.error, run.error_time, run.error_from_reference) for run in mine}
         # the tightest budget is the smallest error that two methods reach (one, in a file of one), above round-off:
         # a method exact on the problem (errors at round-off) would otherwise rank alone at 1e-14
         best = sorted(min(errors[id(run)][0] for run in mine if run.label == label)

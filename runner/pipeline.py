@@ -19,7 +19,8 @@ from collections import Counter
 from pathlib import Path
 
 from simrun import __version__
-from simrun.config import config_hash, expand_runs, load_experiment, resolved_config
+from simrun.config import load_experiment
+from simrun.sweep import config_hash, expand_runs, resolved_config
 from simrun.errors import ConfigError
 from simrun.executors import EXECUTOR_FUNCTIONS, execute
 from simrun.lock import FIGURES_NAME, REPORT_NAME, OutputLock, check_writable, filling, write_error

@@ -25,22 +25,19 @@ from pathlib import Path
 
 import numpy as np
 
+from simrun.figures import frames as frame_figures
 from simrun.figures import FIGURES, Figure, FigureData, figure_data
 from simrun.findings import Finding, drift_text, findings
 from simrun.reference import REFERENCE_RTOL, reference_errors
 from simrun.results import Results, Status, load
+from simrun.table_text import damping_text, number_text
 from simrun.tables import (DAMPING_TOLERANCE, DETERMINANT_TOLERANCE, ORDER_TOLERANCE, DeterminantRow, OrderRow,
-                           StabilityRow, SummaryRow, damping_text, determinant_rows, energy_reference_differs,
-                           energy_reference_text, error_time_text, iteration_name, mixed_solvers, number_text,
-                           order_rows, stability_rows, summary_rows)
+                           StabilityRow, SummaryRow, determinant_rows, energy_reference_differs, energy_reference_text,
+                           error_time_text, iteration_name, mixed_solvers, order_rows, stability_rows, summary_rows)
 
 REPORT_DPI = 100  # the figures' inches become about as many CSS pixels at this resolution
 # A summary table longer than this scrolls inside its box.
 SCROLLING_TABLE_ROWS = 40
-# One cell of the snapshot grid (in): four columns of 3D views fit the page's 1280 px at REPORT_DPI.
-SNAPSHOT_CELL = (2.7, 2.4)
-# The snapshot grid's title and row headings (in).
-SNAPSHOT_TITLE_HEIGHT = 0.6
 
 STYLE = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', Roboto, Helvetica, Arial, sans-serif; margin: 0 auto;
@@ -89,7 +86,7 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
 
     output = Path(output)
     results = load(path)
-    without_exact = [run for run in results.runs.values() if not np.isfinite(_stored_error(run)) and not run.status.stopped]
+    without_exact = [run for run in results.runs.values() if not np.isfinite(run.error) and not run.status.stopped]
     errors: dict[str, float] = {}
     reference_note = ""
     if without_exact and reference and str(reference).lower() != "none":
@@ -133,16 +130,11 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
     return output
 
 
-def _stored_error(run) -> float:
-    """The run's stored error at its error time (files from before error times: its final error)."""
-    return run.error if ("error" in run.attrs or run.format_version == 1) else run.final_error
-
-
 def _render(data: FigureData):
     """(registry entry, name, matplotlib Figure) for every figure the file supports; the snapshots as one grid."""
     for entry in FIGURES.values():
         if entry.name == "snapshots":
-            grid = _snapshot_grid(data)
+            grid = frame_figures.snapshot_grid(data)
             if grid is not None:
                 yield entry, entry.name, grid
             continue
@@ -151,65 +143,6 @@ def _render(data: FigureData):
             continue
         for name, figure in drawn if isinstance(drawn, list) else [(entry.name, drawn)]:
             yield entry, name, figure
-
-
-def _snapshot_grid(data: FigureData):
-    """One figure of the frame runs (rows; simrun.figures.frames.snapshot_runs) at SNAPSHOT_COUNT times (columns),
-    spread over the longest run and drawn at the same scale; a run that stopped earlier leaves its later cells empty."""
-    import matplotlib.pyplot as plt
-
-    from simrun.figures import frames as frame_figures
-
-    run_ids = frame_figures.snapshot_runs(data.results)
-    if not run_ids:
-        return None
-    runs = [data.results.runs[run_id] for run_id in run_ids]
-    end = max(float(run["frame_t"][-1]) for run in runs)
-    times = np.linspace(0.0, end, frame_figures.SNAPSHOT_COUNT)
-    picks, shown = [], []
-    for run in runs:
-        t = np.asarray(run["frame_t"], dtype=float)
-        spacing = (t[-1] - t[0]) / (len(t) - 1) if len(t) > 1 else 0.0
-        row = [int(np.argmin(np.abs(t - time))) if time <= t[-1] + 0.5 * spacing + 1e-12 else None for time in times]
-        picks.append(row)
-        last = len(t) - 1
-        # a diverged run's last frame is the blow-up: frame the view on the frames before it
-        shown += [run["frames"][index] for index in row
-                  if index is not None and not (run.status is Status.DIVERGED and index == last and last > 0)]
-    spheres = [sphere for run in runs for sphere in frame_figures._spheres(run)]
-    limits = frame_figures._limits(np.array(shown) if shown else runs[0]["frames"][:1], spheres)
-    columns = len(times)
-    width, height = SNAPSHOT_CELL
-    figure = plt.figure(figsize=(columns * width, len(runs) * height + SNAPSHOT_TITLE_HEIGHT))
-    title, body = figure.subfigures(2, 1, height_ratios=[SNAPSHOT_TITLE_HEIGHT, len(runs) * height])
-    low, high = limits
-    box = ", ".join(f"{name} {round(low[axis], 2) + 0.0:g} to {round(high[axis], 2) + 0.0:g} m" for axis, name in enumerate("xyz"))
-    title.suptitle(f"{data.name}: snapshots (rows: runs; columns: times)\nevery cell the same box: {box}",
-                   fontsize=10, y=0.75)
-    for number, (subfigure, run, row) in enumerate(zip(body.subfigures(len(runs), 1, squeeze=False)[:, 0], runs, picks)):
-        status = "" if run.status is Status.OK else f", {run.status}"
-        if run.status is Status.DIVERGED and "t_diverged" in run.attrs:
-            status += f" at t = {float(run.attrs['t_diverged']):.3g} s"
-        subfigure.set_facecolor("#f4f6f9" if number % 2 == 0 else "white")  # rows told apart
-        subfigure.text(0.01, 0.97, f"{run.label}, dt = {run.dt:g} s{status}", fontsize=9, fontweight="bold", va="top")
-        subfigure.subplots_adjust(left=0.0, right=0.98, bottom=0.02, top=0.84, wspace=0.05)
-        for column, index in enumerate(row):
-            axes = subfigure.add_subplot(1, columns, column + 1, projection="3d")
-            if index is None:
-                axes.set_axis_off()
-                axes.text2D(0.5, 0.5, f"run ended at t = {float(run['frame_t'][-1]):.3g} s", ha="center",
-                            va="center", transform=axes.transAxes, fontsize=8, color="#5a6270")
-                continue
-            frame_figures._draw_scene(axes, run["frames"][index], run, limits)
-            axes.set_facecolor("none")
-            axes.set_title(f"t = {float(run['frame_t'][index]):.3g} s", fontsize=8, pad=0)
-            # one box for the whole grid, stated in its title: ticks in every cell would only crowd it
-            axes.set_xlabel("")
-            axes.set_ylabel("")
-            axes.set_zlabel("")
-            for axis in (axes.xaxis, axes.yaxis, axes.zaxis):
-                axis.set_ticklabels([])
-    return figure
 
 
 def _png_data(figure) -> str:
@@ -456,58 +389,9 @@ def _determinant_section(rows: list[DeterminantRow]) -> str:
 
 
 # -- figures ----------------------------------------------------------------------------------------
-# A caption's words about the test equation (h w, a method's behaviour on the spring) hold only for runs on it.
-TEST_EQUATION_WORDS = ("h w",)
-
-
 def caption(entry: Figure, test_equation: bool) -> str:
-    """The registry's caption for this file: without runs on the test equation, the sentences and parenthetical
-    remarks that speak of h w (how a method behaves on the spring) are left out."""
-    text = entry.caption
-    if test_equation:
-        return text
-    kept = []
-    for sentence in _sentences(text):
-        sentence = _without_groups(sentence, TEST_EQUATION_WORDS)
-        if not any(word in sentence for word in TEST_EQUATION_WORDS):
-            kept.append(sentence)
-    return " ".join(kept)
-
-
-def _sentences(text: str) -> list[str]:
-    """Split after a full stop that ends a sentence (outside parentheses)."""
-    sentences, depth, start = [], 0, 0
-    for index, character in enumerate(text):
-        depth += (character == "(") - (character == ")")
-        if character == "." and depth == 0 and (index + 1 == len(text) or text[index + 1] == " "):
-            sentences.append(text[start:index + 1].strip())
-            start = index + 1
-    if text[start:].strip():
-        sentences.append(text[start:].strip())
-    return sentences
-
-
-def _without_groups(sentence: str, words: tuple[str, ...]) -> str:
-    """The sentence without its parenthetical remarks (top-level groups after a space, before a space or a
-    punctuation mark) that contain any of ``words``; a group inside a formula, as (h w)* in dt = (h w)*/w, stays."""
-    out, depth, group = [], 0, []
-    for number, character in enumerate(sentence):
-        if depth == 0 and character != "(":
-            out.append(character)
-            continue
-        group.append(character)
-        depth += (character == "(") - (character == ")")
-        if depth == 0:
-            text = "".join(group)
-            following = sentence[number + 1:number + 2]
-            remark = (not out or out[-1] == " ") and following in ("", " ", ",", ".", ";", ":")
-            if remark and any(word in text for word in words):
-                if out and out[-1] == " ":
-                    out.pop()
-            else:
-                out.append(text)
-            group = []
-    return "".join(out + group)
+    """The registry's caption for this file: with its test-equation part only when the file has runs on it."""
+    return f"{entry.caption} {entry.test_equation_caption}" if test_equation and entry.test_equation_caption else entry.caption
 
 
 def _figures_section(figures: list[tuple[Figure, str, str]], test_equation: bool) -> str:

@@ -7,10 +7,7 @@ are computed from what the figures read (``simrun.figures.figure_data``: the fil
 
 from __future__ import annotations
 
-import csv
 import math
-import textwrap
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,10 +29,6 @@ ROUND_OFF_DAMPING = 1e-12
 ZERO_DAMPING = 1e-9
 # Without a closed form to check, determinant rows are listed only up to this many.
 MAX_DETERMINANT_ROWS = 60
-# `simrun show` fits a terminal this wide by default (--wide: every column).
-TERMINAL_WIDTH = 100
-# Longer integrator labels are cut (with an ellipsis) in the terminal table unless --wide.
-MAX_LABEL_WIDTH = 32
 
 # What a solver's iterations are called in the tables: the solver's own name for its iteration.
 SOLVER_ITERATION_NAMES = {"newton": "Newton", "projected_newton": "Newton", "lbfgs": "L-BFGS",
@@ -97,26 +90,6 @@ class SummaryRow:
         return abs(difference) <= tolerance
 
 
-def run_error(run) -> tuple[float, float, bool]:
-    """(error (m), error time (s), from a reference) of a run (``RunData``): the stored error at the run's
-    error time (``StoredRun.error``), or the reference's error that figure_data put in its place. Files
-    written before runs stored an error time measured at the last sample: their ``final_error`` there."""
-    if isinstance(getattr(type(run), "error", None), property):  # RunData says it itself
-        return run.error, run.error_time, run.error_from_reference
-    stored = run.stored
-    if run.error_from_reference:
-        time = stored.error_time
-        return run.final_error, time if np.isfinite(time) else _last_time(stored), True
-    if "error" in stored.attrs or stored.format_version == 1:
-        return stored.error, stored.error_time, False
-    return stored.final_error, _last_time(stored), False
-
-
-def _last_time(stored) -> float:
-    t = stored.series("t")
-    return float(t[-1]) if t.size else math.nan
-
-
 def summary_rows(data: FigureData) -> list[SummaryRow]:
     """One row per run, in sweep order; drift and iterations from the file's summary table."""
     stored = data.results.summary.set_index("run_id").to_dict("index")
@@ -129,7 +102,7 @@ def summary_rows(data: FigureData) -> list[SummaryRow]:
         predicted = math.nan
         if run.frequency is not None and run.method is not None:
             predicted = _predicted_damping(run.method, run.hw)
-        error, error_time, from_reference = run_error(run)
+        error, error_time, from_reference = run.error, run.error_time, run.error_from_reference
         rows.append(SummaryRow(
             index=run.index, run_id=run.run_id, integrator=run.label, group=titles.get(id(run), ""),
             solver="" if run.explicit else solver_text(run.stored.solver),
@@ -210,183 +183,6 @@ def energy_reference_differs(rows: list[SummaryRow]) -> bool:
     return bool(values) and not math.isclose(min(values), max(values), rel_tol=1e-12)
 
 
-# -- the terminal table -----------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Column:
-    """A column of the terminal table: two heading lines, its cells, and when it is shown."""
-
-    key: str
-    heading: tuple[str, str]
-    cell: Callable[[SummaryRow], str]
-    keep: int  # columns of lower rank are hidden first when the table is narrowed to TERMINAL_WIDTH
-    text: bool = False  # left-aligned
-    shown: Callable[[list[SummaryRow]], bool] = lambda rows: True
-
-
-def _any(value: Callable[[SummaryRow], float]) -> Callable[[list[SummaryRow]], bool]:
-    """Shown when some row has a finite, non-zero value."""
-    return lambda rows: any(np.isfinite(value(row)) and value(row) != 0 for row in rows)
-
-
-def _measured_text(row: SummaryRow) -> str:
-    unresolved = np.isfinite(row.measured_damping) and not row.measured_resolved
-    return damping_text(row.measured_damping).replace("–", "") + ("?" if unresolved else "")
-
-
-def terminal_columns(rows: list[SummaryRow]) -> list[Column]:
-    """The columns of `simrun show`, each named by what it counts; those with nothing to show are left out."""
-    iterations = iteration_name(rows)
-    columns = [
-        Column("index", ("", "#"), lambda row: str(row.index), 9),
-        Column("integrator", ("", "integrator"), lambda row: row.integrator, 9, text=True),
-        Column("solver", ("", "solver"), lambda row: row.solver or "–", 8, text=True, shown=mixed_solvers),
-        Column("dt", ("dt", "(s)"), lambda row: f"{row.dt:.4g}", 9),
-        Column("hw", ("", "h w"), lambda row: "" if not np.isfinite(row.hw) else f"{row.hw:.3g}", 3, shown=_any(lambda row: row.hw)),
-        Column("status", ("", "status"), lambda row: row.status, 9, text=True),
-        Column("steps", ("", "steps"), lambda row: str(row.steps), 1),
-        Column("max_drift", ("max", "drift"), lambda row: number_text(row.max_rel_energy_drift), 8),
-        Column("e_ref", ("E_ref", "(J)"), lambda row: number_text(row.energy_reference), 2,
-               shown=energy_reference_differs),
-        Column("error", ("error", "(m)"), lambda row: number_text(row.error).replace("–", ""), 8,
-               shown=_any(lambda row: row.error)),
-        Column("iterations", (iterations, "it/step"), lambda row: f"{row.mean_newton_iterations:.2f}" if row.solver else "",
-               7, shown=_any(lambda row: row.mean_newton_iterations)),
-        Column("linear", ("linear", "it/step"), lambda row: number_text(row.mean_linear_iterations) if row.solver else "",
-               4, shown=_any(lambda row: row.mean_linear_iterations)),
-        Column("wall", ("wall", "(s)"), lambda row: f"{row.wall_time:.3g}", 8),
-        Column("measured", ("d/w", "meas."), _measured_text, 6, shown=_any(lambda row: row.measured_damping)),
-        Column("predicted", ("d/w", "pred."), lambda row: damping_text(row.predicted_damping).replace("–", ""), 5,
-               shown=_any(lambda row: row.predicted_damping)),
-    ]
-    return [column for column in columns if column.shown(rows)]
-
-
-def format_table(rows: list[SummaryRow], name: str = "", wide: bool = False, width: int = TERMINAL_WIDTH) -> str:
-    """The summary as fixed-width text for the terminal; groups separated by a heading line.
-
-    Columns with nothing to show are left out; unless ``wide``, the least needed ones are hidden (and
-    long labels cut) until a line fits ``width`` characters, and a last line says which."""
-    columns = terminal_columns(rows)
-    label_width = max([len("integrator")] + [len(row.integrator) for row in rows])
-    if not wide:
-        label_width = min(label_width, MAX_LABEL_WIDTH)
-
-    def cells(column: Column, row: SummaryRow) -> str:
-        text = column.cell(row)
-        if column.key == "integrator" and len(text) > label_width:
-            text = text[:label_width - 1] + "…"
-        return text
-
-    def widths(shown: list[Column]) -> list[int]:
-        return [max([len(part) for part in column.heading] + [len(cells(column, row)) for row in rows]) for column in shown]
-
-    hidden: list[Column] = []
-    if not wide:
-        while sum(widths(columns)) + 2 * (len(columns) - 1) > width:
-            candidates = [column for column in columns if column.keep < 9]
-            if not candidates:
-                break
-            dropped = min(candidates, key=lambda column: column.keep)
-            columns.remove(dropped)
-            hidden.append(dropped)
-    sizes = widths(columns)
-
-    def line(texts: list[str]) -> str:
-        return "  ".join(f"{text:<{size}}" if column.text else f"{text:>{size}}"
-                         for column, text, size in zip(columns, texts, sizes)).rstrip()
-
-    header = [line([column.heading[0] for column in columns]), line([column.heading[1] for column in columns])]
-    rule = "-" * max(len(text) for text in header)
-    lines = [f"{name}: {len(rows)} runs" if name else f"{len(rows)} runs"]
-    frequencies = sorted({row.hw / row.dt for row in rows if np.isfinite(row.hw) and row.dt > 0})
-    if frequencies and any(column.key == "hw" for column in hidden):
-        lines.append("w = " + ", ".join(f"{value:.4g}" for value in frequencies) + " rad/s (h w = dt w)")
-    lines += [header[0], header[1], rule] if header[0].strip() else [header[1], rule]
-    group = None
-    for row in rows:
-        if row.group != group and any(other.group for other in rows):
-            lines.append(f"[{row.group}]")
-            group = row.group
-        lines.append(line([cells(column, row) for column in columns]))
-    lines.append(rule)
-    notes = [f"drift: max |E - E0| / E_ref, {energy_reference_text(rows)}"]
-    if any(column.key == "error" for column in columns):
-        reference = any(row.error_from_reference for row in rows)
-        notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
-                     f"{error_time_text(rows)}")
-    if any(column.key in ("measured", "predicted") for column in columns):
-        notes.append("d/w: artificial damping d_method / w (meas.: energy decay, ? = not resolved by the run; "
-                     "pred.: amplification matrix)")
-    if hidden:
-        notes.append("not shown: " + ", ".join(" ".join(filter(None, column.heading)) for column in hidden)
-                     + " (--wide: every column)")
-    if not wide:  # the notes fit the width too
-        notes = [textwrap.fill(note, width, subsequent_indent="  ", break_on_hyphens=False) for note in notes]
-    return "\n".join(lines + notes)
-
-
-# -- CSV: every column, full precision, units in the headers --------------------------------------
-CSV_COLUMNS = (  # header (with its unit), value
-    ("index", lambda row: row.index),
-    ("run_id", lambda row: row.run_id),
-    ("integrator", lambda row: row.integrator),
-    ("group", lambda row: row.group),
-    ("solver", lambda row: row.solver),
-    ("dt_s", lambda row: row.dt),
-    ("hw", lambda row: row.hw),  # dimensionless: dt times the test frequency
-    ("status", lambda row: row.status),
-    ("steps", lambda row: row.steps),
-    ("order", lambda row: row.order),
-    ("energy_reference_J", lambda row: row.energy_reference),
-    ("energy_reference_name", lambda row: row.energy_reference_name),
-    ("max_rel_energy_drift", lambda row: row.max_rel_energy_drift),  # dimensionless: max |E - E0| / E_ref
-    ("final_rel_energy_drift", lambda row: row.final_rel_energy_drift),  # (E_end - E0) / E_ref
-    ("error_time_s", lambda row: row.error_time),
-    ("error_m", lambda row: row.error),
-    ("error_from_reference", lambda row: row.error_from_reference),
-    ("final_error_m", lambda row: row.final_error),
-    ("solver_iterations_per_step", lambda row: row.mean_newton_iterations),
-    ("linear_iterations_per_step", lambda row: row.mean_linear_iterations),
-    ("wall_time_s", lambda row: row.wall_time),
-    ("measured_damping_over_w", lambda row: row.measured_damping),  # dimensionless: d_method / w
-    ("measured_damping_resolved", lambda row: row.measured_resolved),
-    ("predicted_damping_over_w", lambda row: row.predicted_damping),
-    ("damping_relative_difference", lambda row: row.damping_difference),
-)
-
-
-def write_csv(rows: list[SummaryRow], stream) -> None:
-    """Every column at full precision; a header names its unit (dt_s, wall_time_s, error_m, energy_reference_J)
-    or is a dimensionless ratio (max_rel_energy_drift, hw, *_damping_over_w)."""
-    writer = csv.writer(stream)
-    writer.writerow([header for header, _ in CSV_COLUMNS])
-    for row in rows:
-        writer.writerow([csv_number(value(row)) for _, value in CSV_COLUMNS])
-
-
-def csv_number(value):
-    if isinstance(value, (float, np.floating)):
-        return "" if math.isnan(value) else repr(float(value))
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
-
-
-def damping_text(value: float) -> str:
-    """d/w with round-off shown as 0 (rho = 1 to the last bits gives |d/w| ~ 1e-15)."""
-    return "0" if np.isfinite(value) and abs(value) < ROUND_OFF_DAMPING else number_text(value)
-
-
-def number_text(value: float) -> str:
-    if value is None or not np.isfinite(value):
-        return "–" if value is None or np.isnan(value) else ("inf" if value > 0 else "-inf")
-    if value == 0:
-        return "0"
-    if 1e-3 <= abs(value) < 1e4:
-        return f"{value:.4g}"
-    return f"{value:.2e}"
-
-
 # ==================================================================================================
 # Analysis tables of the report
 # ==================================================================================================
@@ -412,7 +208,7 @@ class OrderRow:
 
 def error_runs(data: FigureData) -> list:
     """Runs that reached their end with a known error at their error time (exact, or against a reference)."""
-    return [run for run in data.runs if not run.status.stopped and np.isfinite(run_error(run)[0])]
+    return [run for run in data.runs if not run.status.stopped and np.isfinite(run.error)]
 
 
 def order_fits(data: FigureData) -> dict[tuple[str, str], tuple["analysis.OrderFit", list]]:
@@ -423,7 +219,7 @@ def order_fits(data: FigureData) -> dict[tuple[str, str], tuple["analysis.OrderF
         for label in data.labels:
             mine = sorted((run for run in runs if run.label == label and id(run) in usable), key=lambda run: run.dt)
             if mine:
-                fit = analysis.observed_order([run.dt for run in mine], [run_error(run)[0] for run in mine],
+                fit = analysis.observed_order([run.dt for run in mine], [run.error for run in mine],
                                               scale=mine[0].length_scale)
                 fits[(title, label)] = (fit, mine)
     return fits
@@ -437,13 +233,13 @@ def order_rows(data) -> list[OrderRow]:
         used = [run.dt for run, flag in zip(runs, fit.used) if flag]
         span = (f"{used[0]:.3g} s (1 dt)" if len(used) == 1 else
                 f"{min(used):.3g} – {max(used):.3g} s ({len(used)} dts)" if used else "–")
-        times = [run_error(run)[1] for run in runs]
+        times = [run.error_time for run in runs]
         times = [time for time in times if np.isfinite(time)]
         when = ""
         if times:
             low, high = min(times), max(times)
             when = f"t = {low:.4g} s" if math.isclose(low, high, rel_tol=1e-9) else f"t = {low:.4g} to {high:.4g} s"
-        rows.append(OrderRow(title, label, declared, fit.order, span, fit.exact, getattr(fit, "reason", ""), when))
+        rows.append(OrderRow(title, label, declared, fit.order, span, fit.exact, fit.reason, when))
     return rows
 
 

@@ -6,7 +6,8 @@ import os
 
 import pytest
 
-from simrun.config import expand_runs, validate_experiment
+from simrun.config import validate_experiment
+from simrun.sweep import expand_runs
 from simrun.simulate import simulate
 from simrun.solvers import LINEAR_SOLVERS
 

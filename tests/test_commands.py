@@ -22,7 +22,8 @@ import yaml
 
 import simrun
 from simrun.cli import main
-from simrun.config import config_hash, expand_runs, family_labels, load_experiment, validate_experiment
+from simrun.config import load_experiment, validate_experiment
+from simrun.sweep import config_hash, expand_runs, family_labels
 from simrun.pipeline import ESTIMATE_AFTER_RUNS, remaining_text
 from simrun.results import RESULTS_NAME
 

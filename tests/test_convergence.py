@@ -14,7 +14,8 @@ import pytest
 
 import simrun
 from simrun.analysis import observed_order
-from simrun.config import ERROR_PERIODS, expand_runs, load_experiment
+from simrun.config import ERROR_PERIODS, load_experiment
+from simrun.sweep import expand_runs
 from simrun.reference import reference_errors
 from simrun.tables import ORDER_TOLERANCE
 

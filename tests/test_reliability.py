@@ -3,7 +3,6 @@ Ctrl-C keeps what finished, and every bad input gets one line and exit status 2.
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -21,7 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from simrun.cli import main
-from simrun.config import ConfigError, parse_yaml, validate_experiment, expand_runs
+from simrun.config import ConfigError, parse_yaml, validate_experiment
+from simrun.sweep import expand_runs
 from simrun.workers import BLAS_THREAD_VARIABLES, _limit_blas_threads, default_jobs, may_use_local_pool, process_pool
 from simrun.lock import OutputLock
 

@@ -24,7 +24,8 @@ import yaml
 
 import simrun
 from simrun.cli import main
-from simrun.config import config_hash, load_experiment
+from simrun.config import load_experiment
+from simrun.sweep import config_hash
 from simrun.errors import ConfigError, ResultsFileError
 from simrun.results import (FORMAT_VERSION, READABLE_VERSIONS, SUMMARY_COLUMNS, Results, Status, StoredRun, drift_scale,
                             energy_drift, load)

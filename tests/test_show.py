@@ -13,7 +13,8 @@ import yaml
 
 from simrun.cli import main
 from simrun.results import load
-from simrun.tables import TERMINAL_WIDTH, iteration_name
+from simrun.table_text import TERMINAL_WIDTH
+from simrun.tables import iteration_name
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 # An explicit and an implicit method on the spring, the implicit one with each of two solvers.

@@ -24,7 +24,8 @@ import yaml
 
 from conftest import always_available_linear_solvers, linear_solver_params, needs_linear_solver, run_one
 from simrun.cli import main
-from simrun.config import ConfigError, _fields_at, expand_runs, load_experiment, validate_experiment
+from simrun.config import ConfigError, _fields_at, load_experiment, validate_experiment
+from simrun.sweep import expand_runs
 from simrun.integrators import INTEGRATORS, State
 from simrun.solvers import (LINEAR_SOLVERS, SOLVER_PARAMS, SOLVERS, FallbackChain, Newton, NonlinearSolver, SolveStats,
                             SolverOptionError, SolverParams, solver_params)

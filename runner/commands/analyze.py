@@ -30,7 +30,7 @@ def add_parser(commands) -> None:
 def handle(args) -> int:
     from simrun import analysis
     from simrun.integrators import INTEGRATORS
-    from simrun.tables import csv_number
+    from simrun.table_text import csv_number
 
     integrators = []
     for spec in args.integrators or list(INTEGRATORS):
@@ -87,7 +87,7 @@ def draw_predicted_figures(predictions: dict, output: Path) -> list[Path]:
 def format_predictions(predictions: dict) -> str:
     """One line per integrator: order, stability limit, rho as h w -> infinity (implicit methods) and d/w at three h w."""
     from simrun import analysis
-    from simrun.tables import damping_text
+    from simrun.table_text import damping_text
 
     lines = [f"{'integrator':<36} {'order':>5}  {'stability limit h w':>20}  {'rho(inf)':>8}  "
              f"{'d/w at h w = 0.1':>16}  {'1':>9}  {'10':>9}"]

@@ -16,14 +16,12 @@ from simrun.commands._options import load_results, writable_output, writing_file
 
 
 def add_parser(commands) -> None:
-    from simrun.tables import TERMINAL_WIDTH
-
     show = commands.add_parser("show", help="print the summary table of a results file (or write it as CSV)",
                                description="Print one row per run: status, drift, error, solver iterations, cost, "
                                            "and measured against predicted artificial damping.")
     show.add_argument("results", help="a results file, e.g. results/quickstart/results.h5")
     show.add_argument("--wide", action="store_true",
-                      help=f"every column (by default the table is fitted to {TERMINAL_WIDTH} characters)")
+                      help="every column (by default the table is fitted to a 100-character terminal)")
     show.add_argument("--csv", action="store_true",
                       help="write the table as CSV (every column, full precision, units in the headers: dt_s, "
                            "wall_time_s, error_m, ...) to standard output, or to --output")
@@ -34,7 +32,8 @@ def add_parser(commands) -> None:
 
 def handle(args) -> int:
     from simrun.figures import figure_data
-    from simrun.tables import format_table, summary_rows, write_csv
+    from simrun.table_text import format_table, write_csv
+    from simrun.tables import summary_rows
 
     output = getattr(args, "output", None)
     target = writable_output(Path(output), "--output") if output else None  # refused before any work

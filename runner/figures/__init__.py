@@ -38,6 +38,9 @@ class Figure:
     caption: str  # what to look for, shown under the figure in the report
     needs: str  # what a results file must hold for it to be drawn
     dpi: int = layout.PNG_DPI
+    # what the figure adds for runs on the undamped test equation (h w, predicted limits): the report shows it
+    # only for files with such runs
+    test_equation_caption: str = ""
 
 
 FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
@@ -54,10 +57,10 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "runs with recorded energy"),
     Figure("stability_map", stability_map,
            "Integrators × dt (and swept settings), every run a cell, coloured by the largest energy change in decades "
-           "on a scale symmetric about 0 (blue: lost, red: gained). Where the system is the undamped test equation, a black "
-           "bar in a row marks the predicted stability limit dt = (h w)*/w: cells right of it should be red or "
-           "diverged (✕), cells left of it not.",
-           "runs with recorded energy"),
+           "on a scale symmetric about 0 (blue: lost, red: gained).",
+           "runs with recorded energy",
+           test_equation_caption="A black bar in a row marks the predicted stability limit dt = (h w)*/w from the "
+                                 "amplification matrix: cells right of it should be red or diverged (✕), cells left of it not."),
     Figure("newton_iterations_vs_dt", newton_iterations_vs_dt,
            "Mean (solid) and largest (dotted) solver iterations per step of the implicit methods. Look for the growth "
            "with dt: larger steps start the solver farther from the solution.",

@@ -28,7 +28,7 @@ class RunData:
 
     stored: StoredRun
     group: str  # JSON of the swept parameters other than dt and integrator.*
-    final_error: float  # m, against the exact solution, or a reference (see with_reference_errors)
+    reference_error: float = math.nan  # m, at the error time against a reference (figure_data), for runs without an exact solution
     error_from_reference: bool = False
 
     # -- the stored description -----------------------------------------------------------------
@@ -116,26 +116,14 @@ class RunData:
 
     @property
     def error(self) -> float:
-        """m: the run's error at its error time (``StoredRun.error``), or the reference's error that figure_data
-        put in its place; files from before error times: the error at the end (``final_error``)."""
-        if self.error_from_reference:
-            return self.final_error
-        if "error" in self.stored.attrs or self._format_version == 1:
-            return self.stored.error
-        return self.stored.final_error
+        """m: the run's error at its error time (``StoredRun.error``), or, for a run without an exact solution,
+        its error against the reference that figure_data was given."""
+        return self.reference_error if self.error_from_reference else self.stored.error
 
     @property
     def error_time(self) -> float:
-        """s: when ``error`` was measured (the last sample for files from before error times)."""
-        time = self.stored.error_time if ("error_time" in self.stored.attrs or self._format_version == 1) else math.nan
-        if np.isfinite(time):
-            return float(time)
-        t = self.t[np.isfinite(self.t)]
-        return float(t[-1]) if t.size else math.nan
-
-    @property
-    def _format_version(self) -> int:
-        return int(getattr(self.stored, "format_version", 2))
+        """s: when ``error`` was measured (``StoredRun.error_time``)."""
+        return self.stored.error_time
 
     @functools.cached_property
     def newton_iterations(self) -> np.ndarray:
@@ -290,10 +278,11 @@ def figure_data(results: Results, reference_errors: dict[str, float] | None = No
     """The runs of ``results`` for the figures; ``reference_errors`` (run id -> m) stand in for a NaN error."""
     runs = []
     for stored in results.runs.values():
-        error, from_reference = stored.final_error, False
-        if reference_errors and stored.run_id in reference_errors and not np.isfinite(error):
-            error, from_reference = reference_errors[stored.run_id], True
-        runs.append(RunData(stored, json.dumps(stored.swept, sort_keys=True), error, from_reference))
+        group = json.dumps(stored.swept, sort_keys=True)
+        if reference_errors and stored.run_id in reference_errors and not np.isfinite(stored.error):
+            runs.append(RunData(stored, group, reference_errors[stored.run_id], error_from_reference=True))
+        else:
+            runs.append(RunData(stored, group))
     grouped: dict[str, list[RunData]] = {}
     for run in runs:
         grouped.setdefault(run.group, []).append(run)

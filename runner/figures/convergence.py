@@ -55,7 +55,7 @@ def order_text(fit: "analysis.OrderFit", footnotes: dict[str, int] | None = None
         return f"p = {fit.order:.2f}"
     if fit.exact:
         return "exact (round-off)"
-    reason = getattr(fit, "reason", "") or "too few points in the asymptotic range"
+    reason = fit.reason or "too few points in the asymptotic range"
     if footnotes is None:
         return f"no slope: {reason}"
     number = footnotes.setdefault(reason, len(footnotes) + 1)

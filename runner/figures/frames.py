@@ -19,6 +19,10 @@ SNAPSHOT_COUNT = 4
 MAX_SNAPSHOT_FIGURES = 12
 GIF_FRAMES_MAX = 120  # a longer GIF only grows the file; 120 frames at 20 fps is 6 s
 SNAPSHOT_DPI = 110
+# One cell of the snapshot grid (in): four columns of 3D views fit the page's 1280 px at REPORT_DPI.
+SNAPSHOT_CELL = (2.7, 2.4)
+# The snapshot grid's title and row headings (in).
+SNAPSHOT_TITLE_HEIGHT = 0.6
 
 
 def frame_runs(results: Results) -> list[str]:
@@ -70,6 +74,61 @@ def snapshots(data: FigureData) -> list[tuple[str, object]] | None:
         figure.tight_layout()
         figures.append((f"cloth_{run_id}", figure))
     return figures or None
+
+
+def snapshot_grid(data: FigureData):
+    """One figure of the frame runs (rows; simrun.figures.frames.snapshot_runs) at SNAPSHOT_COUNT times (columns),
+    spread over the longest run and drawn at the same scale; a run that stopped earlier leaves its later cells empty."""
+    run_ids = snapshot_runs(data.results)
+    if not run_ids:
+        return None
+    runs = [data.results.runs[run_id] for run_id in run_ids]
+    end = max(float(run["frame_t"][-1]) for run in runs)
+    times = np.linspace(0.0, end, SNAPSHOT_COUNT)
+    picks, shown = [], []
+    for run in runs:
+        t = np.asarray(run["frame_t"], dtype=float)
+        spacing = (t[-1] - t[0]) / (len(t) - 1) if len(t) > 1 else 0.0
+        row = [int(np.argmin(np.abs(t - time))) if time <= t[-1] + 0.5 * spacing + 1e-12 else None for time in times]
+        picks.append(row)
+        last = len(t) - 1
+        # a diverged run's last frame is the blow-up: frame the view on the frames before it
+        shown += [run["frames"][index] for index in row
+                  if index is not None and not (run.status is Status.DIVERGED and index == last and last > 0)]
+    spheres = [sphere for run in runs for sphere in _spheres(run)]
+    limits = _limits(np.array(shown) if shown else runs[0]["frames"][:1], spheres)
+    columns = len(times)
+    width, height = SNAPSHOT_CELL
+    figure = plt.figure(figsize=(columns * width, len(runs) * height + SNAPSHOT_TITLE_HEIGHT))
+    title, body = figure.subfigures(2, 1, height_ratios=[SNAPSHOT_TITLE_HEIGHT, len(runs) * height])
+    low, high = limits
+    box = ", ".join(f"{name} {round(low[axis], 2) + 0.0:g} to {round(high[axis], 2) + 0.0:g} m" for axis, name in enumerate("xyz"))
+    title.suptitle(f"{data.name}: snapshots (rows: runs; columns: times)\nevery cell the same box: {box}",
+                   fontsize=10, y=0.75)
+    for number, (subfigure, run, row) in enumerate(zip(body.subfigures(len(runs), 1, squeeze=False)[:, 0], runs, picks)):
+        status = "" if run.status is Status.OK else f", {run.status}"
+        if run.status is Status.DIVERGED and "t_diverged" in run.attrs:
+            status += f" at t = {float(run.attrs['t_diverged']):.3g} s"
+        subfigure.set_facecolor("#f4f6f9" if number % 2 == 0 else "white")  # rows told apart
+        subfigure.text(0.01, 0.97, f"{run.label}, dt = {run.dt:g} s{status}", fontsize=9, fontweight="bold", va="top")
+        subfigure.subplots_adjust(left=0.0, right=0.98, bottom=0.02, top=0.84, wspace=0.05)
+        for column, index in enumerate(row):
+            axes = subfigure.add_subplot(1, columns, column + 1, projection="3d")
+            if index is None:
+                axes.set_axis_off()
+                axes.text2D(0.5, 0.5, f"run ended at t = {float(run['frame_t'][-1]):.3g} s", ha="center",
+                            va="center", transform=axes.transAxes, fontsize=8, color="#5a6270")
+                continue
+            _draw_scene(axes, run["frames"][index], run, limits)
+            axes.set_facecolor("none")
+            axes.set_title(f"t = {float(run['frame_t'][index]):.3g} s", fontsize=8, pad=0)
+            # one box for the whole grid, stated in its title: ticks in every cell would only crowd it
+            axes.set_xlabel("")
+            axes.set_ylabel("")
+            axes.set_zlabel("")
+            for axis in (axes.xaxis, axes.yaxis, axes.zaxis):
+                axis.set_ticklabels([])
+    return figure
 
 
 def write_gif(results: Results, run_id: str, output, fps: int = 20):

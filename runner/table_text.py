@@ -1,0 +1,197 @@
+"""The summary table as text: fixed-width for the terminal (``simrun show``, at most 100 columns unless
+--wide) and CSV with units in the headers; and the number formats the report shares with it."""
+
+from __future__ import annotations
+
+import csv
+import math
+import textwrap
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from simrun.tables import (ROUND_OFF_DAMPING, SummaryRow, energy_reference_differs, energy_reference_text,
+                           error_time_text, iteration_name, mixed_solvers)
+
+# `simrun show` fits a terminal this wide by default (--wide: every column).
+TERMINAL_WIDTH = 100
+# Longer integrator labels are cut (with an ellipsis) in the terminal table unless --wide.
+MAX_LABEL_WIDTH = 32
+
+
+# -- the terminal table -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Column:
+    """A column of the terminal table: two heading lines, its cells, and when it is shown."""
+
+    key: str
+    heading: tuple[str, str]
+    cell: Callable[[SummaryRow], str]
+    keep: int  # columns of lower rank are hidden first when the table is narrowed to TERMINAL_WIDTH
+    text: bool = False  # left-aligned
+    shown: Callable[[list[SummaryRow]], bool] = lambda rows: True
+
+
+def _any(value: Callable[[SummaryRow], float]) -> Callable[[list[SummaryRow]], bool]:
+    """Shown when some row has a finite, non-zero value."""
+    return lambda rows: any(np.isfinite(value(row)) and value(row) != 0 for row in rows)
+
+
+def _measured_text(row: SummaryRow) -> str:
+    unresolved = np.isfinite(row.measured_damping) and not row.measured_resolved
+    return damping_text(row.measured_damping).replace("–", "") + ("?" if unresolved else "")
+
+
+def terminal_columns(rows: list[SummaryRow]) -> list[Column]:
+    """The columns of `simrun show`, each named by what it counts; those with nothing to show are left out."""
+    iterations = iteration_name(rows)
+    columns = [
+        Column("index", ("", "#"), lambda row: str(row.index), 9),
+        Column("integrator", ("", "integrator"), lambda row: row.integrator, 9, text=True),
+        Column("solver", ("", "solver"), lambda row: row.solver or "–", 8, text=True, shown=mixed_solvers),
+        Column("dt", ("dt", "(s)"), lambda row: f"{row.dt:.4g}", 9),
+        Column("hw", ("", "h w"), lambda row: "" if not np.isfinite(row.hw) else f"{row.hw:.3g}", 3, shown=_any(lambda row: row.hw)),
+        Column("status", ("", "status"), lambda row: row.status, 9, text=True),
+        Column("steps", ("", "steps"), lambda row: str(row.steps), 1),
+        Column("max_drift", ("max", "drift"), lambda row: number_text(row.max_rel_energy_drift), 8),
+        Column("e_ref", ("E_ref", "(J)"), lambda row: number_text(row.energy_reference), 2,
+               shown=energy_reference_differs),
+        Column("error", ("error", "(m)"), lambda row: number_text(row.error).replace("–", ""), 8,
+               shown=_any(lambda row: row.error)),
+        Column("iterations", (iterations, "it/step"), lambda row: f"{row.mean_newton_iterations:.2f}" if row.solver else "",
+               7, shown=_any(lambda row: row.mean_newton_iterations)),
+        Column("linear", ("linear", "it/step"), lambda row: number_text(row.mean_linear_iterations) if row.solver else "",
+               4, shown=_any(lambda row: row.mean_linear_iterations)),
+        Column("wall", ("wall", "(s)"), lambda row: f"{row.wall_time:.3g}", 8),
+        Column("measured", ("d/w", "meas."), _measured_text, 6, shown=_any(lambda row: row.measured_damping)),
+        Column("predicted", ("d/w", "pred."), lambda row: damping_text(row.predicted_damping).replace("–", ""), 5,
+               shown=_any(lambda row: row.predicted_damping)),
+    ]
+    return [column for column in columns if column.shown(rows)]
+
+
+def format_table(rows: list[SummaryRow], name: str = "", wide: bool = False, width: int = TERMINAL_WIDTH) -> str:
+    """The summary as fixed-width text for the terminal; groups separated by a heading line.
+
+    Columns with nothing to show are left out; unless ``wide``, the least needed ones are hidden (and
+    long labels cut) until a line fits ``width`` characters, and a last line says which."""
+    columns = terminal_columns(rows)
+    label_width = max([len("integrator")] + [len(row.integrator) for row in rows])
+    if not wide:
+        label_width = min(label_width, MAX_LABEL_WIDTH)
+
+    def cells(column: Column, row: SummaryRow) -> str:
+        text = column.cell(row)
+        if column.key == "integrator" and len(text) > label_width:
+            text = text[:label_width - 1] + "…"
+        return text
+
+    def widths(shown: list[Column]) -> list[int]:
+        return [max([len(part) for part in column.heading] + [len(cells(column, row)) for row in rows]) for column in shown]
+
+    hidden: list[Column] = []
+    if not wide:
+        while sum(widths(columns)) + 2 * (len(columns) - 1) > width:
+            candidates = [column for column in columns if column.keep < 9]
+            if not candidates:
+                break
+            dropped = min(candidates, key=lambda column: column.keep)
+            columns.remove(dropped)
+            hidden.append(dropped)
+    sizes = widths(columns)
+
+    def line(texts: list[str]) -> str:
+        return "  ".join(f"{text:<{size}}" if column.text else f"{text:>{size}}"
+                         for column, text, size in zip(columns, texts, sizes)).rstrip()
+
+    header = [line([column.heading[0] for column in columns]), line([column.heading[1] for column in columns])]
+    rule = "-" * max(len(text) for text in header)
+    lines = [f"{name}: {len(rows)} runs" if name else f"{len(rows)} runs"]
+    frequencies = sorted({row.hw / row.dt for row in rows if np.isfinite(row.hw) and row.dt > 0})
+    if frequencies and any(column.key == "hw" for column in hidden):
+        lines.append("w = " + ", ".join(f"{value:.4g}" for value in frequencies) + " rad/s (h w = dt w)")
+    lines += [header[0], header[1], rule] if header[0].strip() else [header[1], rule]
+    group = None
+    for row in rows:
+        if row.group != group and any(other.group for other in rows):
+            lines.append(f"[{row.group}]")
+            group = row.group
+        lines.append(line([cells(column, row) for column in columns]))
+    lines.append(rule)
+    notes = [f"drift: max |E - E0| / E_ref, {energy_reference_text(rows)}"]
+    if any(column.key == "error" for column in columns):
+        reference = any(row.error_from_reference for row in rows)
+        notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
+                     f"{error_time_text(rows)}")
+    if any(column.key in ("measured", "predicted") for column in columns):
+        notes.append("d/w: artificial damping d_method / w (meas.: energy decay, ? = not resolved by the run; "
+                     "pred.: amplification matrix)")
+    if hidden:
+        notes.append("not shown: " + ", ".join(" ".join(filter(None, column.heading)) for column in hidden)
+                     + " (--wide: every column)")
+    if not wide:  # the notes fit the width too
+        notes = [textwrap.fill(note, width, subsequent_indent="  ", break_on_hyphens=False) for note in notes]
+    return "\n".join(lines + notes)
+
+
+# -- CSV: every column, full precision, units in the headers --------------------------------------
+CSV_COLUMNS = (  # header (with its unit), value
+    ("index", lambda row: row.index),
+    ("run_id", lambda row: row.run_id),
+    ("integrator", lambda row: row.integrator),
+    ("group", lambda row: row.group),
+    ("solver", lambda row: row.solver),
+    ("dt_s", lambda row: row.dt),
+    ("hw", lambda row: row.hw),  # dimensionless: dt times the test frequency
+    ("status", lambda row: row.status),
+    ("steps", lambda row: row.steps),
+    ("order", lambda row: row.order),
+    ("energy_reference_J", lambda row: row.energy_reference),
+    ("energy_reference_name", lambda row: row.energy_reference_name),
+    ("max_rel_energy_drift", lambda row: row.max_rel_energy_drift),  # dimensionless: max |E - E0| / E_ref
+    ("final_rel_energy_drift", lambda row: row.final_rel_energy_drift),  # (E_end - E0) / E_ref
+    ("error_time_s", lambda row: row.error_time),
+    ("error_m", lambda row: row.error),
+    ("error_from_reference", lambda row: row.error_from_reference),
+    ("final_error_m", lambda row: row.final_error),
+    ("solver_iterations_per_step", lambda row: row.mean_newton_iterations),
+    ("linear_iterations_per_step", lambda row: row.mean_linear_iterations),
+    ("wall_time_s", lambda row: row.wall_time),
+    ("measured_damping_over_w", lambda row: row.measured_damping),  # dimensionless: d_method / w
+    ("measured_damping_resolved", lambda row: row.measured_resolved),
+    ("predicted_damping_over_w", lambda row: row.predicted_damping),
+    ("damping_relative_difference", lambda row: row.damping_difference),
+)
+
+
+def write_csv(rows: list[SummaryRow], stream) -> None:
+    """Every column at full precision; a header names its unit (dt_s, wall_time_s, error_m, energy_reference_J)
+    or is a dimensionless ratio (max_rel_energy_drift, hw, *_damping_over_w)."""
+    writer = csv.writer(stream)
+    writer.writerow([header for header, _ in CSV_COLUMNS])
+    for row in rows:
+        writer.writerow([csv_number(value(row)) for _, value in CSV_COLUMNS])
+
+
+def csv_number(value):
+    if isinstance(value, (float, np.floating)):
+        return "" if math.isnan(value) else repr(float(value))
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def damping_text(value: float) -> str:
+    """d/w with round-off shown as 0 (rho = 1 to the last bits gives |d/w| ~ 1e-15)."""
+    return "0" if np.isfinite(value) and abs(value) < ROUND_OFF_DAMPING else number_text(value)
+
+
+def number_text(value: float) -> str:
+    if value is None or not np.isfinite(value):
+        return "–" if value is None or np.isnan(value) else ("inf" if value > 0 else "-inf")
+    if value == 0:
+        return "0"
+    if 1e-3 <= abs(value) < 1e4:
+        return f"{value:.4g}"
+    return f"{value:.2e}"
