@@ -115,13 +115,7 @@ def convergence(data: FigureData):
         if not single:
             ax.legend(handles=handles, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), frameon=False,
                       handlelength=2.2, borderaxespad=0.0)
-    limits = layout.log_limits(np.concatenate(errors))
-    if limits:
-        axes[0].set_ylim(*limits)
-    for ax in axes:
-        layout.tidy_log_axes(ax)
-    runs = error_runs(data)
-    layout.label_outer(axes, rows, "time step dt (s)", error_axis_label(runs))
+    runs = _error_axes(data, axes, rows, errors, "time step dt (s)")
     fit_handle = Line2D([], [], ls="--", color="black", lw=0.9,
                         label=f"least-squares fit (≤ {analysis.ORDER_FIT_POINTS} smallest dt)")
     if single:
@@ -167,16 +161,23 @@ def work_precision(data: FigureData):
             errors.append(values)
             ax.plot([run.wall_time for run in mine], values, lw=1.2, **layout.series_style(series, number))
         layout.log_log_panel(ax, panel.title, minor_grid=False)
-    limits = layout.log_limits(np.concatenate(errors))
-    if limits:
-        axes[0].set_ylim(*limits)
-    for ax in axes:
-        layout.tidy_log_axes(ax)
-    runs = error_runs(data)
-    layout.label_outer(axes, rows, "wall time of the run (s)", error_axis_label(runs))
+    runs = _error_axes(data, axes, rows, errors, "wall time of the run (s)")
     handles = layout.series_handles(data, [series for panel in panels for series in panel.series], lw=1.2)
     handles.append(Line2D([], [], ls="none", label="lower left is better"))
     layout.figure_legend(figure, handles, data.legend_title)
     layout.suptitle(figure, data, "work-precision (points: the time steps)")
     layout.add_notes(figure, notes + [_left_out_note(data, runs)])
     return figure
+
+
+def _error_axes(data: FigureData, axes, rows, errors: list[np.ndarray], xlabel: str) -> list[RunData]:
+    """The shared error axis of the convergence and work-precision figures: limits from every error drawn,
+    tidy log ticks, labels on the outer panels; returns the runs with errors (for the legend's notes)."""
+    limits = layout.log_limits(np.concatenate(errors))
+    if limits:
+        axes[0].set_ylim(*limits)
+    for ax in axes:
+        layout.tidy_log_axes(ax)
+    runs = error_runs(data)
+    layout.label_outer(axes, rows, xlabel, error_axis_label(runs))
+    return runs
