@@ -109,6 +109,17 @@ def residual_floor(mass: np.ndarray, y_tilde: np.ndarray) -> float:
     return RESIDUAL_ULPS * max_norm(mass * y_tilde)
 
 
+def _constrained_start(system: System, start: np.ndarray, y_tilde: np.ndarray) -> np.ndarray:
+    """S start + (I - S) y~ on the vertices of prescribed paths (the only ones where y~ and start differ
+    on a filtered component: pinned and sliding vertices have no velocity along it)."""
+    constraints = system.constraints
+    if constraints is None or not constraints.moving_dofs.size:
+        return start
+    start = start.copy()
+    start[constraints.moving_dofs] = y_tilde[constraints.moving_dofs]
+    return start
+
+
 class IncrementalPotential:
     """E(y) = 1/2 (y - y~)^T M (y - y~) + s [P(y) + 1/(2 b) (y - a)^T D (y - a)],  s = c h^2.
 
@@ -130,6 +141,7 @@ class IncrementalPotential:
         self.y_tilde = y_tilde
         self.scale = scale
         self.fixed_dofs = system.fixed_dofs
+        self.sliding = system.sliding
         damping = None if damping_at is None else system.damping_matrix(damping_at)
         self.damping = damping
         # the system fills one fixed CSR pattern (the cloth), and D, if any, shares it
@@ -154,7 +166,21 @@ class IncrementalPotential:
             gradient += self.damping_weight * (self.damping @ (y - self.velocity_origin))
         if self.fixed_dofs.size:
             gradient[self.fixed_dofs] = 0.0
+        if self.sliding is not None:
+            self.sliding.apply(gradient)
         return gradient
+
+    def start_point(self, start: np.ndarray) -> np.ndarray:
+        """``start`` with the components that a filter removes taken from y~ instead (S start + (I - S) y~).
+
+        Solvers never move a filtered component, so it keeps its start value: y~ is the method's own
+        value there, since no force acts on it (a pinned vertex: x_n; a vertex on a prescribed path at
+        constant velocity: its exact position)."""
+        return _constrained_start(self.system, start, self.y_tilde)
+
+    def direction_guess(self, y: np.ndarray) -> np.ndarray:
+        """An estimate of the first Newton step from y: the step to the inertial predictor, y~ - y."""
+        return self.y_tilde - y
 
     def hessian(self, y: np.ndarray, project_spd: bool = False):
         if self._in_pattern:
@@ -207,6 +233,7 @@ class SegmentPotential:
         self.v_start = v_start
         self.h2 = dt * dt
         self.fixed_dofs = system.fixed_dofs
+        self.sliding = system.sliding
         self.velocity_origin = velocity_origin
         self.velocity_divisor = velocity_divisor
         # D_start and D_end: how the sampled damping forces see v_n and v(y)
@@ -246,7 +273,16 @@ class SegmentPotential:
                                    + self.damping_end @ ((y - self.velocity_origin) / self.velocity_divisor))
         if self.fixed_dofs.size:
             gradient[self.fixed_dofs] = 0.0
+        if self.sliding is not None:
+            self.sliding.apply(gradient)
         return gradient
+
+    def start_point(self, start: np.ndarray) -> np.ndarray:
+        """As ``IncrementalPotential.start_point``."""
+        return _constrained_start(self.system, start, self.y_tilde)
+
+    def direction_guess(self, y: np.ndarray) -> np.ndarray:
+        return self.y_tilde - y
 
     def hessian(self, y: np.ndarray, project_spd: bool = False):
         hessian = None

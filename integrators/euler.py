@@ -58,5 +58,5 @@ class BackwardEuler(Integrator):
     def step(self, system, state, dt, solver):
         problem = IncrementalPotential(system, state.x + dt * state.v, dt * dt,
                                        velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x)
-        x, stats = solver.minimize(problem, state.x)
+        x, stats = solver.minimize(problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - state.x) / dt), stats

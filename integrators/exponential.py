@@ -39,6 +39,15 @@ class ExponentialRosenbrockEuler(Integrator):
         free[system.fixed_dofs] = 0.0
         stiffness = system.hessian(state.x)
         damping = system.damping_matrix(state.x)
+        if system.sliding is not None:  # S K and S D: the accelerations of sliding vertices stay in their filters
+            stiffness = system.sliding.matrix @ stiffness
+            damping = None if damping is None else system.sliding.matrix @ damping
+        if system.constraints is not None and system.constraints.moving_dofs.size:
+            moving = system.constraints.moving_dofs
+            position_rate = free.copy()
+            position_rate[moving] = 1.0  # a vertex on a prescribed path moves with its velocity, unforced
+        else:
+            position_rate = free
         acceleration = system.acceleration(state.x, state.v)
         scaled_inverse_mass = dt * free / system.mass  # zero rows of J for fixed dofs
         # h [[J, F], [0, 0]]: rows for x, rows for v, and the zero row that makes phi_1 appear;
@@ -46,7 +55,7 @@ class ExponentialRosenbrockEuler(Integrator):
         if scipy.sparse.issparse(stiffness):
             inverse_mass = scipy.sparse.diags_array(scaled_inverse_mass)
             augmented = scipy.sparse.block_array([
-                [None, scipy.sparse.diags_array(dt * free), (dt * free * state.v)[:, None]],
+                [None, scipy.sparse.diags_array(dt * position_rate), (dt * position_rate * state.v)[:, None]],
                 [-(inverse_mass @ stiffness),
                  None if damping is None else -(inverse_mass @ scipy.sparse.csr_array(damping)),
                  (dt * acceleration)[:, None]],
@@ -54,12 +63,12 @@ class ExponentialRosenbrockEuler(Integrator):
             ], format="csr")
         else:
             augmented = np.zeros((2 * n + 1, 2 * n + 1))
-            augmented[np.arange(n), n + np.arange(n)] = dt * free
+            augmented[np.arange(n), n + np.arange(n)] = dt * position_rate
             augmented[n:2 * n, :n] = -scaled_inverse_mass[:, None] * np.asarray(stiffness)
             if damping is not None:
                 dense_damping = damping.toarray() if scipy.sparse.issparse(damping) else np.asarray(damping)
                 augmented[n:2 * n, n:2 * n] = -scaled_inverse_mass[:, None] * dense_damping
-            augmented[:n, -1] = dt * free * state.v
+            augmented[:n, -1] = dt * position_rate * state.v
             augmented[n:2 * n, -1] = dt * acceleration
         last = np.zeros(2 * n + 1)
         last[-1] = 1.0

@@ -37,7 +37,7 @@ class ImplicitMidpoint(Integrator):
         predictor = state.x + half * state.v  # x_{n+1/2} to O(h^2): D(x) there keeps the method second order
         problem = IncrementalPotential(system, predictor, 0.25 * dt * dt,
                                        velocity_origin=state.x, velocity_divisor=half, damping_at=predictor)
-        midpoint, stats = solver.minimize(problem, state.x)
+        midpoint, stats = solver.minimize(problem, problem.start_point(state.x))
         v_half = (midpoint - state.x) / half
         return State(state.t + dt, 2.0 * midpoint - state.x, 2.0 * v_half - state.v), stats
 
@@ -63,7 +63,7 @@ def _newmark_like_step(system, state, dt, solver, beta, gamma, alpha_m=0.0, alph
     # D(x) at y_start, the evaluation point to O(h^2), so that damping keeps the method's order
     problem = IncrementalPotential(system, y_tilde, scale * dt * dt, velocity_origin=origin,
                                    velocity_divisor=divisor, damping_at=y_start)
-    y, stats = solver.minimize(problem, state.x)
+    y, stats = solver.minimize(problem, problem.start_point(state.x))
     x = state.x + (y - state.x) / (1.0 - alpha_f)
     new_acceleration = (x - x_hat) / (beta * dt * dt)
     v = state.v + dt * ((1.0 - gamma) * acceleration + gamma * new_acceleration)
@@ -169,7 +169,7 @@ class SemiImplicitBackwardEuler(Integrator):
     def step(self, system, state, dt, solver):
         problem = IncrementalPotential(system, state.x + dt * state.v, dt * dt,
                                        velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x)
-        x, stats = solver.newton_step(problem, state.x)
+        x, stats = solver.newton_step(problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - state.x) / dt), stats
 
 
@@ -213,5 +213,5 @@ class AverageVectorField(Integrator):
                                    nodes=nodes, weights=0.5 * weights, dt=dt,
                                    velocity_origin=state.x + half * state.v, velocity_divisor=half,
                                    damping_at=[state.x + (s * dt) * state.v for s in nodes])  # each node's point to O(h^2)
-        x, stats = solver.minimize(problem, state.x)
+        x, stats = solver.minimize(problem, problem.start_point(state.x))
         return State(state.t + dt, x, 2.0 * (x - state.x) / dt - state.v), stats

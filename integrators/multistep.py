@@ -45,7 +45,7 @@ class BDF2(Integrator):
         predictor = x_hat + divisor * v_hat  # x_{n+1} to O(h^2): D(x) there keeps the method second order
         problem = IncrementalPotential(system, predictor, divisor * divisor,
                                        velocity_origin=x_hat, velocity_divisor=divisor, damping_at=predictor)
-        x, stats = solver.minimize(problem, state.x)
+        x, stats = solver.minimize(problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - x_hat) / divisor, (state.x, state.v)), stats
 
 
@@ -92,5 +92,5 @@ class BDF2MidpointMix(Integrator):
                                    weights=(theta * implicit_weight * kappa, (1.0 - theta) * kappa), dt=dt,
                                    velocity_origin=origin, velocity_divisor=divisor,
                                    damping_at=[state.x + dt * state.v, state.x + (0.5 * dt) * state.v])
-        x, stats = solver.minimize(problem, state.x)
+        x, stats = solver.minimize(problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - origin) / divisor, (state.x, state.v)), stats

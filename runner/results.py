@@ -311,6 +311,45 @@ class StoredRun:
         shape = tuple(int(size) for size in np.atleast_1d(self._capability("frame_shape")))
         return shape or None
 
+    @functools.cached_property
+    def vertex_dim(self) -> int:
+        """Coordinates per vertex of the run's frames (2 or 3); 0 when the run keeps no frames.
+
+        From the attribute ``vertex_dim``; files written before it (cloth frames) hold (frames, vertices, 3)."""
+        if "frames" not in self.datasets:
+            return 0
+        if int(self.attrs.get("vertex_dim", 0)) > 0:
+            return int(self.attrs["vertex_dim"])
+        if "frames" in self._cache:
+            return int(self._cache["frames"].shape[-1])
+        with self._results.opened() as file:
+            return int(file["runs"][self.run_id]["frames"].shape[-1])
+
+    @functools.cached_property
+    def model_edges(self) -> np.ndarray | None:
+        """(m, 2) vertex indices of the model's springs (dataset ``model_edges``); for files written before it, the
+        row and column neighbours of the frame_shape grid; None for runs without frames or a model to draw."""
+        if "model_edges" in self.datasets:
+            return np.asarray(self["model_edges"], dtype=np.int32).reshape(-1, 2)
+        grid = self._vertex_grid
+        return _grid_edges(grid) if grid else None
+
+    @functools.cached_property
+    def model_triangles(self) -> np.ndarray | None:
+        """(t, 3) vertex indices of the model's surface triangles (dataset ``model_triangles``, stored only for
+        models with a surface); for files written before ``model_edges``, two per cell of the frame_shape grid;
+        None for models without a surface (a rope, a 2-D square)."""
+        if "model_triangles" in self.datasets:
+            return np.asarray(self["model_triangles"], dtype=np.int32).reshape(-1, 3)
+        grid = self._vertex_grid
+        return _grid_triangles(grid) if grid and "model_edges" not in self.datasets else None
+
+    @property
+    def _vertex_grid(self) -> tuple[int, int] | None:
+        """(rows, columns) of a run with frames on a regular grid (frame_shape of two sizes), else None."""
+        shape = self.frame_shape if "frames" in self.datasets else None
+        return shape if shape is not None and len(shape) == 2 else None
+
     @property
     def dof_count(self) -> int:
         """Degrees of freedom of the run's system."""
@@ -334,6 +373,21 @@ class StoredRun:
 
     def _json(self, key: str) -> dict:
         return json.loads(self.attrs.get(key) or "{}")
+
+
+def _grid_edges(shape: tuple[int, int]) -> np.ndarray:
+    """(m, 2) int32: the row and column neighbours of a (rows, columns) vertex grid, vertex = row * columns + column."""
+    index = np.arange(shape[0] * shape[1], dtype=np.int32).reshape(shape)
+    pairs = [(index[:, :-1], index[:, 1:]), (index[:-1, :], index[1:, :])]
+    return np.concatenate([np.stack([first.ravel(), second.ravel()], axis=1) for first, second in pairs])
+
+
+def _grid_triangles(shape: tuple[int, int]) -> np.ndarray:
+    """(t, 3) int32: each cell of a (rows, columns) vertex grid split along its diagonal into two triangles."""
+    index = np.arange(shape[0] * shape[1], dtype=np.int32).reshape(shape)
+    corner, right, below, across = index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:]
+    return np.concatenate([np.stack([corner.ravel(), right.ravel(), across.ravel()], axis=1),
+                           np.stack([corner.ravel(), across.ravel(), below.ravel()], axis=1)])
 
 
 # -- the file ---------------------------------------------------------------------------------------

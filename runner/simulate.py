@@ -27,21 +27,25 @@ class RunResult:
     t_diverged: float | None = None
     message: str = ""
     attrs: dict = field(default_factory=dict)
+    model: dict[str, np.ndarray] = field(default_factory=dict)  # the drawn topology: model_edges, model_triangles
 
 
 class Recorder:
     """Preallocated rows for the samples of a run: one float table, one row per sample.
 
     A row holds the observables (``system.observable_layout``, written by ``system.write_observables``
-    without a dictionary), then t and the dissipated energy, then, for small systems, x and v. Large
-    systems (cloth) keep the vertex positions as ``frames`` (frames x vertices x 3) at their own,
-    sparser cadence instead.
+    without a dictionary), then t and the dissipated energy (and, for systems with prescribed paths, the
+    work the paths did), then, for small systems, x and v. Systems of vertices (mass-spring models) keep
+    the vertex positions as ``frames`` (frames x vertices x d) at their own, sparser cadence instead.
     """
 
     def __init__(self, system, sample_count: int, frame_count: int):
         self.write_observables = system.write_observables
         self.with_state = system.records_state_per_sample
         columns = list(system.observable_layout) + [("t", ()), ("dissipated_energy", ())]
+        self.with_work = _moving_dofs(system).size > 0
+        if self.with_work:
+            columns.append(("prescribed_work", ()))
         if self.with_state:
             columns += [("positions", (system.dof_count,)), ("velocities", (system.dof_count,))]
         self.columns: dict[str, tuple[slice, tuple[int, ...]]] = {}
@@ -56,15 +60,19 @@ class Recorder:
             self.positions, self.velocities = self.columns["positions"][0], self.columns["velocities"][0]
         self.count = 0
         self.frame_count = 0
-        self.frames = None if self.with_state else np.empty((frame_count, system.dof_count // 3, 3))
+        self.work_column = self.columns["prescribed_work"][0].start if self.with_work else None
+        dim = system.vertex_dim
+        self.frames = None if self.with_state else np.empty((frame_count, system.dof_count // dim, dim))
         self.frame_t = None if self.with_state else np.empty(frame_count)
 
-    def record(self, t: float, x: np.ndarray, v: np.ndarray, dissipated_energy: float) -> float:
+    def record(self, t: float, x: np.ndarray, v: np.ndarray, dissipated_energy: float, work: float = 0.0) -> float:
         """One sample at time t (s) of (x, v); returns its total energy (J), for the divergence check."""
         row = self.table[self.count]
         energy = self.write_observables(x, v, row)
         row[self.t_column] = t
         row[self.dissipated_column] = dissipated_energy
+        if self.work_column is not None:
+            row[self.work_column] = work
         if self.with_state:
             row[self.positions] = x
             row[self.velocities] = v
@@ -72,7 +80,7 @@ class Recorder:
         return energy
 
     def record_frame(self, t: float, x: np.ndarray) -> None:
-        self.frames[self.frame_count] = x.reshape(-1, 3)
+        self.frames[self.frame_count] = x.reshape(self.frames.shape[1:])
         self.frame_t[self.frame_count] = t
         self.frame_count += 1
 
@@ -114,6 +122,8 @@ def simulate(run: Run) -> RunResult:
     energy0 = system.total_energy(state.x, state.v)
     energy_bound = run.divergence.energy_factor * system.energy_scale()
     dissipated = 0.0  # work of the physical damping forces so far (J), for the energy budget
+    work = 0.0  # work done on the system by the vertices on prescribed paths so far (J), for the energy budget
+    moving = _moving_dofs(system)
     damped = system.is_damped
     newton_iterations, linear_iterations = per_step["newton_iterations"], per_step["linear_iterations"]
     line_search_steps, residuals, solver_index = per_step["line_search_steps"], per_step["residual"], per_step["solver_index"]
@@ -124,13 +134,14 @@ def simulate(run: Run) -> RunResult:
     def record_stop(t: float, state: State, sampled: bool, framed: bool) -> None:
         """The sample (and frame) of the step a run stops at, unless the regular cadence took them already."""
         if not sampled:
-            record_sample(t, state.x, state.v, dissipated)
+            record_sample(t, state.x, state.v, dissipated, work)
         if with_frames and not framed:
             record_frame(t, state.x)
 
-    record_sample(0.0, state.x, state.v, dissipated)
+    record_sample(0.0, state.x, state.v, dissipated, work)
     if with_frames:
         record_frame(0.0, state.x)
+    path_power = _path_power(system, moving, state.x, state.v, 0.0) if moving.size else 0.0
     status, message, t_diverged, not_converged_steps = Status.OK, "", None, 0
     steps = 0
     start = time.perf_counter()
@@ -142,6 +153,11 @@ def simulate(run: Run) -> RunResult:
                 state, stats = step(system, state, dt, solver)
                 steps = n + 1
                 t = dt * steps  # the loop owns t: no accumulated round-off, whatever state.t says
+                if moving.size:  # the prescribed vertices where their paths are at t, and the work they did
+                    state = _on_paths(system.constraints, moving, state, t)
+                    power = _path_power(system, moving, state.x, state.v, t)
+                    work += 0.5 * dt * (path_power + power)  # the trapezoidal rule: second order
+                    path_power = power
                 if damped:
                     damping = system.damping_matrix(previous.x)
                     # h v_bar^T D v_bar with the step's mean velocity: the exact discrete balance of
@@ -159,7 +175,7 @@ def simulate(run: Run) -> RunResult:
                 last = steps == step_count
                 sampled = steps % stride == 0 or last
                 # a sample's row carries the energy, so the check below needs no second evaluation
-                energy = record_sample(t, state.x, state.v, dissipated) if sampled else None
+                energy = record_sample(t, state.x, state.v, dissipated, work) if sampled else None
                 framed = with_frames and (steps % frame_stride == 0 or last)
                 if framed:
                     record_frame(t, state.x)
@@ -191,11 +207,42 @@ def simulate(run: Run) -> RunResult:
     if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
         attrs["error_time"], samples["error_positions"], _ = error_state
         attrs["error"] = _error_at(system, *error_state)
+    model = {}
+    if system.frame_edges is not None and with_frames:
+        model["model_edges"] = system.frame_edges
+        if system.frame_triangles is not None:
+            model["model_triangles"] = system.frame_triangles
     return RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
         per_step={key: value[:steps] for key, value in per_step.items()},
-        t_diverged=t_diverged, message=message, attrs=attrs,
+        t_diverged=t_diverged, message=message, attrs=attrs, model=model,
     )
+
+
+def _moving_dofs(system) -> np.ndarray:
+    """The dofs of vertices on prescribed paths (empty for systems without them)."""
+    constraints = system.constraints
+    return constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+
+
+def _on_paths(constraints, moving: np.ndarray, state: State, t: float) -> State:
+    """The state with the prescribed vertices exactly on their paths at t (new arrays; the step's own
+    values there are the method's approximation of the path, exact for a constant velocity)."""
+    positions, velocities = constraints.path(t)
+    x, v = state.x.copy(), state.v.copy()
+    x[moving], v[moving] = positions, velocities
+    return State(state.t, x, v, state.aux)
+
+
+def _path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: float) -> float:
+    """The power (W) that the drivers of the prescribed vertices put into the system: sum over their dofs
+    of v (m a - f), with f = -dP/dx - D v the forces of the system on them (unfiltered) and a the paths'
+    accelerations: what holds the vertices on their paths against the springs, gravity and damping."""
+    force = -system.gradient(x)
+    if system.is_damped:
+        force -= system.damping_matrix(x) @ v
+    accelerations = system.constraints.path_accelerations(t)
+    return float(v[moving] @ (system.mass[moving] * accelerations - force[moving]))
 
 
 def _error_at(system, t: float, x: np.ndarray, v: np.ndarray) -> float:

@@ -244,6 +244,8 @@ class ResultsWriter:
             attrs[key] = value
         for key, array in result.samples.items():
             group.create_dataset(key, data=array)
+        for key, array in result.model.items():  # the topology that pictures draw: springs, triangles
+            group.create_dataset(key, data=array, **(COMPRESSION if array.size > 1024 else {}))
         for key, array in result.per_step.items():
             group.create_dataset(key, data=array, **(COMPRESSION if array.size > 1024 else {}))
         attrs["complete"] = True

@@ -65,7 +65,7 @@ def expand_runs(experiment: Experiment) -> list[Run]:
 
 
 # the swept solver keys that only a linear solver reads (solvers/params.py: LINEAR_SOLVER_FIELDS and the solver's name)
-LINEAR_SOLVER_KEYS = ("solver.linear_solver", "solver.linear_tolerance", "solver.linear_max_iterations")
+LINEAR_SOLVER_KEYS = ("solver.linear_solver", "solver.linear_tolerance", "solver.linear_max_iterations", "solver.mpcg_start")
 # integrators that take one Newton step with the main solver's linear solver whatever the solver (solver.newton_step)
 NEWTON_STEP_INTEGRATORS = ("semi_implicit_backward_euler",)
 

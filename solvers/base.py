@@ -98,8 +98,10 @@ def _own_copy(array) -> np.ndarray:
 _ALL_FREE: dict[int, FreeDofs] = {}  # size -> FreeDofs without fixed dofs (most problems of the small systems)
 
 
-def _free_dofs(size: int, fixed_dofs) -> FreeDofs:
+def _free_dofs(size: int, fixed_dofs, sliding=None) -> FreeDofs:
     """``free_dofs``, with the common case of no fixed dofs answered from a dict (no hashing of index bytes)."""
+    if sliding is not None:
+        return free_dofs(size, fixed_dofs, sliding)
     if fixed_dofs is None or len(fixed_dofs) == 0:
         free = _ALL_FREE.get(size)
         if free is None:
@@ -223,7 +225,7 @@ class NonlinearSolver(ABC):
 
     def _run(self, problem, start: np.ndarray, test: ConvergenceTest | None):
         """The iteration: (y, SolveStats, best y, test), what ``Outcome`` holds (``minimize`` needs no Outcome)."""
-        free = _free_dofs(start.size, problem.fixed_dofs)
+        free = _free_dofs(start.size, problem.fixed_dofs, getattr(problem, "sliding", None))
         callback = self.callback
         y = _own_copy(start)
         fresh_gradient = getattr(problem, "fresh_gradient", False)
@@ -245,6 +247,8 @@ class NonlinearSolver(ABC):
                     direction, cost = self._direction(problem, current, state)
                 except LINEAR_FAILURES:
                     break
+                if free.sliding is not None:  # every solver's direction moves sliding vertices along their filters only
+                    direction = free.zero_fixed(direction)
                 linear_iterations += cost
                 size = max_norm(direction)
                 if not math.isfinite(size):
@@ -280,10 +284,12 @@ class NonlinearSolver(ABC):
         """Exactly one Newton iteration from ``start`` (the semi-implicit methods): no convergence test.
 
         Uses the solver's linear solver and Hessian (projected for projected Newton, raw otherwise)."""
-        free = _free_dofs(start.size, problem.fixed_dofs)
+        free = _free_dofs(start.size, problem.fixed_dofs, getattr(problem, "sliding", None))
         gradient = free.zero_fixed(np.array(problem.gradient(start), dtype=float))
         direction, cost = self.linear_solver.solve(self._model_hessian(problem, start), -gradient, free,
                                                    spd=self.model_is_spd)
+        if free.sliding is not None:
+            direction = free.zero_fixed(direction)
         y = start + direction
         # the residual left at the result says how far one iteration is from the implicit solution
         residual = max_norm(free.zero_fixed(np.array(problem.gradient(y), dtype=float)))

@@ -77,9 +77,13 @@ class LinearSolver(ABC):
         """Why this solver cannot run here (an optional package is not installed), or None."""
         return None
 
+    wants_guess = False  # does ``solve`` use a guess of the solution (MPCG's filtered start)?
+
     @abstractmethod
     def solve(self, matrix, rhs: np.ndarray, free: FreeDofs, spd: bool = False) -> tuple[np.ndarray, int]:
-        """p with A_ff p_f = b_f on the free dofs and p = 0 on the fixed ones; (p, iterations)."""
+        """p with A_ff p_f = b_f on the free dofs and p = 0 on the fixed ones; (p, iterations).
+
+        Solvers whose ``wants_guess`` is True also take ``guess=``, an estimate of p."""
 
     def _target(self, rhs: np.ndarray) -> float:
         return self.tolerance * float(np.linalg.norm(rhs))
@@ -94,7 +98,7 @@ class ReducedSolver(LinearSolver):
         reduced_rhs = free.restrict(rhs)
         if reduced_rhs.size == 0:
             return np.zeros_like(rhs), 0
-        solution, iterations = self._solve(free.restrict_matrix(matrix), reduced_rhs, spd)
+        solution, iterations = self._solve(free.restrict_matrix(free.filter_matrix(matrix)), reduced_rhs, spd)
         return free.extend(solution), iterations
 
     @abstractmethod
@@ -335,26 +339,48 @@ class ModifiedPCG(LinearSolver):
     """The modified PCG of Baraff & Witkin ("Large steps in cloth simulation", SIGGRAPH 1998, sec. 5.3).
 
     CG with the Jacobi preconditioner on the full system, every search direction and residual passed
-    through the constraint filter S (here: zero on the fixed dofs, the filter of a fully pinned
-    vertex). The start p_0 = z (the prescribed values on the constrained dofs, here 0) is the one
-    that Ascher & Boxerman's convergence proof needs ("On the modified conjugate gradient method in
-    cloth simulation", The Visual Computer 19, 2003): from it, MPCG is PCG on the reduced system and
-    converges like it. Stops on the filtered residual, |S(b - A p)|_2 <= tolerance |S b|_2 (the 2-norm
-    test of the other CG solvers, where Baraff & Witkin use the preconditioned norm).
+    through the constraint filter S: zero on fixed dofs (a pinned vertex, or a component removed along a
+    coordinate axis) and the 3x3 (2x2) projector S_i = I - n n^T or u u^T of a vertex that slides in a
+    plane or along a line in an oblique direction. Stops on the filtered residual,
+    |S(b - A p)|_2 <= tolerance |S b|_2 (the 2-norm test of the other CG solvers, where Baraff & Witkin
+    use the preconditioned norm).
+
+    ``start``: ``zero`` starts from p_0 = z (the constrained components' values, here 0: a Newton
+    direction never moves a constrained component), Baraff & Witkin's choice; ``filtered`` starts from
+    p_0 = S g + (I - S) z with g the caller's guess (a Newton solver passes the step towards the
+    method's inertial predictor, y~ - y, at the first iteration of a step), the start that Ascher &
+    Boxerman ("On the modified conjugate gradient method in cloth simulation", The Visual Computer 19,
+    2003) show keeps MPCG equivalent to PCG on the constrained subspace and report 25-50 % faster.
     """
 
     name = "mpcg"
 
-    def solve(self, matrix, rhs, free, spd=False):
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 1000, start: str = "zero"):
+        super().__init__(tolerance, max_iterations)
+        if start not in MPCG_STARTS:
+            raise ValueError(f"mpcg start must be one of {', '.join(MPCG_STARTS)}, got {start!r}")
+        self.start = start
+
+    @property
+    def wants_guess(self) -> bool:
+        return self.start == "filtered"
+
+    def solve(self, matrix, rhs, free, spd=False, guess=None):
         weights = None if free.all_free else free.filter_weights
+        sliding = free.sliding
 
         def filtered(vector):
-            return vector if weights is None else vector * weights
+            vector = vector if weights is None else vector * weights
+            return vector if sliding is None else sliding.apply(vector)
 
         inverse = _inverse_diagonal(matrix)
-        solution = np.zeros_like(rhs, dtype=float)  # p_0 = z: satisfies the constraints exactly
-        residual = filtered(np.array(rhs, dtype=float))  # S (b - A p_0)
+        residual = filtered(np.array(rhs, dtype=float))  # S b
         target = self._target(residual)
+        if guess is not None and self.start == "filtered":
+            solution = filtered(np.array(guess, dtype=float))  # S g + (I - S) z, z = 0
+            residual = filtered(rhs - matrix @ solution)  # S (b - A p_0)
+        else:
+            solution = np.zeros_like(rhs, dtype=float)  # p_0 = z: satisfies the constraints exactly
         direction = filtered(inverse * residual)
         delta = float(residual @ direction)
         iterations = 0
@@ -373,6 +399,9 @@ class ModifiedPCG(LinearSolver):
             delta_old, delta = delta, float(residual @ preconditioned)
             direction = filtered(preconditioned + (delta / delta_old) * direction)
         return solution, iterations
+
+
+MPCG_STARTS = ("zero", "filtered")
 
 
 class Jacobi(ReducedSolver):

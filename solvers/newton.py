@@ -38,6 +38,7 @@ def project_eigen(matrix: np.ndarray, fixed: np.ndarray) -> np.ndarray:
 class _NewtonState:
     free: FreeDofs
     sparse_hessian: bool = False  # eigen projection: the problem's Hessian turned out sparse (use clamp)
+    first: bool = True  # the first direction of this solve (the only one a linear solver's guess is for)
 
 
 class Newton(NonlinearSolver):
@@ -57,8 +58,12 @@ class Newton(NonlinearSolver):
         return _NewtonState(free)
 
     def _direction(self, problem, current, state):
-        return self.linear_solver.solve(self._model_hessian(problem, current.y, state), -current.gradient,
-                                        state.free, spd=self.model_is_spd)
+        matrix = self._model_hessian(problem, current.y, state)
+        if self.linear_solver.wants_guess and state.first:
+            state.first = False
+            guess = problem.direction_guess(current.y) if hasattr(problem, "direction_guess") else None
+            return self.linear_solver.solve(matrix, -current.gradient, state.free, spd=self.model_is_spd, guess=guess)
+        return self.linear_solver.solve(matrix, -current.gradient, state.free, spd=self.model_is_spd)
 
     def _advance(self, problem, current, direction, state):
         return Advance(current.y + direction)

@@ -28,7 +28,7 @@ from .newton import SPD_PROJECTIONS, Newton, ProjectedNewton
 # Fields that are not arguments of the solver's constructor: `type` picks the class, the runner reads
 # the other two; linear_tolerance and linear_max_iterations go to the linear solver's.
 RUNNER_FIELDS = ("type", "fallback", "on_not_converged")
-LINEAR_SOLVER_FIELDS = ("linear_tolerance", "linear_max_iterations")
+LINEAR_SOLVER_FIELDS = ("linear_tolerance", "linear_max_iterations", "mpcg_start")
 
 
 class SolverOptionError(ValueError):
@@ -118,6 +118,7 @@ class SolverParams(BaseModel):
     linear_solver: Literal[tuple(LINEAR_SOLVERS)] = Field("direct", description="linear solver for Newton directions: " + " | ".join(LINEAR_SOLVERS))  # type: ignore[valid-type]
     linear_tolerance: float = Field(1e-10, gt=0, lt=1, allow_inf_nan=False, description="iterative linear solvers: stop when |b - A p|_2 <= linear_tolerance * |b|_2")
     linear_max_iterations: int = Field(1000, ge=1, description="iterative linear solvers: iterations per linear solve")
+    mpcg_start: Literal["zero", "filtered"] = Field("zero", description="mpcg: start from p0 = z (Baraff & Witkin) or from p0 = S g + (I - S) z with g the step to the inertial predictor (Ascher & Boxerman)")
     fallback: list[FallbackEntry] = Field([], description="solvers tried in turn when the previous one does not converge on a step (from its best iterate): names, or mappings {type: name, its own option: value}; the shared options are this solver's")
     on_not_converged: Literal["continue", "stop"] = Field("continue", description="go on after a step that did not converge (status not_converged at the end), or stop the run there")
 
@@ -188,8 +189,9 @@ class SolverParams(BaseModel):
     def constructor_arguments(self) -> dict[str, Any]:
         """The keyword arguments of SOLVERS[type]: every field but RUNNER_FIELDS, the linear solver built."""
         arguments = {key: getattr(self, key) for key in type(self).model_fields if key not in RUNNER_FIELDS}
-        linear_tolerance, linear_max_iterations = (arguments.pop(key) for key in LINEAR_SOLVER_FIELDS)
-        arguments["linear_solver"] = LINEAR_SOLVERS[self.linear_solver](linear_tolerance, linear_max_iterations)
+        linear_tolerance, linear_max_iterations, mpcg_start = (arguments.pop(key) for key in LINEAR_SOLVER_FIELDS)
+        linear_options = {"start": mpcg_start} if self.linear_solver == "mpcg" else {}
+        arguments["linear_solver"] = LINEAR_SOLVERS[self.linear_solver](linear_tolerance, linear_max_iterations, **linear_options)
         return arguments
 
     def build_one(self) -> NonlinearSolver:

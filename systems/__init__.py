@@ -10,6 +10,8 @@ anyone writing a test.
 from .base import Capabilities, System, SystemParams
 from .circular_motion import CircularMotion, CircularMotionParams
 from .cloth import Cloth, ClothParams
+from .mass_spring.params import MassSpringParams
+from .mass_spring.system import MassSpring
 from .spring_mass import SpringMass, SpringMassParams
 
 # config name -> parameter model; `params.build()` gives the system
@@ -17,7 +19,8 @@ SYSTEMS = {
     "spring_mass": SpringMassParams,
     "circular_motion": CircularMotionParams,
     "cloth": ClothParams,
+    "mass_spring": MassSpringParams,
 }
 
 __all__ = ["SYSTEMS", "Capabilities", "System", "SystemParams", "SpringMass", "SpringMassParams", "CircularMotion",
-           "CircularMotionParams", "Cloth", "ClothParams"]
+           "CircularMotionParams", "Cloth", "ClothParams", "MassSpring", "MassSpringParams"]

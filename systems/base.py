@@ -47,6 +47,7 @@ class Capabilities:
     planar: bool  # one body whose motion stays in the x-y plane: its trajectory is drawn as an orbit
     dof_count: int
     energy_reference_name: str = "|KE0| + |PE0|"  # what energy_scale is, for axis labels and tables
+    vertex_dim: int = 0  # coordinates per vertex of a stored frame (2 or 3); 0 for systems that keep no frames
 
     def as_attrs(self) -> dict:
         """The capabilities as HDF5 attributes, under the field names: test_frequency (float, NaN for None),
@@ -60,6 +61,7 @@ class Capabilities:
             "planar": bool(self.planar),
             "dof_count": int(self.dof_count),
             "energy_reference_name": str(self.energy_reference_name),
+            "vertex_dim": int(self.vertex_dim),
         }
 
 
@@ -72,6 +74,13 @@ class System(ABC):
     x0: np.ndarray
     v0: np.ndarray
     fixed_dofs: np.ndarray = np.zeros(0, dtype=np.intp)
+    # the filters of vertices that slide along directions that are not coordinate axes (systems/constraints.py)
+    sliding = None
+    # vertices on a prescribed path (systems/constraints.py: VertexConstraints), or None
+    constraints = None
+    vertex_dim: int = 3  # coordinates per vertex in a frame (systems that keep frames)
+    frame_edges: np.ndarray | None = None  # (m, 2) vertex pairs drawn as lines in pictures (the springs)
+    frame_triangles: np.ndarray | None = None  # (t, 3) vertex triples drawn as a shaded surface
     # small systems keep x and v in every sample; large ones (cloth) keep them as `frames` instead
     records_state_per_sample: bool = True
 
@@ -146,6 +155,8 @@ class System(ABC):
                 force = force + damping
         if self.fixed_dofs.size:
             force[self.fixed_dofs] = 0.0
+        if self.sliding is not None:
+            self.sliding.apply(force)
         return force
 
     def acceleration(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -265,9 +276,9 @@ class System(ABC):
 
     @property
     def frame_shape(self) -> tuple[int, ...] | None:
-        """The vertex grid of one stored frame (a frame holds prod(frame_shape) vertices of 3 coordinates),
-        or None when x and v are recorded in every sample instead. Default: a plain list of the vertices."""
-        return None if self.records_state_per_sample else (self.dof_count // 3,)
+        """The vertex grid of one stored frame (a frame holds prod(frame_shape) vertices of ``vertex_dim``
+        coordinates), or None when x and v are recorded in every sample instead or the vertices form no grid."""
+        return None
 
     planar: bool = False  # one body whose motion stays in the x-y plane (its trajectory is drawn as an orbit)
 
@@ -277,9 +288,9 @@ class System(ABC):
         frame_shape = self.frame_shape
         if frame_shape is not None:
             frame_shape = tuple(int(size) for size in frame_shape)
-            if 3 * math.prod(frame_shape) != self.dof_count:
+            if self.vertex_dim * math.prod(frame_shape) != self.dof_count:
                 raise ValueError(f"{type(self).__name__}.frame_shape {frame_shape} holds {math.prod(frame_shape)} vertices, "
-                                 f"but a frame holds dof_count / 3 = {self.dof_count / 3:g}")
+                                 f"but a frame holds dof_count / vertex_dim = {self.dof_count / self.vertex_dim:g}")
         test_frequency = self.test_frequency
         return Capabilities(
             test_frequency=None if test_frequency is None else float(test_frequency),
@@ -289,6 +300,7 @@ class System(ABC):
             planar=bool(self.planar),
             dof_count=int(self.dof_count),
             energy_reference_name=self.energy_reference_name,
+            vertex_dim=0 if self.records_state_per_sample else int(self.vertex_dim),
         )
 
 

@@ -473,7 +473,7 @@ def test_eigen_projection_leaves_the_fixed_rows_alone():
 # nothing must solve as before.
 FORMER_DEFAULTS = {"tolerance": 1e-10, "tolerance_mode": "residual", "max_iterations": 50, "line_search": "backtracking",
                    "spd_projection": "clamp", "history": 8, "chebyshev_rho": 0.99, "relaxation": 0.9,
-                   "linear_solver": "direct", "linear_tolerance": 1e-10, "linear_max_iterations": 1000, "fallback": [],
+                   "linear_solver": "direct", "linear_tolerance": 1e-10, "linear_max_iterations": 1000, "mpcg_start": "zero", "fallback": [],
                    "on_not_converged": "continue"}
 
 
@@ -563,7 +563,7 @@ def test_an_option_the_solver_does_not_use_is_refused_in_one_line(tmp_path, caps
 def test_newton_refuses_history(tmp_path, capsys):
     assert refused_by_the_command_line(tmp_path, capsys, {"type": "newton", "history": 8}) == (
         "simrun: error: solver.history: newton does not use 'history'; it takes: tolerance, tolerance_mode, "
-        "max_iterations, linear_solver, linear_tolerance, linear_max_iterations, fallback, on_not_converged")
+        "max_iterations, linear_solver, linear_tolerance, linear_max_iterations, mpcg_start, fallback, on_not_converged")
     with pytest.raises(SolverOptionError, match="^history: newton does not use 'history'; it takes: tolerance, "):
         solver_params(type="newton", history=8)  # from Python, the same line
 

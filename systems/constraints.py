@@ -1,0 +1,182 @@
+"""Vertex constraints as filters: pinned vertices, vertices that slide in a plane or along a line, and
+vertices that move on a prescribed path.
+
+Every constraint is a linear filter S on the vertex's d components (Baraff & Witkin, "Large steps in
+cloth simulation", 1998, sec. 5; the "modified inverse mass" (1/m)(I - p p^T) of the lectures):
+- pinned: S_i = 0;
+- sliding in a plane with unit normal n: S_i = I - n n^T;
+- sliding along a line with unit direction u: S_i = u u^T;
+- prescribed: S_i = 0, and the vertex's position and velocity are given functions of time.
+Forces, search directions and velocities are passed through S, so the constrained components never
+change through a force. Components that S removes along a coordinate axis (a pin, a plane normal
+[0, 1, 0], a rail along [1, 0, 0]) are plain fixed degrees of freedom, which every solver already
+drops exactly; only filters that are not aligned with the axes remain as 3x3 (2x2) blocks, held by
+``SlidingFilter``, which solvers apply to vectors and to the Newton matrix (S A S + I - S).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+
+
+@dataclass(frozen=True, eq=False)
+class SlidingFilter:
+    """The filters S_i of the vertices whose allowed directions are not coordinate axes.
+
+    vertices: (s,) vertex indices; projectors: (s, d, d) symmetric orthogonal projectors; size: dofs."""
+
+    vertices: np.ndarray
+    projectors: np.ndarray
+    size: int
+
+    @property
+    def dim(self) -> int:
+        return int(self.projectors.shape[1])
+
+    def apply(self, vector: np.ndarray) -> np.ndarray:
+        """vector with each filtered vertex's block replaced by S_i times it (in place; returns vector)."""
+        blocks = vector.reshape(-1, self.dim)
+        blocks[self.vertices] = np.einsum("sij,sj->si", self.projectors, blocks[self.vertices])
+        return vector
+
+    @property
+    def matrix(self) -> scipy.sparse.csr_matrix:
+        """S as a sparse (size x size) matrix: identity except the filtered blocks."""
+        cached = self.__dict__.get("_matrix")
+        if cached is None:
+            d = self.dim
+            rows = (d * self.vertices[:, None, None] + np.arange(d)[None, :, None] + 0 * np.arange(d)[None, None, :]).ravel()
+            cols = (d * self.vertices[:, None, None] + 0 * np.arange(d)[None, :, None] + np.arange(d)[None, None, :]).ravel()
+            identity = np.ones(self.size)
+            identity[(d * self.vertices[:, None] + np.arange(d)).ravel()] = 0.0
+            keep = np.flatnonzero(identity)
+            cached = scipy.sparse.csr_matrix(
+                (np.concatenate([identity[keep], self.projectors.ravel()]),
+                 (np.concatenate([keep, rows]), np.concatenate([keep, cols]))), shape=(self.size, self.size))
+            cached.sum_duplicates()
+            cached.sort_indices()
+            object.__setattr__(self, "_matrix", cached)
+        return cached
+
+    def filter_matrix(self, matrix):
+        """S A S + (I - S): the Newton matrix on the allowed directions, the identity on the removed ones.
+
+        Its solution p of (S A S + I - S) p = S b has (I - S) p = 0 and S A S p = S b (Ascher & Boxerman 2003)."""
+        projector = self.matrix
+        if scipy.sparse.issparse(matrix):
+            filtered = projector @ matrix.tocsr() @ projector + (scipy.sparse.identity(self.size, format="csr") - projector)
+            return filtered.tocsr()
+        dense = projector.toarray()
+        return dense @ np.asarray(matrix, dtype=float) @ dense + (np.eye(self.size) - dense)
+
+
+@dataclass(frozen=True, eq=False)
+class PrescribedMotion:
+    """Vertices that follow a path: a constant velocity, or a rotation about an axis at a constant rate.
+
+    vertices: (k,) indices; start: (k, d) positions at t = 0 (m); velocity: (d,) m/s (or None);
+    rotation: (center (d,), axis (3,) unit, rate rad/s) or None. The path is rigid: every vertex of the
+    set moves with the same velocity or turns about the same axis."""
+
+    vertices: np.ndarray
+    start: np.ndarray
+    velocity: np.ndarray | None = None
+    rotation: tuple[np.ndarray, np.ndarray, float] | None = None
+
+    def positions(self, t: float) -> np.ndarray:
+        """(k, d) positions at time t (s)."""
+        if self.velocity is not None:
+            return self.start + t * self.velocity
+        center, axis, rate = self.rotation
+        return center + _rotate(self.start - center, axis, rate * t)
+
+    def velocities(self, t: float) -> np.ndarray:
+        """(k, d) velocities at time t (s)."""
+        if self.velocity is not None:
+            return np.broadcast_to(self.velocity, self.start.shape).copy()
+        center, axis, rate = self.rotation
+        offset = self.positions(t) - center
+        return _cross(rate * axis, offset)
+
+    def accelerations(self, t: float) -> np.ndarray:
+        """(k, d) accelerations at time t (s^-2 m): zero for a velocity, centripetal for a rotation."""
+        if self.velocity is not None:
+            return np.zeros_like(self.start)
+        center, axis, rate = self.rotation
+        return _cross(rate * axis, self.velocities(t))
+
+
+def _cross(omega: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """omega x offset for 3-D offsets, or the in-plane part for 2-D ones (omega along z)."""
+    if offset.shape[1] == 2:
+        return omega[2] * np.stack([-offset[:, 1], offset[:, 0]], axis=1)
+    return np.cross(omega, offset)
+
+
+def _rotate(offset: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues' rotation of the rows of offset by angle (rad) about the unit axis (2-D: about z)."""
+    cos, sin = math.cos(angle), math.sin(angle)
+    if offset.shape[1] == 2:
+        sign = axis[2]
+        return np.stack([cos * offset[:, 0] - sign * sin * offset[:, 1], sign * sin * offset[:, 0] + cos * offset[:, 1]], axis=1)
+    return (cos * offset + sin * np.cross(axis, offset)
+            + (1.0 - cos) * np.outer(offset @ axis, axis))
+
+
+def filter_block(dim: int, normal: np.ndarray | None = None, direction: np.ndarray | None = None) -> np.ndarray:
+    """S for sliding in the plane with this normal (I - n n^T) or along the line with this direction (u u^T)."""
+    if normal is not None:
+        unit = normal / np.linalg.norm(normal)
+        return np.eye(dim) - np.outer(unit, unit)
+    unit = direction / np.linalg.norm(direction)
+    return np.outer(unit, unit)
+
+
+class VertexConstraints:
+    """Every vertex constraint of one system, as fixed dofs, sliding filters and prescribed paths.
+
+    pinned: vertex indices; sliding: list of (vertex indices, S (d, d)); prescribed: PrescribedMotions.
+    A vertex may carry one constraint only (the caller checks and names the config entries)."""
+
+    def __init__(self, dim: int, vertex_count: int, pinned: np.ndarray, sliding: list[tuple[np.ndarray, np.ndarray]],
+                 prescribed: list[PrescribedMotion]):
+        self.dim = dim
+        self.size = dim * vertex_count
+        self.pinned = np.asarray(pinned, dtype=np.intp)
+        self.prescribed = tuple(prescribed)
+        moving = [motion.vertices for motion in prescribed]
+        self.moving_vertices = np.concatenate(moving).astype(np.intp) if moving else np.zeros(0, dtype=np.intp)
+        self.moving_dofs = (dim * self.moving_vertices[:, None] + np.arange(dim)).ravel()
+        fixed = [(dim * self.pinned[:, None] + np.arange(dim)).ravel(), self.moving_dofs]
+        blocks_vertices, blocks = [], []
+        for vertices, block in sliding:
+            axis_aligned = np.array_equal(block, np.diag(np.diag(block))) and set(np.diag(block).tolist()) <= {0.0, 1.0}
+            if axis_aligned:  # S is diagonal with 0s and 1s: plain fixed dofs, exact for every solver
+                removed = np.flatnonzero(np.diag(block) == 0.0)
+                fixed.append((dim * np.asarray(vertices)[:, None] + removed).ravel())
+            else:
+                blocks_vertices.append(np.asarray(vertices, dtype=np.intp))
+                blocks.append(np.broadcast_to(block, (len(vertices), dim, dim)))
+        self.fixed_dofs = np.unique(np.concatenate(fixed)).astype(np.intp)
+        self.sliding = (SlidingFilter(np.concatenate(blocks_vertices), np.ascontiguousarray(np.concatenate(blocks)), self.size)
+                        if blocks else None)
+
+    def filter(self, vector: np.ndarray) -> np.ndarray:
+        """S vector, in place: fixed components zeroed, sliding blocks projected; returns vector."""
+        vector[self.fixed_dofs] = 0.0
+        if self.sliding is not None:
+            self.sliding.apply(vector)
+        return vector
+
+    def path(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(positions, velocities) of the moving dofs at time t, flat in the order of ``moving_dofs``."""
+        positions = [motion.positions(t) for motion in self.prescribed]
+        velocities = [motion.velocities(t) for motion in self.prescribed]
+        return np.concatenate(positions).ravel(), np.concatenate(velocities).ravel()
+
+    def path_accelerations(self, t: float) -> np.ndarray:
+        return np.concatenate([motion.accelerations(t) for motion in self.prescribed]).ravel()

@@ -1,0 +1,366 @@
+"""The mass-spring system: any model of point masses and springs in 2-D or 3-D.
+
+P(x) = sum_springs W_e(|x_i - x_j|) - sum_i m_i g . x_i + contact penalties, with the spring law W_e
+one of ``SPRING_LAWS``; damping forces f_d = -D(x) v from any sum of ``DAMPING_MODELS``; vertex
+constraints (pins, sliding, prescribed paths) as filters (systems/constraints.py).
+
+Every quantity is computed for all springs (or vertices) at once; the sparse Hessian's pattern is
+built once per system, so an evaluation only refills the values of a fixed CSR matrix with one
+``np.bincount`` over a precomputed scatter map. The hookean law runs exactly the arithmetic of the
+former cloth system, so a grid model reproduces its results bit for bit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+
+from ..base import System
+from ..constraints import VertexConstraints
+
+
+class SpringGeometry:
+    """All springs at one x: x_i - x_j (m), lengths L (m), stretches L - l0 (m), tensions k (L - l0) (N);
+    the unit directions and the spring energy on first use (an explicit step needs neither).
+    Shared by every evaluation at the same x: read it only."""
+
+    __slots__ = ("x", "delta", "length", "stretch", "tension", "_direction", "_energy")
+
+    def __init__(self, x: np.ndarray, delta: np.ndarray, length: np.ndarray, stretch: np.ndarray, tension: np.ndarray):
+        self.x, self.delta, self.length, self.stretch, self.tension = x, delta, length, stretch, tension
+        self._direction = None
+        self._energy = None
+
+    @property
+    def direction(self) -> np.ndarray:
+        """(x_i - x_j) / L, shape (springs, d)."""
+        if self._direction is None:
+            self._direction = self.delta / self.length[:, None]
+        return self._direction
+
+
+class HookeanLaw:
+    """W = k/2 (L - l0)^2: force k (L - l0) along the spring; Hessian block (lectures)
+    k [u u^T + (1 - l0/L)(I - u u^T)], whose transverse factor turns negative under compression."""
+
+    name = "hookean"
+
+    @staticmethod
+    def energy(system: "MassSpring", geometry: SpringGeometry) -> float:
+        return 0.5 * float(np.dot(geometry.tension, geometry.stretch))
+
+    @staticmethod
+    def gradient_factor(system: "MassSpring", geometry: SpringGeometry) -> np.ndarray:
+        """c_e with dW_e/dx_i = c_e (x_i - x_j): k (L - l0) / L."""
+        return geometry.tension / geometry.length
+
+    @staticmethod
+    def blocks(system: "MassSpring", geometry: SpringGeometry, project_spd: bool) -> np.ndarray:
+        outer = geometry.direction[:, :, None] * geometry.direction[:, None, :]
+        transverse = 1.0 - system.rest_length / geometry.length
+        if project_spd:
+            transverse = np.maximum(transverse, 0.0)
+        return system.stiffness[:, None, None] * (outer + transverse[:, None, None] * (system.identity - outer))
+
+
+class SquaredLengthLaw:
+    """W = k l0^2/2 (L^2/l0^2 - 1)^2, the spring of the course code "Physics-Based Simulation"
+    (its mass-spring demo): force 2k (s - 1)(x_i - x_j) with s = L^2/l0^2; Hessian block
+    2k [(3 s - 1) u u^T + (s - 1)(I - u u^T)]. The SPD projection clamps both factors at 0."""
+
+    name = "squared_length"
+
+    @staticmethod
+    def _ratio(system, geometry):
+        return np.square(geometry.length) / system.rest_length_squared
+
+    @staticmethod
+    def energy(system, geometry) -> float:
+        strain = SquaredLengthLaw._ratio(system, geometry) - 1.0
+        return 0.5 * float(np.dot(system.stiffness * system.rest_length_squared, np.square(strain)))
+
+    @staticmethod
+    def gradient_factor(system, geometry) -> np.ndarray:
+        return 2.0 * system.stiffness * (SquaredLengthLaw._ratio(system, geometry) - 1.0)
+
+    @staticmethod
+    def blocks(system, geometry, project_spd):
+        ratio = SquaredLengthLaw._ratio(system, geometry)
+        along, transverse = 3.0 * ratio - 1.0, ratio - 1.0
+        if project_spd:
+            along, transverse = np.maximum(along, 0.0), np.maximum(transverse, 0.0)
+        outer = geometry.direction[:, :, None] * geometry.direction[:, None, :]
+        return (2.0 * system.stiffness)[:, None, None] * (along[:, None, None] * outer
+                                                         + transverse[:, None, None] * (system.identity - outer))
+
+
+SPRING_LAWS = {law.name: law for law in (HookeanLaw, SquaredLengthLaw)}
+
+
+@dataclass(frozen=True)
+class Damping:
+    """One damping force of the lectures, f = -D v with D assembled in the Hessian's pattern.
+
+    model: ``spring`` (-k_d ((v_i - v_j) . u) u per spring), ``relative`` (-k_d (v_i - v_j) per spring),
+    ``drag`` (-k_d v_i per vertex), ``rayleigh`` (D = alpha M + beta K(rest shape), K projected SPD);
+    coefficient: k_d (N s/m); alpha (1/s) and beta (s) for rayleigh."""
+
+    model: str
+    coefficient: float = 0.0
+    alpha: float = 0.0
+    beta: float = 0.0
+
+
+DAMPING_MODELS = ("spring", "relative", "drag", "rayleigh")
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Penalty contact, P = k/2 depth^2 per vertex: with the half-space x_last >= height (ground) or a
+    ball (sphere: centre and radius, in the model's dimension)."""
+
+    ground: tuple[float, float] | None = None  # (height, stiffness)
+    sphere: tuple[np.ndarray, float, float] | None = None  # (centre, radius, stiffness)
+
+
+class MassSpring(System):
+    """Point masses joined by springs, in 2-D or 3-D: see the module docstring.
+
+    Parameters (arrays as resolved from a model and a config; systems/mass_spring/params.py builds them):
+    rest: (n, d) rest shape (m); x0, v0: (n, d) initial state; springs: (m, 2); stiffness: (m,) N/m;
+    rest_length: (m,) m; masses: (n,) kg; gravity: (d,) m/s^2; law: a SPRING_LAWS name; damping: Damping
+    terms; constraints: VertexConstraints; contact: Contact; triangles: (t, 3) or None; grid_shape:
+    (ny, nx) or None.
+    """
+
+    records_state_per_sample = False  # positions go to `frames`, at their own cadence
+
+    def __init__(self, *, rest: np.ndarray, x0: np.ndarray, v0: np.ndarray, springs: np.ndarray, stiffness: np.ndarray,
+                 rest_length: np.ndarray, masses: np.ndarray, gravity: np.ndarray, law: str = "hookean",
+                 damping: tuple[Damping, ...] = (), constraints: VertexConstraints | None = None,
+                 contact: Contact = Contact(), triangles: np.ndarray | None = None, grid_shape: tuple[int, int] | None = None):
+        dim = rest.shape[1]
+        self.dim = self.vertex_dim = dim
+        self.vertex_count = rest.shape[0]
+        self.dof_count = dim * self.vertex_count
+        self.rest = rest
+        self.x0 = np.ascontiguousarray(x0, dtype=float).ravel()
+        self.v0 = np.ascontiguousarray(v0, dtype=float).ravel().copy()
+        self.vertex_masses = masses
+        self.mass = np.repeat(masses, dim)
+        self.gravity = np.asarray(gravity, dtype=float)
+        self.law = SPRING_LAWS[law]
+        self.first = np.ascontiguousarray(springs[:, 0], dtype=np.intp)
+        self.second = np.ascontiguousarray(springs[:, 1], dtype=np.intp)
+        self.stiffness = stiffness
+        self.rest_length = rest_length
+        self.rest_length_squared = np.square(rest_length)
+        self.spring_count = self.first.size
+        self.identity = np.eye(dim)
+        self.damping_terms = tuple(damping)
+        self.contact = contact
+        self.frame_edges = np.stack([self.first, self.second], axis=1).astype(np.int32)
+        self.frame_triangles = None if triangles is None else np.asarray(triangles, dtype=np.int32)
+        self.grid_shape = grid_shape
+
+        self.constraints = constraints
+        if constraints is not None:
+            self.fixed_dofs = constraints.fixed_dofs
+            self.sliding = constraints.sliding
+            constraints.filter(self.v0)  # no velocity along a removed direction
+            if constraints.moving_dofs.size:
+                self.v0[constraints.moving_dofs] = constraints.path(0.0)[1]
+        self._gravity_force = (masses[:, None] * self.gravity).ravel()
+        self._build_pattern()
+        self._constant_damping = self._assemble_constant_damping()
+        self._geometry: SpringGeometry | None = None  # of the last x the springs were evaluated at
+
+    # -- setup ----------------------------------------------------------------------------------
+    def _build_pattern(self) -> None:
+        """CSR pattern of all spring blocks (ii, jj, ij, ji) and vertex blocks, and the scatter map into it."""
+        i, j, d = self.first, self.second, self.dim
+        offsets = np.arange(d)
+        blocks = [(i, i), (j, j), (i, j), (j, i)]
+        rows = [d * a[:, None, None] + offsets[None, :, None] + 0 * offsets[None, None, :] for a, _ in blocks]
+        cols = [d * b[:, None, None] + 0 * offsets[None, :, None] + offsets[None, None, :] for _, b in blocks]
+        vertices = np.arange(self.vertex_count)
+        rows.append(d * vertices[:, None, None] + offsets[None, :, None] + 0 * offsets[None, None, :])
+        cols.append(d * vertices[:, None, None] + 0 * offsets[None, :, None] + offsets[None, None, :])
+        rows = np.concatenate([r.ravel() for r in rows])
+        cols = np.concatenate([c.ravel() for c in cols])
+        n = self.dof_count
+        pattern = scipy.sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+        pattern.sum_duplicates()
+        pattern.sort_indices()
+        keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr)) * n + pattern.indices
+        self._scatter = np.searchsorted(keys, rows.astype(np.int64) * n + cols)
+        self._nnz = pattern.nnz
+        self.hessian_pattern = pattern  # every Hessian and damping matrix shares its index arrays
+        diagonal_keys = np.arange(n, dtype=np.int64) * (n + 1)
+        self.diagonal_positions = np.searchsorted(keys, diagonal_keys)  # where M enters the data array
+        # gradient scatter: the incidence matrix (+1 at vertex i, -1 at vertex j of each spring) times the
+        # springs' forces, one sparse product for all components, cheaper than the equivalent
+        # np.bincount over d i + c and d j + c (docs/performance.md)
+        self._first_dofs = (d * i[:, None] + offsets).ravel()
+        self._second_dofs = (d * j[:, None] + offsets).ravel()
+        springs = np.arange(self.spring_count)
+        self._incidence = scipy.sparse.csr_matrix(
+            (np.concatenate([np.ones(self.spring_count), -np.ones(self.spring_count)]),
+             (np.concatenate([i, j]), np.concatenate([springs, springs]))),
+            shape=(self.vertex_count, self.spring_count))
+        self._ones = np.ones(d)  # sums the components of each row in one matrix-vector product
+
+    def _scatter_blocks(self, spring_block: np.ndarray, vertex_block: np.ndarray | None = None) -> np.ndarray:
+        """The pattern's data array of sum_e [B_e at (ii), (jj); -B_e at (ij), (ji)] + the vertex blocks."""
+        flat = spring_block.ravel()
+        vertex = np.zeros(self.dim * self.dim * self.vertex_count) if vertex_block is None else vertex_block.ravel()
+        return np.bincount(self._scatter, weights=np.concatenate([flat, flat, -flat, -flat, vertex]), minlength=self._nnz)
+
+    def _assemble_constant_damping(self) -> np.ndarray | None:
+        """The pattern data of the damping terms that do not depend on x (relative, drag, rayleigh), or None."""
+        data = None
+        d = self.dim
+        for term in self.damping_terms:
+            if term.model == "relative":
+                part = self._scatter_blocks(np.broadcast_to(term.coefficient * self.identity, (self.spring_count, d, d)))
+            elif term.model == "drag":
+                part = self._scatter_blocks(np.zeros((self.spring_count, d, d)),
+                                            np.broadcast_to(term.coefficient * self.identity, (self.vertex_count, d, d)))
+            elif term.model == "rayleigh":
+                rest = self.rest.ravel()
+                stiffness = self._spring_hessian_data(self._geometry_at(rest), project_spd=True)
+                part = term.beta * stiffness
+                part[self.diagonal_positions] += term.alpha * self.mass
+            else:
+                continue
+            data = part if data is None else data + part
+        return data
+
+    # -- geometry of all springs at once ---------------------------------------------------------
+    def _geometry_at(self, x: np.ndarray) -> SpringGeometry:
+        # a flat gather of the dofs d i + c: the same numbers as positions[self.first], cheaper than
+        # that fancy index or np.take along axis 0 (docs/performance.md)
+        delta = (np.take(x, self._first_dofs) - np.take(x, self._second_dofs)).reshape(-1, self.dim)
+        # |delta|^2 as a matrix-vector product with (1, ..., 1), cheaper than einsum("ij,ij->i")
+        length = np.sqrt(np.square(delta) @ self._ones)
+        stretch = length - self.rest_length
+        return SpringGeometry(x.copy(), delta, length, stretch, self.stiffness * stretch)
+
+    def _springs(self, x: np.ndarray) -> SpringGeometry:
+        """The springs' geometry at x. The last x's is kept, since a step evaluates the same x several
+        times (the energy check and the samples at the end of a step, the force at the start of the next)."""
+        geometry = self._geometry
+        if geometry is not None and np.array_equal(geometry.x, x):  # an O(n) compare, far below the O(springs) geometry
+            return geometry
+        geometry = self._geometry_at(x)
+        self._geometry = geometry  # one assignment: a reader sees the old or the new geometry whole
+        return geometry
+
+    def _penetration(self, positions: np.ndarray):
+        """Per contact: (penetration depth >= 0 per vertex, outward normal per vertex, stiffness, distance or None)."""
+        contacts = []
+        if self.contact.ground is not None:
+            height, stiffness = self.contact.ground
+            depth = np.maximum(height - positions[:, -1], 0.0)
+            normal = np.broadcast_to(self.identity[-1], positions.shape)
+            contacts.append((depth, normal, stiffness, None))
+        if self.contact.sphere is not None:
+            center, radius, stiffness = self.contact.sphere
+            offset = positions - center
+            distance = np.sqrt(np.einsum("ij,ij->i", offset, offset))
+            depth = np.maximum(radius - distance, 0.0)
+            normal = offset / np.maximum(distance, 1e-300)[:, None]
+            contacts.append((depth, normal, stiffness, distance))
+        return contacts
+
+    # -- energy, gradient, Hessian ---------------------------------------------------------------
+    def spring_energy(self, x: np.ndarray) -> float:
+        geometry = self._springs(x)
+        if geometry._energy is None:
+            geometry._energy = self.law.energy(self, geometry)
+        return geometry._energy
+
+    def gravity_energy(self, x: np.ndarray) -> float:
+        return -float(np.dot(self._gravity_force, x))
+
+    def contact_energy(self, x: np.ndarray) -> float:
+        return sum(0.5 * stiffness * float(np.dot(depth, depth))
+                   for depth, _, stiffness, _ in self._penetration(x.reshape(-1, self.dim)))
+
+    def potential_energy(self, x):
+        return self.spring_energy(x) + self.gravity_energy(x) + self.contact_energy(x)
+
+    def gradient(self, x):
+        geometry = self._springs(x)
+        # dW/dx_i of each spring, c_e (x_i - x_j); the rows scaled through the transposed view, whose inner
+        # loop runs along the springs (cheaper than broadcasting a (springs, 1) column); the result is C-ordered
+        spring_gradient = (geometry.delta.T * self.law.gradient_factor(self, geometry)).T
+        gradient = (self._incidence @ spring_gradient).ravel()
+        gradient -= self._gravity_force
+        for depth, normal, stiffness, _ in self._penetration(x.reshape(-1, self.dim)):
+            gradient -= (stiffness * depth[:, None] * normal).ravel()
+        return gradient
+
+    def hessian(self, x, project_spd=False):
+        return self.pattern_matrix(self.hessian_data(x, project_spd))
+
+    def _spring_hessian_data(self, geometry: SpringGeometry, project_spd: bool, vertex_block=None) -> np.ndarray:
+        return self._scatter_blocks(self.law.blocks(self, geometry, project_spd), vertex_block)
+
+    def hessian_data(self, x: np.ndarray, project_spd: bool = False) -> np.ndarray:
+        """The Hessian's values in the fixed CSR pattern (the data array of ``hessian``)."""
+        geometry = self._springs(x)
+        positions = x.reshape(-1, self.dim)
+        vertex_block = np.zeros((self.vertex_count, self.dim, self.dim))
+        for depth, normal, stiffness, distance in self._penetration(positions):
+            touching = depth > 0
+            if not touching.any():
+                continue
+            n = normal[touching]
+            contact_outer = n[:, :, None] * n[:, None, :]
+            if distance is None or project_spd:
+                vertex_block[touching] += stiffness * contact_outer
+            else:  # sphere: k n n^T - k (r - d)/d (I - n n^T); the second term is negative
+                curvature = (depth[touching] / distance[touching])[:, None, None]
+                vertex_block[touching] += stiffness * (contact_outer - curvature * (self.identity - contact_outer))
+        return self._spring_hessian_data(geometry, project_spd, vertex_block)
+
+    def damping_matrix(self, x):
+        data = None
+        for term in self.damping_terms:
+            if term.model == "spring":
+                direction = self._springs(x).direction
+                part = self._scatter_blocks(term.coefficient * direction[:, :, None] * direction[:, None, :])
+                data = part if data is None else data + part
+        if self._constant_damping is not None:
+            data = self._constant_damping.copy() if data is None else data + self._constant_damping
+        return None if data is None else self.pattern_matrix(data)
+
+    def observables(self, x, v):
+        """The base class's energies and momenta, then the parts of P: each part evaluated once."""
+        spring, gravity, contact = self.spring_energy(x), self.gravity_energy(x), self.contact_energy(x)
+        values = self._mechanical_observables(x, v, spring + gravity + contact)  # = potential_energy(x), bit for bit
+        values.update(spring_energy=spring, gravity_energy=gravity, contact_energy=contact)
+        return values
+
+    energy_reference_name = "max(M |g| L, |KE0| + |PE0|)"
+
+    def energy_scale(self) -> float:
+        """Energy of lifting the model by its largest extent, M |g| L, or |KE0| + |PE0| if larger (J): a model
+        at rest has E0 = 0 and a nudge of 1e-8 m/s gives E0 ~ 1e-18 J, which no drift should be divided by.
+        Without gravity: the larger of |KE0| + |PE0| and the spring energy of a 1 % stretch of every spring."""
+        extent = float(np.max(np.ptp(self.rest, axis=0)))
+        lift = float(np.sum(self.vertex_masses)) * float(np.linalg.norm(self.gravity)) * extent
+        strain = 0.5 * float(np.dot(self.stiffness, np.square(0.01 * self.rest_length)))
+        return max(super().energy_scale(), lift if lift > 0 else strain)
+
+    @property
+    def frame_shape(self) -> tuple[int, int] | None:
+        """(ny, nx) for grid models: a frame's vertices are row-major, so it reshapes to (ny, nx, d)."""
+        return self.grid_shape
+
+    def frame(self, x: np.ndarray) -> np.ndarray:
+        """Vertex positions as (vertices, d) (m)."""
+        return x.reshape(-1, self.dim)
