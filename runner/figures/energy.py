@@ -229,6 +229,7 @@ def energy_budget(data: FigureData):
                                      legend_width=layout.FIGURE_LEGEND_WIDTH + 0.3, extra_height=NOTE_LINE * len(notes))
     shown: dict[str, str] = {}
     gained = False
+    driven = False  # a run whose prescribed vertices did work: its budget moves with time
     tops = []
     for (panel_title, run), ax in zip(layout.flatten(rows), axes):
         t, terms, budget = budgets[run.run_id]
@@ -238,7 +239,7 @@ def energy_budget(data: FigureData):
             if key in terms:
                 ax.fill_between(t, bottom / reference, (bottom + terms[key]) / reference, color=colour, lw=0)
                 bottom = bottom + terms[key]
-                if np.nanmax(terms[key]) > BUDGET_VISIBLE * budget:
+                if np.nanmax(terms[key]) > BUDGET_VISIBLE * float(np.max(budget)):
                     shown[text] = colour
         # what is left of the budget: the integrator's own loss (below the line) or gain (above)
         level = budget / reference
@@ -249,8 +250,9 @@ def energy_budget(data: FigureData):
             ax.fill_between(t, level, np.minimum(bottom / reference, BUDGET_AXIS_TOP * level), where=bottom > budget,
                             interpolate=True, facecolor="none", edgecolor=NUMERICAL_GAIN_COLOUR, hatch="xx", lw=0)
             gained = True
-        tops.append(level)
-        ax.axhline(level, color="black", lw=0.9, ls="--")
+        tops.append(float(np.max(level)))
+        driven = driven or bool(np.ptp(level) > BUDGET_VISIBLE * float(np.max(np.abs(level))))
+        ax.plot(t, level, color="black", lw=0.9, ls="--")
         ax.set_title(panel_title, fontsize=8.5)
         ax.grid(True, alpha=0.25)
     axes[0].set_ylim(0.0, max(tops) * (BUDGET_AXIS_TOP if gained else 1.05))
@@ -263,7 +265,8 @@ def energy_budget(data: FigureData):
     handles.append(Patch(facecolor=NUMERICAL_LOSS_COLOUR, label="numerical loss (the integrator)"))
     if gained:
         handles.append(Patch(facecolor="none", edgecolor=NUMERICAL_GAIN_COLOUR, hatch="xx", label="numerical gain (the integrator)"))
-    handles.append(Line2D([], [], ls="--", color="black", lw=0.9, label="initial energy (the budget)"))
+    handles.append(Line2D([], [], ls="--", color="black", lw=0.9, label="initial energy + work of the prescribed\nvertices (the budget)"
+                          if driven else "initial energy (the budget)"))
     layout.figure_legend(figure, handles)
     who = f"{data.labels[0]}, " if len(data.labels) == 1 else ""
     layout.suptitle(figure, data, f"where the energy goes ({who}dt = {data.dt_names[dt]} s)")
@@ -279,9 +282,12 @@ def _panel_title(section: str, runs: list[RunData], data: FigureData) -> str:
 
 def _same_budget(a, b) -> bool:
     (ta, terms_a, budget_a), (tb, terms_b, budget_b) = a, b
-    if ta.shape != tb.shape or set(terms_a) != set(terms_b) or not math.isclose(budget_a, budget_b, rel_tol=layout.SAME_CURVE):
+    if ta.shape != tb.shape or set(terms_a) != set(terms_b):
         return False
-    return all(layout.same_curve((ta, terms_a[key]), (tb, terms_b[key]), unit=budget_a) for key in terms_a)
+    unit = float(np.max(budget_a)) if budget_a.size else 1.0
+    if not layout.same_curve((ta, budget_a), (tb, budget_b), unit=unit):
+        return False
+    return all(layout.same_curve((ta, terms_a[key]), (tb, terms_b[key]), unit=unit) for key in terms_a)
 
 
 def _budget_dt(runs: list[RunData]) -> float:
@@ -292,9 +298,10 @@ def _budget_dt(runs: list[RunData]) -> float:
     return min(complete, key=lambda dt: abs(math.log(dt / middle)))
 
 
-def _budget(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray], float]:
-    """(t, energy terms (each >= 0), budget): potential terms that can be negative (gravity) are counted
-    from their lowest value in the run, and the budget is E0 minus those offsets."""
+def _budget(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """(t, energy terms (each >= 0), budget over t): potential terms that can be negative (gravity) are counted
+    from their lowest value in the run, and the budget is E0 minus those offsets, plus the work that vertices
+    on prescribed paths have done on the system by t (a moving pin puts energy in)."""
     stored = run.stored
     t = run.t
     parts = ("spring_energy", "gravity_energy", "contact_energy") if "spring_energy" in stored else ("potential_energy",)
@@ -308,4 +315,7 @@ def _budget(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray], float]:
         if key in terms and terms[key].size and terms[key].min() < 0:
             terms[key] = terms[key] - float(terms[key].min())
     start = sum(float(values[0]) for key, values in terms.items() if key != "dissipated_energy") if t.size else 0.0
-    return t, terms, start if start > 0 else 1.0
+    budget = np.full(t.size, start if start > 0 else 1.0)
+    if "prescribed_work" in stored:
+        budget = budget + stored.series("prescribed_work")[: t.size]
+    return t, terms, budget
