@@ -18,6 +18,7 @@ appearance, each as (smaller index, larger index).
 
 from __future__ import annotations
 
+import contextlib
 import io
 import zipfile
 from dataclasses import replace
@@ -156,10 +157,15 @@ def save_npz(model: SpringModel, path: Path) -> None:
 def _read_mesh(path: Path) -> SpringModel:
     import meshio  # only mesh files need it
 
+    chatter = io.StringIO()
     try:
-        mesh = meshio.read(path)
-    except Exception as error:  # meshio's parsers raise ReadError, KeyError, ValueError, IndexError, ...
-        raise ModelError(f"{path}: cannot read it as a mesh ({type(error).__name__}: {error})") from None
+        # some of meshio's parsers print their complaint and call sys.exit (the PLY reader on a file that
+        # is not PLY): caught, and their output kept for the message, so that a bad file is one line
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+            mesh = meshio.read(path)
+    except (Exception, SystemExit) as error:  # meshio's parsers raise ReadError, KeyError, ValueError, IndexError, ...
+        said = " ".join(chatter.getvalue().split()) or f"{type(error).__name__}: {error}"
+        raise ModelError(f"{path}: cannot read it as a mesh ({said})") from None
     faces = {kind: [block.data for block in mesh.cells if block.type == kind] for kind in ("triangle", "quad")}
     triangles = np.concatenate(faces["triangle"]).astype(np.intp) if faces["triangle"] else np.zeros((0, 3), np.intp)
     quads = np.concatenate(faces["quad"]).astype(np.intp) if faces["quad"] else np.zeros((0, 4), np.intp)

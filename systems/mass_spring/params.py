@@ -58,12 +58,18 @@ class MassSpec(BaseModel):
     total: Positive | None = Field(None, description="kg in all, in equal shares (by: equal) or by area (by: area, triangle meshes)")
     by: Literal["equal", "area"] = Field("equal", description="how a total is shared out")
     density: Positive | None = Field(None, description="kg/m^2: each triangle's area times the density, a third to each corner")
+    file: bool = Field(False, description="the model file's per-vertex masses (config: mass: file)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _file_shorthand(cls, data: Any) -> Any:
+        return {"file": True} if data == "file" else data
 
     @model_validator(mode="after")
     def _one_rule(self) -> "MassSpec":
-        given = [name for name in ("per_vertex", "total", "density") if getattr(self, name) is not None]
+        given = [name for name in ("per_vertex", "total", "density", "file") if getattr(self, name) not in (None, False)]
         if len(given) != 1:
-            raise ValueError(f"mass: give exactly one of per_vertex, total, density (or mass: file); got {given or 'none'}")
+            raise ValueError(f"give exactly one of per_vertex, total, density (or mass: file); got {given or 'none'}")
         return self
 
 
@@ -106,10 +112,10 @@ class Sliding(BaseModel):
     @model_validator(mode="after")
     def _one_of(self) -> "Sliding":
         if (self.normal is None) == (self.direction is None):
-            raise ValueError("constraints: give either normal (sliding in a plane) or direction (sliding along a line)")
+            raise ValueError("give either normal (sliding in a plane) or direction (sliding along a line)")
         vector = self.normal if self.normal is not None else self.direction
         if not any(component != 0.0 for component in vector):
-            raise ValueError(f"constraints: the {'normal' if self.normal is not None else 'direction'} {vector} is zero")
+            raise ValueError(f"the {'normal' if self.normal is not None else 'direction'} {vector} is zero")
         return self
 
 
@@ -131,7 +137,7 @@ class Prescribed(BaseModel):
     @model_validator(mode="after")
     def _one_of(self) -> "Prescribed":
         if (self.velocity is None) == (self.rotation is None):
-            raise ValueError("prescribed: give either velocity or rotation")
+            raise ValueError("give either velocity or rotation")
         return self
 
 
@@ -167,7 +173,7 @@ class MassSpringParams(SystemParams):
     stiffness: Union[NonNegative, dict[str, NonNegative], Literal["file"]] = Field(
         1.0e4, description="N/m: one value, one per spring kind ({stretch: .., shear: .., bend: ..}; stretch covers stretch_x and stretch_y), or file")
     regions: list[Region] = Field([], description="boxes with their own stiffness (later entries win)")
-    mass: Union[MassSpec, Literal["file"]] = Field(MassSpec(total=1.0), description="{per_vertex: kg} | {total: kg, by: equal|area} | {density: kg/m^2} | file")
+    mass: MassSpec = Field(MassSpec(total=1.0), description="{per_vertex: kg} | {total: kg, by: equal|area} | {density: kg/m^2} | file")
     gravity: Vector | None = Field(None, description="m/s^2, one component per dimension of the model (default: -9.81 along the last axis)")
     initial: InitialShape = InitialShape()
     damping: Union[NonNegative, list[DampingTerm]] = Field([], description="a number (spring damping k_d, N s/m) or a list of {model, coefficient} / {model: rayleigh, alpha, beta}")
@@ -312,7 +318,7 @@ def _stiffness(params: MassSpringParams, model: SpringModel) -> np.ndarray:
 
 def _masses(params: MassSpringParams, model: SpringModel) -> np.ndarray:
     n = model.vertex_count
-    if params.mass == "file":
+    if params.mass.file:
         if model.masses is None:
             raise ModelError("mass: file, but the model file has no 'masses' array")
         return model.masses.astype(float)

@@ -1,0 +1,136 @@
+"""`mass_spring` configs: every bad input of issue 14 is one line naming the config path and the problem,
+exit status 2, nothing written; and the config forms that must work (files beside the config, generators,
+per-kind and per-region stiffness, mass rules, initial shapes) build the system they describe."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from simrun.cli import main
+from simrun.config import load_experiment
+from simrun.systems import MassSpringParams
+
+
+def _npz(path: Path, **arrays) -> Path:
+    base = {"vertices": np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), "springs": np.array([[0, 1], [1, 2], [2, 0]])}
+    base.update(arrays)
+    np.savez(path, **{key: value for key, value in base.items() if value is not None})
+    return path
+
+
+def _write_config(tmp_path: Path, system: str) -> Path:
+    config = tmp_path / "config.yaml"
+    config.write_text("name: bad\nsystem:\n" + textwrap.indent(system, "  ")
+                      + f"integrators: [backward_euler]\nduration: 0.01\nsweep: {{dt: [0.005]}}\noutput: {tmp_path / 'never'}\n")
+    return config
+
+
+def _bad_inputs(tmp_path: Path) -> list[tuple[str, str]]:
+    """(the system block, what the one line must say) for every bad input the issue lists."""
+    (tmp_path / "points.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    (tmp_path / "garbage.ply").write_text("this is not a mesh\n")
+    nan = _npz(tmp_path / "nan.npz", vertices=np.array([[0.0, 0.0], [np.nan, 0.0], [0.0, 1.0]]))
+    zero = _npz(tmp_path / "zero.npz", vertices=np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 1.0]]))
+    outside = _npz(tmp_path / "outside.npz", springs=np.array([[0, 1], [1, 7]]))
+    duplicate = _npz(tmp_path / "duplicate.npz", springs=np.array([[0, 1], [1, 2], [1, 0]]))
+    short = _npz(tmp_path / "short.npz", masses=np.array([1.0, 2.0]))
+    no_springs = _npz(tmp_path / "nosprings.npz", springs=None)
+    square = "model: {square: {segments: 2}}\n"
+    return [
+        (f"type: mass_spring\nmodel: {tmp_path / 'missing.npz'}\n", "model: file"),
+        (f"type: mass_spring\nmodel: {tmp_path / 'garbage.ply'}\n", "garbage.ply"),
+        (f"type: mass_spring\nmodel: {tmp_path / 'points.obj'}\n", "has no triangles or quads"),
+        (f"type: mass_spring\nmodel: {nan}\n", "non-finite"),
+        (f"type: mass_spring\nmodel: {zero}\n", "rest length 0"),
+        (f"type: mass_spring\nmodel: {outside}\n", "vertex indices must be in 0..2"),
+        (f"type: mass_spring\nmodel: {duplicate}\n", "more than one spring"),
+        (f"type: mass_spring\nmodel: {short}\nmass: file\n", "masses"),
+        (f"type: mass_spring\nmodel: {no_springs}\n", "springs"),
+        ("type: mass_spring\n" + square + "pinned: [9]\n", "pinned: vertex 9 does not exist; the model has vertices 0..8"),
+        ("type: mass_spring\n" + square + "pinned: [middle]\n", "pinned: the model has no vertex set 'middle'"),
+        ("type: mass_spring\n" + square + "constraints: [{vertices: [12], normal: [0, 1]}]\n", "constraints[0].vertices: vertex 12 does not exist"),
+        ("type: mass_spring\n" + square + "constraints: [{vertices: [1], normal: [0, 0]}]\n", "the normal [0.0, 0.0] is zero"),
+        ("type: mass_spring\n" + square + "constraints: [{vertices: [1], direction: [0.0, 0.0]}]\n", "the direction [0.0, 0.0] is zero"),
+        ("type: mass_spring\n" + square + "pinned: [1]\nprescribed: [{vertices: [1], velocity: [1, 0]}]\n",
+         "prescribed[0]: vertex 1 is already constrained by pinned"),
+        ("type: mass_spring\n" + square + "gravity: [0, 0, -9.81]\n", "gravity: 3 components given, but the model is 2-D"),
+        ("type: mass_spring\n" + square + "stiffness: {stretch: 10}\n", "stiffness: no stiffness for the spring kinds shear"),
+        ("type: mass_spring\n" + square + "stiffness: {strech: 10, shear: 1}\n", "no spring kind 'strech'"),
+        ("type: mass_spring\n" + square + "stiffness: file\n", "stiffness: file, but the model file has no 'stiffness' array"),
+        ("type: mass_spring\nmodel: {grd: {}}\n", "expected a file path or one of {grid: ...}"),
+        ("type: mass_spring\n" + square + "mass: {total: 1, per_vertex: 2}\n", "give exactly one of per_vertex, total, density"),
+        ("type: mass_spring\nmodel: {rope: {count: 4, direction: [1, 0]}}\nmass: {density: 1}\n", "needs a model with triangles"),
+        ("type: mass_spring\n" + square + "prescribed: [{vertices: [0], rotation: {center: [0, 0], axis: [1, 0, 0], rate: 10}}]\n",
+         "a 2-D model turns about z only"),
+        ("type: mass_spring\n" + square + "regions: [{box: [[5, 5], [6, 6]], stiffness: 3}]\n", "regions[0].box: no spring has both ends in"),
+    ]
+
+
+def test_every_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys):
+    failures = []
+    for number, (system, expected) in enumerate(_bad_inputs(tmp_path)):
+        folder = tmp_path / f"case{number}"
+        folder.mkdir()
+        config = _write_config(folder, system)
+        status = main([str(config)])
+        captured = capsys.readouterr()
+        lines = captured.err.strip().splitlines()
+        ok = (status == 2 and len(lines) == 1 and lines[0].startswith("simrun: error: system") and expected in lines[0]
+              and "Traceback" not in captured.err and not (folder / "never").exists())
+        if not ok:
+            failures.append((system, expected, status, captured.err))
+    assert not failures, "\n\n".join(f"{system!r}: wanted {expected!r}, got {status}: {err}" for system, expected, status, err in failures)
+
+
+def test_a_model_file_is_found_from_the_current_folder_and_stored_absolute(tmp_path, monkeypatch):
+    _npz(tmp_path / "triangle.npz")
+    monkeypatch.chdir(tmp_path)
+    params = MassSpringParams(model="triangle.npz", gravity=[0.0, 0.0])
+    monkeypatch.chdir("/")  # a worker that starts elsewhere still finds the file
+    system = params.build()
+    assert system.dof_count == 6 and system.spring_count == 3
+    assert params.model == "triangle.npz"  # the config keeps what the user wrote (its hash does not move with the folder)
+
+
+def test_stiffness_per_kind_per_region_and_the_mass_rules():
+    params = MassSpringParams(model={"grid": {"resolution": [5, 4], "size": [1.0, 0.6]}},
+                              stiffness={"stretch": 100.0, "stretch_y": 150.0, "shear": 10.0, "bend": 1.0},
+                              regions=[{"box": [[-0.01, -0.01, -1.0], [0.51, 0.61, 1.0]], "stiffness": {"stretch_x": 900.0}}],
+                              mass={"density": 2.0})
+    system = params.build()
+    model = params.spring_model()
+    kinds = np.array(model.kind_names)[model.kinds]
+    rest = model.vertices
+    in_region = np.all(rest[model.springs] [..., 0] <= 0.51, axis=1)
+    expected = np.select([(kinds == "stretch_x") & in_region, kinds == "stretch_x", kinds == "stretch_y", kinds == "shear"],
+                         [900.0, 100.0, 150.0, 10.0], default=1.0)
+    np.testing.assert_array_equal(system.stiffness, expected)
+    # density 2 kg/m^2 over a 1 m x 0.6 m sheet: 1.2 kg, the corners a sixth of a cell, inner vertices a full cell
+    assert np.sum(system.vertex_masses) == pytest.approx(1.2, rel=1e-12)
+    cell = 0.25 * 0.2
+    assert system.vertex_masses[6] == pytest.approx(2.0 * cell, rel=1e-12)
+
+
+def test_initial_shape_scale_rotate_translate_and_spin_about_the_centroid():
+    params = MassSpringParams(model={"square": {"segments": 2, "size": 2.0}}, gravity=[0.0, 0.0],
+                              initial={"scale": [1.5, 1.0], "rotate": 90.0, "translate": [1.0, 2.0], "spin": 3.0})
+    system = params.build()
+    rest = params.spring_model().vertices
+    x0 = system.x0.reshape(-1, 2)
+    stretched = rest * [1.5, 1.0]
+    np.testing.assert_allclose(x0, np.stack([-stretched[:, 1], stretched[:, 0]], axis=1) + [1.0, 2.0], atol=1e-14)
+    offset = x0 - x0.mean(axis=0)
+    np.testing.assert_allclose(system.v0.reshape(-1, 2), 3.0 * np.stack([-offset[:, 1], offset[:, 0]], axis=1), atol=1e-14)
+
+
+def test_the_shipped_configs_load(monkeypatch):
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)
+    for name in ("course_square", "rope", "mixed_stiffness", "curtain", "twist"):
+        experiment, _ = load_experiment(str(root / "configs" / f"{name}.yaml"), [])
+        system = experiment.system.build()
+        assert system.dof_count > 0, name
