@@ -38,6 +38,11 @@ SHORT = {
     # the point Jacobi iteration diverges on the cloth: its runs use every iteration they are given
     "solver_comparison": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]", "solver.max_iterations=20",
                           "solver.linear_max_iterations=50"],
+    "course_square": ["duration=0.05", "sweep.dt=[0.004,0.002]"],
+    "rope": ["duration=0.02"],
+    "mixed_stiffness": ["duration=0.02", "sweep.dt=[0.005,0.01]"],
+    "curtain": ["system.model={grid: {resolution: [6, 5], size: [1.0, 0.8]}}", "duration=0.03"],
+    "twist": ["duration=0.05", "sweep.dt=[0.005,0.01]"],
 }
 DEFAULT_SHORT = ["duration=0.1"]  # a config added without an entry above: at least not its full length
 
@@ -54,8 +59,8 @@ def draws(name: str, run) -> bool:
         return run.frequency is not None
     if name == "orbits":
         return run.stored.planar
-    if name.startswith("cloth_"):  # one snapshot figure per run
-        return name == f"cloth_{run.run_id}"
+    if name.startswith("frames_"):  # one snapshot figure per run
+        return name == f"frames_{run.run_id}"
     return True
 
 

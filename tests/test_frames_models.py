@@ -186,7 +186,7 @@ def test_one_snapshot_figure_per_run_with_one_panel_per_time(name, tmp_path):
         warnings.simplefilter("error")
         figures = snapshots(figure_data(results))
         try:
-            assert [figure_name for figure_name, _ in figures] == [f"cloth_{run_id}" for run_id in results.runs]
+            assert [figure_name for figure_name, _ in figures] == [f"frames_{run_id}" for run_id in results.runs]
             for run, (_, figure) in zip(results.runs.values(), figures):
                 figure.savefig(tmp_path / "snapshot.png", dpi=60)
                 assert len(figure.axes) == min(SNAPSHOT_COUNT, run["frame_t"].size)  # format1_cloth: 4 and 3 frames

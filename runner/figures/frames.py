@@ -25,9 +25,8 @@ SNAPSHOT_COUNT = 4
 # A sweep of many such runs would drown its figure folder in snapshots: beyond this many runs,
 # draw one per method and swept setting (its largest dt); `simrun animate` reaches any run.
 MAX_SNAPSHOT_FIGURES = 12
-# The file names of the per-run snapshots (cloth_<run_id>) predate the other mass-spring models: kept, so that
-# figure folders and the scripts that read them stay valid.
-SNAPSHOT_PREFIX = "cloth_"
+# The file names of the per-run snapshots: frames_<run_id> (any model with vertices: cloth, meshes, ropes, 2-D).
+SNAPSHOT_PREFIX = "frames_"
 GIF_FRAMES_MAX = 120  # a longer GIF only grows the file; 120 frames at 20 fps is 6 s
 SNAPSHOT_DPI = 110
 # One cell of the snapshot grid (in): four columns of 3D views fit the page's 1280 px at REPORT_DPI.
