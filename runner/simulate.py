@@ -159,9 +159,11 @@ def simulate(run: Run) -> RunResult:
                     work += 0.5 * dt * (path_power + power)  # the trapezoidal rule: second order
                     path_power = power
                 if damped:
-                    damping = system.damping_matrix(previous.x)
-                    # h v_bar^T D v_bar with the step's mean velocity: the exact discrete balance of
-                    # implicit midpoint for quadratic energies, a second-order estimate for the others
+                    # h v_bar^T D(x_bar) v_bar with the step's mean velocity and D at its mean position: the
+                    # exact discrete balance of implicit midpoint for quadratic energies, a second-order
+                    # estimate for the others (D at the step's start would make it first order when D
+                    # depends on x, as spring damping does)
+                    damping = system.damping_matrix(0.5 * (previous.x + state.x))
                     mean_velocity = 0.5 * (previous.v + state.v)
                     dissipated += dt * float(mean_velocity @ (damping @ mean_velocity))
                 if stats is not EXPLICIT_STEP:  # the per-step arrays start at zero, what an explicit step reports

@@ -286,8 +286,11 @@ class NonlinearSolver(ABC):
         Uses the solver's linear solver and Hessian (projected for projected Newton, raw otherwise)."""
         free = _free_dofs(start.size, problem.fixed_dofs, getattr(problem, "sliding", None))
         gradient = free.zero_fixed(np.array(problem.gradient(start), dtype=float))
+        guess = {}
+        if self.linear_solver.wants_guess and hasattr(problem, "direction_guess"):  # MPCG's filtered start
+            guess["guess"] = problem.direction_guess(start)
         direction, cost = self.linear_solver.solve(self._model_hessian(problem, start), -gradient, free,
-                                                   spd=self.model_is_spd)
+                                                   spd=self.model_is_spd, **guess)
         if free.sliding is not None:
             direction = free.zero_fixed(direction)
         y = start + direction

@@ -181,7 +181,9 @@ class JacobiChebyshev(NonlinearSolver):
         diagonal = np.asarray(hessian.diagonal() if scipy.sparse.issparse(hessian) else np.diag(hessian), dtype=float)
         diagonal = np.abs(diagonal)
         floor = np.finfo(float).eps * float(np.max(diagonal, initial=0.0))
-        return free.zero_fixed(1.0 / np.maximum(diagonal, floor if floor > 0 else 1.0))
+        inverse = 1.0 / np.maximum(diagonal, floor if floor > 0 else 1.0)
+        inverse[free.fixed] = 0.0  # a scaling, not a vector: only the fixed entries go (the directions are filtered)
+        return inverse
 
     def _begin(self, problem, current, free):
         _prepare_energy(problem, current, self.line_search)

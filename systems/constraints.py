@@ -63,15 +63,24 @@ class SlidingFilter:
         return cached
 
     def filter_matrix(self, matrix):
-        """S A S + (I - S): the Newton matrix on the allowed directions, the identity on the removed ones.
-
-        Its solution p of (S A S + I - S) p = S b has (I - S) p = 0 and S A S p = S b (Ascher & Boxerman 2003)."""
-        projector = self.matrix
+        """S A S + C (I - S): the Newton matrix on the allowed directions, and on the removed ones the
+        identity scaled by each vertex's mean diagonal entry of A (C), so that the filtered matrix keeps
+        A's scale: a unit identity beside a mass-sized A (M + h^2 K ~ 0.01 kg) wrecks the conditioning that
+        Jacobi, Gauss-Seidel and CG depend on. Its solution p of (S A S + C (I - S)) p = S b has
+        (I - S) p = 0 and S A S p = S b (Ascher & Boxerman 2003), whatever C > 0."""
+        projector, d = self.matrix, self.dim
+        dofs = (d * self.vertices[:, None] + np.arange(d)).ravel()
+        diagonal = (matrix.diagonal() if scipy.sparse.issparse(matrix) else np.diag(np.asarray(matrix)))[dofs]
+        scale = np.abs(diagonal.reshape(-1, d)).mean(axis=1)
+        scale = np.where(scale > 0, scale, 1.0)
+        complement = scale[:, None, None] * (np.eye(d) - self.projectors)
+        rows = (d * self.vertices[:, None, None] + np.arange(d)[None, :, None] + 0 * np.arange(d)[None, None, :]).ravel()
+        cols = (d * self.vertices[:, None, None] + 0 * np.arange(d)[None, :, None] + np.arange(d)[None, None, :]).ravel()
+        removed = scipy.sparse.csr_matrix((complement.ravel(), (rows, cols)), shape=(self.size, self.size))
         if scipy.sparse.issparse(matrix):
-            filtered = projector @ matrix.tocsr() @ projector + (scipy.sparse.identity(self.size, format="csr") - projector)
-            return filtered.tocsr()
+            return (projector @ matrix.tocsr() @ projector + removed).tocsr()
         dense = projector.toarray()
-        return dense @ np.asarray(matrix, dtype=float) @ dense + (np.eye(self.size) - dense)
+        return dense @ np.asarray(matrix, dtype=float) @ dense + removed.toarray()
 
 
 @dataclass(frozen=True, eq=False)
