@@ -307,9 +307,9 @@ def determinant(integrator: Integrator, dt: float, system) -> float:
 # ==================================================================================================
 def build_system(system_type: str, system_params: dict):
     """Rebuild a run's system from its stored parameters (``system_params`` in the results file)."""
-    if system_type not in SYSTEMS:
-        raise ValueError(f"unknown system {system_type!r}; valid: " + ", ".join(SYSTEMS))
-    return SYSTEMS[system_type].model_validate({**system_params, "type": system_type}).build()
+    from simrun.systems.plugins import resolve  # built-in names, package.module:Class, entry points
+
+    return resolve(system_type).model_validate({**system_params, "type": system_type}).build()
 
 
 # ==================================================================================================

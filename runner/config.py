@@ -2,6 +2,8 @@
 
 Loading never builds Python objects from YAML tags (safe loading only). Validation is pydantic's;
 this module turns its errors into ``ConfigError`` messages of the form ``field.path: what is allowed``.
+``system.type`` names a built-in system, a plug-in ``package.module:ClassName`` or an installed plug-in's
+entry point (``simrun.systems.plugins``, docs/systems.md); the rest of the mapping is that model's parameters.
 """
 
 from __future__ import annotations
@@ -15,12 +17,14 @@ from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, TypeAdapter, ValidationError,
+                      field_validator)
+from pydantic_core import PydanticCustomError, PydanticKnownError
 
 from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS, Integrator
 from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
-from simrun.systems import SYSTEMS
+from simrun.systems import SystemParams, plugins
 
 # A config's errors reported at once, one line each: enough to fix a file in one go, few enough to read.
 MAX_REPORTED_ERRORS = 5
@@ -53,7 +57,42 @@ def _build_integrator(value: Any) -> Integrator:
 
 
 IntegratorField = Annotated[Integrator, BeforeValidator(_build_integrator)]
-SystemField = Annotated[Union[tuple(SYSTEMS.values())], Field(discriminator="type")]
+
+
+# -- the system: a mapping whose `type` names a built-in system, a plug-in path or an installed plug-in --
+SYSTEM_TYPE_ERROR = "system_type"  # the error type of a `type` that names no system (described as system.type: ...)
+
+
+def _build_system(value: Any) -> SystemParams:
+    """The parameter model that ``value["type"]`` resolves to (simrun.systems.plugins), validated with ``value``.
+
+    Its errors keep their paths below ``system`` (``system.mass``); the type is stored as written, so that
+    the config's hash and provenance are those of the file."""
+    if isinstance(value, SystemParams):
+        return value
+    if not isinstance(value, dict):
+        raise PydanticKnownError("model_attributes_type")
+    if "type" not in value:
+        raise _type_error("missing; valid: " + ", ".join(plugins.names()), None)
+    try:
+        model = plugins.resolve(value["type"])
+    except plugins.SystemTypeError as error:
+        raise _type_error(str(error), value["type"]) from None
+    try:
+        return model.model_validate(value)  # a ValidationError keeps its locations, below `system`
+    except (ValueError, AssertionError):  # pydantic's own errors (a ValidationError is a ValueError)
+        raise
+    except Exception as error:  # a plug-in's own validator that raised something else: still one line
+        raise ValueError(f"{value['type']}: {type(error).__name__}: {error}") from None
+
+
+def _type_error(message: str, given: Any) -> ValidationError:
+    return ValidationError.from_exception_data("system", [{
+        "type": PydanticCustomError(SYSTEM_TYPE_ERROR, "{message}", {"message": message}), "loc": ("type",), "input": given}])
+
+
+# Any SystemParams subclass, dumped with its own fields (SerializeAsAny), found by its `type`
+SystemField = Annotated[SerializeAsAny[SystemParams], BeforeValidator(_build_system)]
 
 
 # -- sweep values: a list, or {logspace: [start_exp, stop_exp, count]}, or {linspace: [a, b, n]} --
@@ -254,6 +293,17 @@ def validate_experiment(raw: dict) -> Experiment:
         raise ConfigError(describe_error(error, raw)) from None
 
 
+_SYSTEM_ALONE = TypeAdapter(SystemField)
+
+
+def validate_system(raw: Any) -> SystemParams:
+    """A config's ``system`` mapping on its own (``simrun check-system``); errors as in a config (``system.mass: ...``)."""
+    try:
+        return _SYSTEM_ALONE.validate_python(raw)
+    except ValidationError as error:
+        raise ConfigError(describe_error(error, {"system": raw}, within=("system",))) from None
+
+
 def load_experiment(source: str | Path | dict, overrides: list[str] = ()) -> tuple[Experiment, str]:
     """Load, override and validate a config; returns the experiment and its resolved YAML text.
 
@@ -296,11 +346,13 @@ def _describe(error: dict, fields: dict | None = None) -> str:
     return f"{location}: {message}" if location else message
 
 
-def describe_error(error: ValidationError, raw: dict) -> str:
-    """Up to MAX_REPORTED_ERRORS errors of a config, one line each (``field.path: what is allowed``)."""
+def describe_error(error: ValidationError, raw: dict, within: tuple[str, ...] = ()) -> str:
+    """Up to MAX_REPORTED_ERRORS errors of a config, one line each (``field.path: what is allowed``).
+
+    within: the config path of what was validated, when it was a part of a config (``("system",)``)."""
     lines: dict[str, list[str]] = {}  # config path -> its messages (the alternatives of a union are one error)
     for item in error.errors():
-        path, line = _describe_one(item, raw)
+        path, line = _describe_one({**item, "loc": within + tuple(item["loc"])}, raw)
         if path not in lines and len(lines) == MAX_REPORTED_ERRORS:
             break
         if line not in lines.setdefault(path, []):
@@ -312,22 +364,16 @@ def describe_error(error: ValidationError, raw: dict) -> str:
 def _describe_one(item: dict, raw: dict) -> tuple[str, str]:
     """One pydantic error as (its config path, its line)."""
     location = [part for part in item["loc"]]
-    # pydantic puts the discriminator's tag into the path (system.spring_mass.mass); drop it
-    if len(location) >= 2 and location[0] == "system" and location[1] in SYSTEMS:
-        location.pop(1)
     cause = item.get("ctx", {}).get("error")
     if isinstance(cause, SolverOptionError):  # it names the option inside the field: solver.history, not solver
         location += list(cause.path)
         item = {**item, "msg": cause.reason}
     # ... and the member of a plain union that did not match (record.error_time.float): one error per field
-    location = _without_union_member(location)
+    location = _without_union_member(location, raw)
     item = {**item, "loc": tuple(location)}
     path = ".".join(str(part) for part in location)
-    if item["type"] == "union_tag_invalid":
-        tag = item.get("ctx", {}).get("tag")
-        return "system.type", f"system.type: unknown system {tag!r}{_did_you_mean(tag, SYSTEMS)}; valid: " + ", ".join(SYSTEMS)
-    if item["type"] == "union_tag_not_found":
-        return "system.type", "system.type: missing; valid: " + ", ".join(SYSTEMS)
+    if item["type"] == SYSTEM_TYPE_ERROR:
+        return path, f"{path}: {item['msg']}"
     return path, _describe(item, _fields_at(location[:-1], raw))
 
 
@@ -343,11 +389,13 @@ def _joined_alternatives(path: str, lines: list[str]) -> str:
     return prefix + ", or ".join(messages)
 
 
-def _without_union_member(location: list) -> list:
+def _without_union_member(location: list, raw: dict) -> list:
     """An error location cut where pydantic names the member of a union that failed: the config's path."""
     node: Any = Experiment
     for number, part in enumerate(location):
         node = _unwrap(node)
+        if node is SystemParams:  # the system's fields are those of the model its type names
+            node = _system_model(raw)
         if isinstance(node, type) and issubclass(node, BaseModel):
             if part not in node.model_fields:
                 return location  # an unknown key, or a path below a validator's own: as it is
@@ -384,6 +432,12 @@ def _unwrap(node: Any) -> Any:
         return node
 
 
+def _system_model(raw: dict) -> type[SystemParams] | None:
+    """The parameter model that the config's system.type names, if it names one."""
+    system = raw.get("system") if isinstance(raw, dict) else None
+    return plugins.find(system.get("type")) if isinstance(system, dict) else None
+
+
 def _fields_at(location: list, raw: dict) -> dict:
     """The model fields allowed at a config path (to suggest names for an unknown key)."""
     model: type[BaseModel] | None = Experiment
@@ -391,8 +445,7 @@ def _fields_at(location: list, raw: dict) -> dict:
         if model is None:
             return {}
         if part == "system":
-            system_type = raw.get("system", {}).get("type") if isinstance(raw.get("system"), dict) else None
-            model = SYSTEMS.get(system_type)
+            model = _system_model(raw)
             continue
         if part == "solver":
             solver_type = raw["solver"].get("type", "newton") if isinstance(raw.get("solver"), dict) else None

@@ -36,6 +36,10 @@ import scipy.sparse
 from pydantic import BaseModel, ConfigDict
 
 
+# |KE0| + |PE0| below this fraction of the work of the initial forces over the length scale is round-off
+ENERGY_ROUND_OFF = 1e-8
+
+
 @dataclass(frozen=True)
 class Capabilities:
     """What a system tells the runner and the figures about itself; stored as attributes of every run (results format 2)."""
@@ -254,12 +258,26 @@ class System(ABC):
     @property
     def energy_reference_name(self) -> str:
         """What ``energy_scale()`` is, in a few words (axis labels, table notes)."""
-        return "|KE0| + |PE0|" if self.kinetic_energy(self.v0) or self.potential_energy(self.x0) else "1 J (KE0 = PE0 = 0)"
+        initial, work = self._initial_energy_and_work()
+        if initial > ENERGY_ROUND_OFF * work:
+            return "|KE0| + |PE0|"
+        return "L sum|f0| (|KE0| + |PE0| is round-off)" if work > 0.0 else "1 J (KE0 = PE0 = 0)"
 
     def energy_scale(self) -> float:
-        """A characteristic energy (J) against which energy growth is judged: |KE0| + |PE0|, else 1."""
-        scale = abs(self.kinetic_energy(self.v0)) + abs(self.potential_energy(self.x0))
-        return scale if scale > 0.0 else 1.0
+        """A characteristic energy (J) against which energy growth is judged: |KE0| + |PE0|; where that is
+        round-off of cancelling terms (at most ENERGY_ROUND_OFF of W0 = length_scale * sum |f(x0, v0)|: a
+        chain released from horizontal at the height of its pivot has E0 = 0 by construction, computed as
+        1e-30 J or 1e-16 J), W0, the work of the initial forces over the length scale; 1 J when both are 0."""
+        initial, work = self._initial_energy_and_work()
+        if initial > ENERGY_ROUND_OFF * work:
+            return initial
+        return work if work > 0.0 else 1.0
+
+    def _initial_energy_and_work(self) -> tuple[float, float]:
+        """(|KE0| + |PE0|, length_scale * sum |f(x0, v0)| over the free dofs) (J)."""
+        initial = abs(self.kinetic_energy(self.v0)) + abs(self.potential_energy(self.x0))
+        work = self.length_scale * float(np.abs(self.force(self.x0, self.v0)).sum())
+        return initial, work if math.isfinite(work) else 0.0
 
     # -- what the system declares about itself (neutral defaults; subclasses override the parts) -------
     @property

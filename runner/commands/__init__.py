@@ -13,4 +13,5 @@ COMMANDS = {
     "analyze": "analyze",
     "animate": "animate",
     "list": "list_",
+    "check-system": "check_system",
 }
