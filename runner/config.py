@@ -8,6 +8,8 @@ entry point (``simrun.systems.plugins``, docs/systems.md); the rest of the mappi
 
 from __future__ import annotations
 
+import re
+
 import copy
 import difflib
 import math
@@ -330,6 +332,10 @@ def _did_you_mean(word: str, choices) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+# "field: message", "field[2].sub: message": a message that names a field of the model it was raised for
+FIELD_PREFIX = re.compile(r"^([a-z_]+(?:\[\d+\])?(?:\.[a-z_]+(?:\[\d+\])?)*): (.*)$", re.DOTALL)
+
+
 def _describe(error: dict, fields: dict | None = None) -> str:
     """One pydantic error as 'path: message'."""
     location = ".".join(str(part) for part in error["loc"])
@@ -341,6 +347,12 @@ def _describe(error: dict, fields: dict | None = None) -> str:
             message += "; allowed: " + ", ".join(fields)
     elif kind == "value_error":
         message = message.removeprefix("Value error, ")
+        # a model's own check that names one of its fields ("pinned: vertex 99 does not exist", raised where
+        # the whole model is known): that field's path, system.pinned, rather than system: pinned
+        named = FIELD_PREFIX.match(message)
+        if named and fields and named.group(1).split("[")[0].split(".")[0] in fields:
+            location = f"{location}.{named.group(1)}" if location else named.group(1)
+            message = named.group(2)
     elif "input" in error and kind not in ("missing",) and not isinstance(error["input"], (dict, list)):
         message = f"{message} (got {error['input']!r})"
     return f"{location}: {message}" if location else message
@@ -374,6 +386,9 @@ def _describe_one(item: dict, raw: dict) -> tuple[str, str]:
     path = ".".join(str(part) for part in location)
     if item["type"] == SYSTEM_TYPE_ERROR:
         return path, f"{path}: {item['msg']}"
+    if item["type"] == "value_error":  # raised by the model at this path: its own fields may be named
+        line = _describe(item, _fields_at(location, raw))
+        return line.split(": ", 1)[0], line
     return path, _describe(item, _fields_at(location[:-1], raw))
 
 
