@@ -437,10 +437,20 @@ def _orders(orders: list[OrderRow], several: bool) -> list[Finding]:
 
 
 # -- energy (systems without the test equation) ----------------------------------------------------
+def _recorded_any(stored, key: str) -> bool:
+    """Does the run record this energy term, and is it ever non-zero?"""
+    if key not in stored:
+        return False
+    values = stored.series(key)
+    return bool(np.any(values[np.isfinite(values)] != 0.0))
+
+
 def _energy(data, rows, several) -> list[Finding]:
     by_id = {row.run_id: row for row in rows}
     result = []
-    damped = any(float(run.stored.system_params.get("damping", 0.0) or 0.0) != 0.0 for run in data.runs)
+    # from the data, not the parameters (a number, a list of damping models, a plug-in's own names)
+    damped = any(_recorded_any(run.stored, "dissipated_energy") for run in data.runs)
+    driven = any(_recorded_any(run.stored, "prescribed_work") for run in data.runs)
     for title, runs in data.groups:
         dts = sorted({run.dt for run in runs}, reverse=True)
         chosen = [dt for dt in dts if len({run.label for run in runs if run.dt == dt and not run.status.stopped}) >= 2]
@@ -453,7 +463,8 @@ def _energy(data, rows, several) -> list[Finding]:
             listed = ", ".join(f"{row.integrator} {drift_text(row.max_rel_energy_drift)}" for row in at)
             sentence = (f"Largest energy change over the run at dt = {dt:g} s{f' ({title})' if several and title else ''} "
                         f"(measured, max |E − E0| / E_ref, {energy_reference_text(at)}"
-                        + ("; it includes the physical damping's loss" if damped else "") + f"): {listed}.")
+                        + ("; it includes the physical damping's loss" if damped else "")
+                        + ("; it includes the work of the prescribed vertices" if driven else "") + f"): {listed}.")
             result.append(Finding(sentence, "#figure-energy_drift_vs_dt",
                                   {"group": title, "dt": dt,
                                    "max_rel_energy_drift": {row.integrator: row.max_rel_energy_drift for row in at}},

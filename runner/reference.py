@@ -36,8 +36,14 @@ def reference_positions(system, times, method: str = "DOP853", rtol: float = REF
     times = np.asarray(sorted(set(float(t) for t in times)))
     n = system.dof_count
 
-    def rate(_, u):
-        return np.concatenate([u[n:], system.acceleration(u[:n], u[n:])])
+    constraints = system.constraints
+    moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+
+    def rate(t, u):
+        acceleration = system.acceleration(u[:n], u[n:])
+        if moving.size:  # the vertices on prescribed paths accelerate with their paths (centripetal for a rotation)
+            acceleration[moving] = constraints.path_accelerations(t)
+        return np.concatenate([u[n:], acceleration])
 
     solution = scipy.integrate.solve_ivp(rate, (0.0, float(times[-1])), np.concatenate([system.x0, system.v0]),
                                          method=method, t_eval=times, rtol=rtol, atol=atol)

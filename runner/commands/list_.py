@@ -85,6 +85,11 @@ def handle(args) -> int:
     for name, model in SYSTEMS.items():
         print(f"  {name}:  # {(model.__doc__ or '').strip().splitlines()[0]}")
         _print(_fields(model))
+    from simrun.systems import plugins
+
+    installed = {name: path for name, path in plugins.installed().items() if name not in SYSTEMS}
+    print("  # and plug-ins: system.type: package.module:ClassName (docs/systems.md); installed: "
+          + (", ".join(f"{name} ({path})" for name, path in installed.items()) or "none"))
     print("\nintegrators (integrators: [name] or [{type: name, parameter: value}]):")
     for name, cls in INTEGRATORS.items():
         kind = "explicit" if cls.explicit else "implicit"
