@@ -27,6 +27,7 @@ from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS, Integrator
 from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
 from simrun.systems import SystemParams, plugins
+from simrun.systems.mass_spring.params import SEARCH_FOLDERS as MODEL_SEARCH_FOLDERS
 
 # A config's errors reported at once, one line each: enough to fix a file in one go, few enough to read.
 MAX_REPORTED_ERRORS = 5
@@ -323,7 +324,13 @@ def load_experiment(source: str | Path | dict, overrides: list[str] = ()) -> tup
         for assignment in overrides:
             apply_override(raw, assignment)
         text = yaml.safe_dump(raw, sort_keys=False)
-    return validate_experiment(raw), text
+    folders = (Path(source).resolve().parent,) if isinstance(source, Path) or (isinstance(source, str) and "\n" not in source
+                                                                           and ": " not in source) else ()
+    token = MODEL_SEARCH_FOLDERS.set(folders)  # relative model paths: the current folder, then the config's
+    try:
+        return validate_experiment(raw), text
+    finally:
+        MODEL_SEARCH_FOLDERS.reset(token)
 
 
 # -- describing validation errors ------------------------------------------------------------------

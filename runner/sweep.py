@@ -112,6 +112,9 @@ def config_hash(experiment: Experiment) -> str:
     """sha256 of the validated experiment (defaults filled in), so equal configs hash equally."""
     document = resolved_document(experiment)
     del document["output"]
+    files = experiment.system.input_files()
+    if files:  # the content of the model files the system reads (absent for systems that read none)
+        document["system_files"] = files
     return hashlib.sha256(json.dumps(document, sort_keys=True).encode()).hexdigest()
 
 

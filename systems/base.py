@@ -338,6 +338,11 @@ class SystemParams(BaseModel):
         """The system these parameters describe."""
         return self.system_class(self)
 
+    def input_files(self) -> dict[str, str]:
+        """The files the system reads (config field -> sha256 of the file): part of the config's hash, so that
+        a changed model file is a changed experiment. None by default."""
+        return {}
+
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:
     """Equal index arrays: the same memory (views of one array, no compare needed) or equal entries."""

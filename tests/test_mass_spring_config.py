@@ -160,3 +160,23 @@ def test_a_driven_damped_model_reports_and_its_reference_follows_the_paths(tmp_p
     constraints = system.constraints
     for t, x in reference_positions(system, [0.05, 0.1]).items():
         np.testing.assert_allclose(x[constraints.moving_dofs], constraints.path(t)[0], atol=1e-12)
+
+
+def test_a_model_beside_the_config_is_found_and_a_changed_file_is_a_changed_experiment(tmp_path, monkeypatch):
+    from simrun.sweep import config_hash
+
+    folder = tmp_path / "experiment"
+    folder.mkdir()
+    _npz(folder / "triangle.npz")
+    config = folder / "triangle.yaml"
+    config.write_text("name: triangle\nsystem: {type: mass_spring, model: triangle.npz, gravity: [0, 0], pinned: [0]}\n"
+                      "integrators: [backward_euler]\nduration: 0.01\nsweep: {dt: [0.005]}\n")
+    monkeypatch.chdir(tmp_path)  # not the config's folder
+    experiment, _ = load_experiment(str(config), [])
+    assert experiment.system.build().dof_count == 6
+    before = config_hash(experiment)
+    assert config_hash(load_experiment(str(config), [])[0]) == before
+    _npz(folder / "triangle.npz", vertices=np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 1.0]]))
+    assert config_hash(load_experiment(str(config), [])[0]) != before
+    results = simrun.run(str(config), output=tmp_path / "out", progress=False, jobs=1, figures=False)
+    assert set(results.summary["status"]) == {"ok"}

@@ -8,7 +8,9 @@ file's size and modification time.
 
 from __future__ import annotations
 
+import contextvars
 import functools
+import hashlib
 import json
 import math
 from pathlib import Path
@@ -23,6 +25,28 @@ from .files import load_model_file, lumped_area_masses
 from .generators import model_source
 from .model import ModelError, SpringModel
 from .system import DAMPING_MODELS, SPRING_LAWS, Contact, Damping, MassSpring
+
+# Folders where relative model paths are looked for after the current one: the config file's folder, set by
+# the config loader while it validates a config read from a file (runner/config.py: load_experiment).
+SEARCH_FOLDERS: contextvars.ContextVar[tuple[Path, ...]] = contextvars.ContextVar("model_search_folders", default=())
+
+
+def find_file(name: str, field: str) -> Path:
+    """The absolute path of a model file: as given, else relative to the current folder, else to the config's
+    folder; ModelError naming the field and where it looked."""
+    path = Path(name).expanduser()
+    candidates = [path] if path.is_absolute() else [Path.cwd() / path, *(folder / path for folder in SEARCH_FOLDERS.get())]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate.resolve()
+    looked = ", ".join(str(candidate.parent) for candidate in candidates)
+    raise ModelError(f"{field}: file {name!r} not found (looked in {looked})")
+
+
+def file_digest(path: Path) -> str:
+    """sha256 of a file's bytes: a changed model file is a changed experiment (config hash, resume)."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -182,6 +206,7 @@ class MassSpringParams(SystemParams):
     prescribed: list[Prescribed] = Field([], description="vertices on a path: {vertices, velocity} or {vertices, rotation: {center, axis, rate}}")
     contact: ContactSpec = ContactSpec()
     _file: Path | None = PrivateAttr(None)  # the model file, absolute (workers may start elsewhere)
+    _initial_file: Path | None = PrivateAttr(None)  # initial.file, absolute
 
     @field_validator("model")
     @classmethod
@@ -193,16 +218,25 @@ class MassSpringParams(SystemParams):
     def _consistent_with_model(self) -> "MassSpringParams":
         source = model_source(self.model)
         file = getattr(source, "file", None)
-        if file is not None:
-            path = Path(file).expanduser()
-            if not path.is_file():
-                raise ValueError(f"model: file {str(file)!r} not found (relative paths are from the current folder, {Path.cwd()})")
-            self._file = path.resolve()
         try:
+            if file is not None:
+                self._file = find_file(str(file), "model")
+                if not (Path.cwd() / Path(file).expanduser()).is_file():  # found beside the config: keep where,
+                    self.model = (str(self._file) if isinstance(self.model, str)  # for the runs validated later
+                                  else {**self.model, "file": str(self._file)})
+            if self.initial.file is not None:
+                self._initial_file = find_file(self.initial.file, "initial.file")
+                if not (Path.cwd() / Path(self.initial.file).expanduser()).is_file():
+                    self.initial.file = str(self._initial_file)
             resolve(self)
         except ModelError as error:
             raise ValueError(str(error)) from None
         return self
+
+    def input_files(self) -> dict[str, str]:
+        """The files this system reads, by config field, with their sha256 (part of the config hash)."""
+        files = {"model": self._file, "initial.file": self._initial_file}
+        return {field: file_digest(path) for field, path in files.items() if path is not None}
 
     @property
     def dof_count(self) -> int:
@@ -358,9 +392,7 @@ def _initial_state(params: MassSpringParams, model: SpringModel, rest: np.ndarra
     initial, dim = params.initial, model.dim
     centroid = rest.mean(axis=0)
     if initial.file is not None:
-        path = Path(initial.file).expanduser()
-        if not path.is_file():
-            raise ModelError(f"initial.file: {initial.file!r} not found (relative paths are from the current folder, {Path.cwd()})")
+        path = params._initial_file if params._initial_file is not None else find_file(initial.file, "initial.file")
         x0 = load_model_file(path, dim).vertices.astype(float)
         if x0.shape != rest.shape:
             raise ModelError(f"initial.file: {x0.shape[0]} vertices in {dim}-D, but the model has {rest.shape[0]}")
