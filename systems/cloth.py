@@ -12,20 +12,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from .base import System, SystemParams
 from .constraints import VertexConstraints
 from .mass_spring.generators import GridModel
+from .mass_spring.params import GroundContact  # the same ground for every mass-spring model
 from .mass_spring.system import Contact, Damping, MassSpring
 
 PIN_NAMES = ("top_left", "top_right", "bottom_left", "bottom_right", "top", "bottom", "left", "right")
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-
-
-class GroundContact(BaseModel):
-    """Penalty contact with the plane z = height: P = k/2 max(0, height - z)^2 per vertex."""
-
-    model_config = ConfigDict(extra="forbid")
-    height: Finite = Field(-1.0, description="z of the ground plane (m)")
-    stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
 
 
 class SphereContact(BaseModel):
