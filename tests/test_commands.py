@@ -220,7 +220,7 @@ def test_list_shows_every_config_key_and_nested_model_readably(capsys):
     for line in ["  name:  # required", "  duration: 10.0  # simulated time per run (s)", "  sweep:  # required",
                  "  output: null", "  solver: {type: newton}", "    max_samples: 10000", "    max_frames: 200",
                  "    energy_factor: 1000000.0", "    check_every: 1", "    contact:", "      ground:  # optional",
-                 "        height: -1.0  # z of the ground plane (m)", "        center: [0.5, 0.5, -0.6]  # centre (m)",
+                 "        height: -1.0  # the last coordinate (z in 3-D, y in 2-D) of the ground (m)", "        center: [0.5, 0.5, -0.6]  # centre (m)",
                  "default type: newton"]:
         assert line in out, line
     # the listing is YAML: the config section parses, with the defaults as values

@@ -36,10 +36,13 @@ def _nested_model(annotation):
     return models[0] if len(models) == 1 else None
 
 
-def _fields(model, fields: dict | None = None, depth: int = 2, lines_for: dict | None = None) -> list[str]:
+def _fields(model, fields: dict | None = None, depth: int = 2, lines_for: dict | None = None, instance=None) -> list[str]:
     """One line per key: ``key: default  # description``; a key that holds a model gets its keys below it.
 
-    lines_for: key -> the text after ``key:`` for keys described elsewhere (the config's system, solver)."""
+    lines_for: key -> the text after ``key:`` for keys described elsewhere (the config's system, solver).
+    instance: the parent's default value of this model, whose values are the defaults shown (mass: {total: 1.0})."""
+    from pydantic import BaseModel
+
     lines = []
     for key, info in (model.model_fields if fields is None else fields).items():
         if key == "type":
@@ -52,9 +55,10 @@ def _fields(model, fields: dict | None = None, depth: int = 2, lines_for: dict |
             summary = info.description or (nested.__doc__ or "").strip().partition("\n")[0]
             comment = "; ".join(filter(None, ["optional" if info.default is None else "", summary]))
             lines.append(f"{INDENT * depth}{key}:" + (f"  # {comment}" if comment else ""))
-            lines += _fields(nested, depth=depth + 1)
+            lines += _fields(nested, depth=depth + 1, instance=info.default if isinstance(info.default, BaseModel) else None)
             continue
-        default = "" if info.is_required() else f" {_value(info.default)}"
+        value = getattr(instance, key) if instance is not None else info.default
+        default = "" if info.is_required() and instance is None else f" {_value(value)}"
         comment = "; ".join(filter(None, ["required" if info.is_required() else "", info.description or ""]))
         lines.append(f"{INDENT * depth}{key}:{default}" + (f"  # {comment}" if comment else ""))
     return lines
