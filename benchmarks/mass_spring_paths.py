@@ -37,7 +37,7 @@ def _params():
     general = MassSpringParams(model={"grid": {"resolution": [RESOLUTION, RESOLUTION]}},
                                stiffness={"stretch": legacy.stretch_stiffness, "shear": legacy.shear_stiffness,
                                           "bend": legacy.bend_stiffness},
-                               mass={"total": legacy.mass}, gravity=list(legacy.gravity), pinned=["top_left", "top_right"])
+                               mass={"total": legacy.mass, "by": "equal"}, gravity=list(legacy.gravity), pinned=["top_left", "top_right"])
     return legacy, general
 
 

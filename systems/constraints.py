@@ -138,11 +138,15 @@ def _rotate(offset: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
 
 def filter_block(dim: int, normal: np.ndarray | None = None, direction: np.ndarray | None = None) -> np.ndarray:
     """S for sliding in the plane with this normal (I - n n^T) or along the line with this direction (u u^T)."""
-    if normal is not None:
-        unit = normal / np.linalg.norm(normal)
-        return np.eye(dim) - np.outer(unit, unit)
-    unit = direction / np.linalg.norm(direction)
-    return np.outer(unit, unit)
+    unit = _unit(normal if normal is not None else direction)
+    outer = np.outer(unit, unit)
+    return np.eye(dim) - outer if normal is not None else outer
+
+
+def _unit(vector: np.ndarray) -> np.ndarray:
+    """vector / |vector|, scaled by its largest component first, so that a tiny vector (1e-320) has a direction too."""
+    scaled = vector / np.max(np.abs(vector))
+    return scaled / np.linalg.norm(scaled)
 
 
 class VertexConstraints:

@@ -259,7 +259,7 @@ CLOTH_SYSTEMS = {
               "shear_stiffness": 300.0, "bend_stiffness": 5.0, "damping": 0.2, "pinned": ["top_left", 7],
               "initial_spin": [0.0, 0.5, 1.0], "contact": CLOTH_CONTACT},
     "mass_spring": {"type": "mass_spring", "model": {"grid": {"resolution": [6, 5], "size": [1.0, 0.8]}},
-                    "stiffness": {"stretch": 3000.0, "shear": 300.0, "bend": 5.0}, "mass": {"total": 0.7}, "damping": 0.2,
+                    "stiffness": {"stretch": 3000.0, "shear": 300.0, "bend": 5.0}, "mass": {"total": 0.7, "by": "equal"}, "damping": 0.2,
                     "pinned": ["top_left", 7], "initial": {"spin": [0.0, 0.5, 1.0]}, "contact": CLOTH_CONTACT},
 }
 CLOTH_INTEGRATORS = ["symplectic_euler", "rk4", "backward_euler", "implicit_midpoint", "bdf2", "newmark", "generalized_alpha",
@@ -539,7 +539,7 @@ def test_mpcg_starts_reach_the_same_steps(name, record_property):
 # 7. The energy budget
 # ==================================================================================================
 FREE_MODEL = {"type": "mass_spring", "model": {"grid": {"resolution": [3, 3], "size": [0.3, 0.2]}},
-              "stiffness": {"stretch": 50.0, "shear": 10.0, "bend": 1.0}, "mass": {"total": 0.12}, "gravity": [0.0, 0.0, 0.0],
+              "stiffness": {"stretch": 50.0, "shear": 10.0, "bend": 1.0}, "mass": {"total": 0.12, "by": "equal"}, "gravity": [0.0, 0.0, 0.0],
               "initial": {"spin": [0.4, -0.2, 1.5], "velocity": [0.1, 0.0, 0.3], "scale": 1.1}}
 # D independent of x; weak enough for leapfrog's explicit damping kicks at these steps
 BUDGET_DAMPING = {"drag": {"model": "drag", "coefficient": 0.02}, "relative": {"model": "relative", "coefficient": 0.05},

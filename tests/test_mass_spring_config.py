@@ -52,6 +52,10 @@ def _bad_inputs(tmp_path: Path) -> list[tuple[str, str]]:
         (f"type: mass_spring\nmodel: {short}\nmass: file\n", "masses"),
         (f"type: mass_spring\nmodel: {no_springs}\n", "springs"),
         ("type: mass_spring\n" + square + "pinned: [9]\n", "system.pinned: vertex 9 does not exist; the model has vertices 0..8"),
+        ("type: mass_spring\n" + square + "pinned: [-1]\n", "system.pinned: vertex -1 does not exist; the model has vertices 0..8"),
+
+        ("type: mass_spring\n" + square + "initial: {rotate: {axis: [1, 0, 0], degrees: 10}}\n", "a 2-D model turns about z only"),
+        ("type: mass_spring\n" + square + "initial: {spin: [1, 0, 0]}\n", "a 2-D model spins about z only"),
         ("type: mass_spring\n" + square + "pinned: [middle]\n", "pinned: the model has no vertex set 'middle'"),
         ("type: mass_spring\n" + square + "constraints: [{vertices: [12], normal: [0, 1]}]\n", "system.constraints[0].vertices: vertex 12 does not exist"),
         ("type: mass_spring\n" + square + "constraints: [{vertices: [1], normal: [0, 0]}]\n", "the normal [0.0, 0.0] is zero"),
@@ -63,7 +67,7 @@ def _bad_inputs(tmp_path: Path) -> list[tuple[str, str]]:
         ("type: mass_spring\n" + square + "stiffness: {strech: 10, shear: 1}\n", "no spring kind 'strech'"),
         ("type: mass_spring\n" + square + "stiffness: file\n", "stiffness: file, but the model file has no 'stiffness' array"),
         ("type: mass_spring\nmodel: {grd: {}}\n", "expected a file path or one of {grid: ...}"),
-        ("type: mass_spring\n" + square + "mass: {total: 1, per_vertex: 2}\n", "give exactly one of per_vertex, total, density"),
+        ("type: mass_spring\n" + square + "mass: {total: 1, per_vertex: 2}\n", "give one of per_vertex, total, density"),
         ("type: mass_spring\nmodel: {rope: {count: 4, direction: [1, 0]}}\nmass: {density: 1}\n", "needs a model with triangles"),
         ("type: mass_spring\n" + square + "prescribed: [{vertices: [0], rotation: {center: [0, 0], axis: [1, 0, 0], rate: 10}}]\n",
          "a 2-D model turns about z only"),
@@ -180,3 +184,23 @@ def test_a_model_beside_the_config_is_found_and_a_changed_file_is_a_changed_expe
     assert config_hash(load_experiment(str(config), [])[0]) != before
     results = simrun.run(str(config), output=tmp_path / "out", progress=False, jobs=1, figures=False)
     assert set(results.summary["status"]) == {"ok"}
+
+
+def test_what_a_model_file_brings_is_used_unless_the_config_says_otherwise(tmp_path):
+    """An npz with per-spring stiffness and per-vertex masses: used by default (stiffness: auto, mass: {}); a
+    number in the config wins. A triangle mesh shares a total mass by area unless `by: equal`."""
+    path = _npz(tmp_path / "triangle.npz", stiffness=np.array([7.0, 8.0, 9.0]), masses=np.array([1.0, 2.0, 3.0]))
+    system = MassSpringParams(model=str(path), gravity=[0.0, 0.0]).build()
+    np.testing.assert_array_equal(system.stiffness, [7.0, 8.0, 9.0])
+    np.testing.assert_array_equal(system.vertex_masses, [1.0, 2.0, 3.0])
+    system = MassSpringParams(model=str(path), gravity=[0.0, 0.0], stiffness=5.0, mass={"per_vertex": 0.5}).build()
+    np.testing.assert_array_equal(system.stiffness, 5.0)
+    np.testing.assert_array_equal(system.vertex_masses, 0.5)
+    grid = {"grid": {"resolution": [3, 3], "size": [1.0, 1.0]}}
+    by_area = MassSpringParams(model=grid, mass={"total": 1.0}).build().vertex_masses
+    assert by_area.sum() == pytest.approx(1.0, rel=1e-12) and by_area[4] == pytest.approx(0.25, rel=1e-12)  # the centre: a quarter
+    np.testing.assert_array_equal(MassSpringParams(model=grid, mass={"total": 1.0, "by": "equal"}).build().vertex_masses, 1.0 / 9.0)
+    tiny = MassSpringParams(model={"square": {"segments": 2}}, constraints=[{"vertices": [1], "normal": [1.0e-320, 0.0]}]).build()
+    assert 2 in tiny.fixed_dofs  # a normal of length 1e-320 still has a direction: x, removed exactly
+    rope = MassSpringParams(model={"rope": {"count": 4, "direction": [1.0, 0.0]}}, mass={"total": 1.0}).build()
+    np.testing.assert_array_equal(rope.vertex_masses, 0.25)  # no triangles: equal shares

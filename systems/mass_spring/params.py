@@ -8,45 +8,22 @@ file's size and modification time.
 
 from __future__ import annotations
 
-import contextvars
 import functools
-import hashlib
 import json
 import math
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from ..base import SystemParams
-from ..constraints import PrescribedMotion, VertexConstraints, filter_block
-from .files import load_model_file, lumped_area_masses
+from .assemble import resolve
+from .files import SEARCH_FOLDERS, file_digest, find_file, load_model_file
 from .generators import model_source
 from .model import ModelError, SpringModel
-from .system import DAMPING_MODELS, SPRING_LAWS, Contact, Damping, MassSpring
+from .system import DAMPING_MODELS, SPRING_LAWS, MassSpring
 
-# Folders where relative model paths are looked for after the current one: the config file's folder, set by
-# the config loader while it validates a config read from a file (runner/config.py: load_experiment).
-SEARCH_FOLDERS: contextvars.ContextVar[tuple[Path, ...]] = contextvars.ContextVar("model_search_folders", default=())
-
-
-def find_file(name: str, field: str) -> Path:
-    """The absolute path of a model file: as given, else relative to the current folder, else to the config's
-    folder; ModelError naming the field and where it looked."""
-    path = Path(name).expanduser()
-    candidates = [path] if path.is_absolute() else [Path.cwd() / path, *(folder / path for folder in SEARCH_FOLDERS.get())]
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate.resolve()
-    looked = ", ".join(str(candidate.parent) for candidate in candidates)
-    raise ModelError(f"{field}: file {name!r} not found (looked in {looked})")
-
-
-def file_digest(path: Path) -> str:
-    """sha256 of a file's bytes: a changed model file is a changed experiment (config hash, resume)."""
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
+__all__ = ["MassSpringParams", "SEARCH_FOLDERS", "BoxSelector", "Rotation"]
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -63,7 +40,8 @@ class BoxSelector(BaseModel):
 
 
 # a vertex selection: an index, a name of the model (a generator's "top", "left", ...), a box, or a list of them
-Selector = Union[Annotated[int, Field(ge=0)], str, BoxSelector, list[Union[Annotated[int, Field(ge=0)], str, BoxSelector]]]
+# (indices are checked against the model, negative ones too, when the config is loaded: one message per field)
+Selector = Union[int, str, BoxSelector, list[Union[int, str, BoxSelector]]]
 
 
 class Region(BaseModel):
@@ -75,12 +53,14 @@ class Region(BaseModel):
 
 
 class MassSpec(BaseModel):
-    """How the vertex masses are set: exactly one of per_vertex, total, density; or ``file``."""
+    """How the vertex masses are set: at most one of per_vertex, total, density, file. None of them (the
+    default): the model file's masses where it has them, else a total of 1 kg."""
 
     model_config = ConfigDict(extra="forbid")
     per_vertex: Positive | None = Field(None, description="kg at every vertex")
-    total: Positive | None = Field(None, description="kg in all, in equal shares (by: equal) or by area (by: area, triangle meshes)")
-    by: Literal["equal", "area"] = Field("equal", description="how a total is shared out")
+    total: Positive | None = Field(None, description="kg in all, shared as `by` says")
+    by: Literal["auto", "equal", "area"] = Field("auto", description="how a total is shared out: equal shares, by area "
+                                                                     "(a third of each triangle's), or auto: by area where the model has triangles")
     density: Positive | None = Field(None, description="kg/m^2: each triangle's area times the density, a third to each corner")
     file: bool = Field(False, description="the model file's per-vertex masses (config: mass: file)")
 
@@ -92,8 +72,8 @@ class MassSpec(BaseModel):
     @model_validator(mode="after")
     def _one_rule(self) -> "MassSpec":
         given = [name for name in ("per_vertex", "total", "density", "file") if getattr(self, name) not in (None, False)]
-        if len(given) != 1:
-            raise ValueError(f"give exactly one of per_vertex, total, density (or mass: file); got {given or 'none'}")
+        if len(given) > 1:
+            raise ValueError(f"give one of per_vertex, total, density (or mass: file); got {given}")
         return self
 
 
@@ -138,7 +118,7 @@ class Sliding(BaseModel):
         if (self.normal is None) == (self.direction is None):
             raise ValueError("give either normal (sliding in a plane) or direction (sliding along a line)")
         vector = self.normal if self.normal is not None else self.direction
-        if not any(component != 0.0 for component in vector):
+        if not math.hypot(*vector) > 0.0:  # its length must survive in floating point, for the unit vector
             raise ValueError(f"the {'normal' if self.normal is not None else 'direction'} {vector} is zero")
         return self
 
@@ -194,10 +174,12 @@ class MassSpringParams(SystemParams):
     model: Union[str, dict[str, Any]] = Field({"square": {"segments": 4, "size": 1.0}},
                                               description="a model file (.npz or a mesh), or {grid: ...}, {square: ...}, {rope: ...}, {file: ...}")
     spring_law: Literal[tuple(SPRING_LAWS)] = Field("hookean", description="hookean: k/2 (L - l0)^2 | squared_length: k l0^2/2 (L^2/l0^2 - 1)^2")  # type: ignore[valid-type]
-    stiffness: Union[NonNegative, dict[str, NonNegative], Literal["file"]] = Field(
-        1.0e4, description="N/m: one value, one per spring kind ({stretch: .., shear: .., bend: ..}; stretch covers stretch_x and stretch_y), or file")
+    stiffness: Union[NonNegative, dict[str, NonNegative], Literal["file", "auto"]] = Field(
+        "auto", description="N/m: one value, one per spring kind ({stretch: .., shear: .., bend: ..}; stretch covers stretch_x "
+                            "and stretch_y), file, or auto: the model file's per-spring stiffness where it has one, else 1e4")
     regions: list[Region] = Field([], description="boxes with their own stiffness (later entries win)")
-    mass: MassSpec = Field(MassSpec(total=1.0), description="{per_vertex: kg} | {total: kg, by: equal|area} | {density: kg/m^2} | file")
+    mass: MassSpec = Field(MassSpec(), description="{per_vertex: kg} | {total: kg, by: auto|equal|area} | {density: kg/m^2} | file; "
+                                                   "default: the model file's masses, else {total: 1}")
     gravity: Vector | None = Field(None, description="m/s^2, one component per dimension of the model (default: -9.81 along the last axis)")
     initial: InitialShape = InitialShape()
     damping: Union[NonNegative, list[DampingTerm]] = Field([], description="a number (spring damping k_d, N s/m) or a list of {model, coefficient} / {model: rayleigh, alpha, beta}")
@@ -221,12 +203,12 @@ class MassSpringParams(SystemParams):
         try:
             if file is not None:
                 self._file = find_file(str(file), "model")
-                if not (Path.cwd() / Path(file).expanduser()).is_file():  # found beside the config: keep where,
-                    self.model = (str(self._file) if isinstance(self.model, str)  # for the runs validated later
-                                  else {**self.model, "file": str(self._file)})
+                if self._file != (Path.cwd() / Path(file).expanduser()).resolve():  # found beside the config: kept
+                    self.model = (str(self._file) if isinstance(self.model, str)  # absolute, for the runs validated
+                                  else {**self.model, "file": str(self._file)})  # again elsewhere
             if self.initial.file is not None:
                 self._initial_file = find_file(self.initial.file, "initial.file")
-                if not (Path.cwd() / Path(self.initial.file).expanduser()).is_file():
+                if self._initial_file != (Path.cwd() / Path(self.initial.file).expanduser()).resolve():
                     self.initial.file = str(self._initial_file)
             resolve(self)
         except ModelError as error:
@@ -273,227 +255,3 @@ def _generated(source_json: str) -> SpringModel:
         raise ModelError(f"model: {error}") from None
 
 
-# -- from config and model to the arrays of MassSpring -----------------------------------------------
-def resolve(params: MassSpringParams) -> dict[str, Any]:
-    """The keyword arguments of MassSpring; ModelError (naming the config field) for anything inconsistent."""
-    model = params.spring_model()
-    dim, n = model.dim, model.vertex_count
-    rest = model.vertices.astype(float)
-    gravity = np.zeros(dim) if params.gravity is None else None
-    if params.gravity is None:
-        gravity[-1] = -9.81
-    else:
-        gravity = _vector(params.gravity, dim, "gravity")
-    stiffness = _stiffness(params, model)
-    rest_length = (model.rest_lengths if model.rest_lengths is not None
-                   else np.linalg.norm(rest[model.springs[:, 0]] - rest[model.springs[:, 1]], axis=1))
-    damping = _damping(params)
-    along_springs = any(term.model in ("spring", "relative") for term in damping)
-    kept = np.flatnonzero((stiffness > 0) | along_springs)
-    if kept.size == 0:
-        raise ModelError("stiffness: every spring has stiffness 0 and no damping acts along the springs: nothing holds the model together")
-    x0, v0 = _initial_state(params, model, rest)
-    constraints = _constraints(params, model, rest, x0)
-    return dict(rest=rest, x0=x0, v0=v0, springs=model.springs[kept], stiffness=stiffness[kept], rest_length=rest_length[kept],
-                masses=_masses(params, model), gravity=gravity, law=params.spring_law, damping=damping,
-                constraints=constraints, contact=_contact(params, dim), triangles=model.triangles, grid_shape=model.grid_shape)
-
-
-def _vector(values: list[float], dim: int, field: str) -> np.ndarray:
-    if len(values) != dim:
-        raise ModelError(f"{field}: {len(values)} components given, but the model is {dim}-D: give {dim}")
-    return np.array(values, dtype=float)
-
-
-def _kind_matches(key: str, kind_names: tuple[str, ...]) -> list[int]:
-    """The kinds a stiffness key names: itself, or every kind it prefixes (stretch -> stretch_x, stretch_y)."""
-    return [index for index, name in enumerate(kind_names) if name == key or name.startswith(key + "_")]
-
-
-def _per_kind(values: dict[str, float], model: SpringModel, field: str, complete: bool) -> np.ndarray:
-    """Per-kind stiffness as an array over kinds (NaN where unset); specific keys win over prefixes."""
-    result = np.full(len(model.kind_names), np.nan)
-    for key in sorted(values, key=lambda key: len(_kind_matches(key, model.kind_names)), reverse=True):
-        matches = _kind_matches(key, model.kind_names)
-        if not matches:
-            raise ModelError(f"{field}: this model has no spring kind {key!r}; its kinds are {', '.join(model.kind_names)}")
-        result[matches] = values[key]
-    present = np.unique(model.kinds)
-    missing = [model.kind_names[kind] for kind in present if np.isnan(result[kind])]
-    if complete and missing:
-        raise ModelError(f"{field}: no stiffness for the spring kinds {', '.join(missing)}; give one per kind "
-                         f"(kinds: {', '.join(model.kind_names[kind] for kind in present)}) or one number")
-    return result
-
-
-def _stiffness(params: MassSpringParams, model: SpringModel) -> np.ndarray:
-    if params.stiffness == "file":
-        if model.stiffness is None:
-            raise ModelError("stiffness: file, but the model file has no 'stiffness' array")
-        stiffness = model.stiffness.astype(float).copy()
-    elif isinstance(params.stiffness, dict):
-        stiffness = _per_kind(params.stiffness, model, "stiffness", complete=True)[model.kinds]
-    else:
-        stiffness = np.full(model.spring_count, float(params.stiffness))
-    for number, region in enumerate(params.regions):
-        field = f"regions[{number}]"
-        inside = _in_box(model.vertices, region.box, model.dim, field + ".box")
-        chosen = inside[model.springs[:, 0]] & inside[model.springs[:, 1]]
-        if not chosen.any():
-            raise ModelError(f"{field}.box: no spring has both ends in {region.box}")
-        if isinstance(region.stiffness, dict):
-            per_kind = _per_kind(region.stiffness, model, field + ".stiffness", complete=False)[model.kinds]
-            chosen &= ~np.isnan(per_kind)
-            stiffness[chosen] = per_kind[chosen]
-        else:
-            stiffness[chosen] = region.stiffness
-    return stiffness
-
-
-def _masses(params: MassSpringParams, model: SpringModel) -> np.ndarray:
-    n = model.vertex_count
-    if params.mass.file:
-        if model.masses is None:
-            raise ModelError("mass: file, but the model file has no 'masses' array")
-        return model.masses.astype(float)
-    spec = params.mass
-    if spec.per_vertex is not None:
-        return np.full(n, spec.per_vertex)
-    if spec.total is not None and spec.by == "equal":
-        return np.full(n, spec.total / n)
-    if model.triangles is None:
-        raise ModelError(f"mass: {'by: area' if spec.total is not None else 'density'} needs a model with triangles; "
-                         "this one has none: use {total: kg} (equal shares) or {per_vertex: kg}")
-    areas = lumped_area_masses(model.vertices, model.triangles)
-    if np.any(areas <= 0):
-        raise ModelError(f"mass: vertex {int(np.flatnonzero(areas <= 0)[0])} touches no triangle of positive area, so area lumping gives it no mass")
-    return areas * spec.density if spec.density is not None else areas * (spec.total / float(np.sum(areas)))
-
-
-def _damping(params: MassSpringParams) -> tuple[Damping, ...]:
-    if not isinstance(params.damping, list):
-        return (Damping("spring", float(params.damping)),) if params.damping > 0 else ()
-    return tuple(Damping(term.model, term.coefficient, term.alpha, term.beta) for term in params.damping
-                 if term.coefficient > 0 or term.alpha > 0 or term.beta > 0)
-
-
-def _rotation_matrix(axis: np.ndarray, degrees: float, dim: int) -> np.ndarray:
-    angle = math.radians(degrees)
-    cos, sin = math.cos(angle), math.sin(angle)
-    if dim == 2:
-        sign = 1.0 if axis[2] >= 0 else -1.0
-        return np.array([[cos, -sign * sin], [sign * sin, cos]])
-    unit = axis / np.linalg.norm(axis)
-    cross = np.array([[0, -unit[2], unit[1]], [unit[2], 0, -unit[0]], [-unit[1], unit[0], 0]])
-    return cos * np.eye(3) + sin * cross + (1 - cos) * np.outer(unit, unit)
-
-
-def _initial_state(params: MassSpringParams, model: SpringModel, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    initial, dim = params.initial, model.dim
-    centroid = rest.mean(axis=0)
-    if initial.file is not None:
-        path = params._initial_file if params._initial_file is not None else find_file(initial.file, "initial.file")
-        x0 = load_model_file(path, dim).vertices.astype(float)
-        if x0.shape != rest.shape:
-            raise ModelError(f"initial.file: {x0.shape[0]} vertices in {dim}-D, but the model has {rest.shape[0]}")
-    else:
-        scale = np.full(dim, initial.scale) if not isinstance(initial.scale, list) else _vector(initial.scale, dim, "initial.scale")
-        rotation = initial.rotate
-        axis, degrees = ((np.array([0.0, 0.0, 1.0]), float(rotation)) if not isinstance(rotation, Rotation)
-                         else (_vector(rotation.axis, 3, "initial.rotate.axis"), rotation.degrees))
-        if not np.any(axis):
-            raise ModelError("initial.rotate.axis: the axis is zero")
-        x0 = (rest - centroid) * scale @ _rotation_matrix(axis, degrees, dim).T + centroid
-        if initial.translate is not None:
-            x0 = x0 + _vector(initial.translate, dim, "initial.translate")
-    v0 = np.zeros_like(x0)
-    if initial.velocity is not None:
-        v0 += _vector(initial.velocity, dim, "initial.velocity")
-    spin = initial.spin
-    offset = x0 - x0.mean(axis=0)
-    if isinstance(spin, list):
-        omega = _vector(spin, 3, "initial.spin")
-        v0 += np.cross(omega, offset) if dim == 3 else omega[2] * np.stack([-offset[:, 1], offset[:, 0]], axis=1)
-    elif spin:
-        v0 += (np.cross([0.0, 0.0, spin], offset) if dim == 3 else spin * np.stack([-offset[:, 1], offset[:, 0]], axis=1))
-    return x0, v0
-
-
-def _in_box(vertices: np.ndarray, box, dim: int, field: str) -> np.ndarray:
-    lower, upper = (_vector(corner, dim, field) for corner in box)
-    if np.any(lower > upper):
-        raise ModelError(f"{field}: the lower corner {lower.tolist()} is above the upper corner {upper.tolist()}")
-    return np.all((vertices >= lower) & (vertices <= upper), axis=1)
-
-
-def select(selector, model: SpringModel, field: str) -> np.ndarray:
-    """The vertex indices a selector names (sorted, unique); ModelError naming ``field`` otherwise."""
-    items = selector if isinstance(selector, list) else [selector]
-    chosen = []
-    for item in items:
-        if isinstance(item, BoxSelector):
-            inside = np.flatnonzero(_in_box(model.vertices, item.box, model.dim, field + ".box"))
-            if inside.size == 0:
-                raise ModelError(f"{field}: the box {item.box} holds no vertex of the model")
-            chosen.append(inside)
-        elif isinstance(item, str):
-            if item not in model.named_vertices:
-                names = ", ".join(model.named_vertices) or "none"
-                raise ModelError(f"{field}: the model has no vertex set {item!r} (its names: {names})")
-            chosen.append(np.asarray(model.named_vertices[item]))
-        else:
-            if item >= model.vertex_count:
-                raise ModelError(f"{field}: vertex {item} does not exist; the model has vertices 0..{model.vertex_count - 1}")
-            chosen.append(np.array([item]))
-    return np.unique(np.concatenate(chosen)).astype(np.intp) if chosen else np.zeros(0, dtype=np.intp)
-
-
-def _constraints(params: MassSpringParams, model: SpringModel, rest: np.ndarray, x0: np.ndarray) -> VertexConstraints:
-    dim = model.dim
-    owner = np.full(model.vertex_count, "", dtype=object)  # which config entry constrains each vertex
-
-    def claim(vertices: np.ndarray, field: str) -> None:
-        taken = vertices[owner[vertices] != ""]
-        if taken.size:
-            raise ModelError(f"{field}: vertex {int(taken[0])} is already constrained by {owner[taken[0]]}; a vertex takes one constraint")
-        owner[vertices] = field
-
-    pinned = select(params.pinned, model, "pinned")
-    claim(pinned, "pinned")
-    sliding = []
-    for number, entry in enumerate(params.constraints):
-        field = f"constraints[{number}]"
-        vertices = select(entry.vertices, model, field + ".vertices")
-        claim(vertices, field)
-        if entry.normal is not None:
-            block = filter_block(dim, normal=_vector(entry.normal, dim, field + ".normal"))
-        else:
-            block = filter_block(dim, direction=_vector(entry.direction, dim, field + ".direction"))
-        sliding.append((vertices, block))
-    prescribed = []
-    for number, entry in enumerate(params.prescribed):
-        field = f"prescribed[{number}]"
-        vertices = select(entry.vertices, model, field + ".vertices")
-        claim(vertices, field)
-        if entry.velocity is not None:
-            motion = PrescribedMotion(vertices, x0[vertices], velocity=_vector(entry.velocity, dim, field + ".velocity"))
-        else:
-            axis = _vector(entry.rotation.axis, 3, field + ".rotation.axis")
-            if not np.any(axis):
-                raise ModelError(f"{field}.rotation.axis: the axis is zero")
-            if dim == 2 and (axis[0] or axis[1]):
-                raise ModelError(f"{field}.rotation.axis: a 2-D model turns about z only; give [0, 0, 1] or [0, 0, -1]")
-            center = _vector(entry.rotation.center, dim, field + ".rotation.center")
-            motion = PrescribedMotion(vertices, x0[vertices],
-                                      rotation=(center, axis / np.linalg.norm(axis), math.radians(entry.rotation.rate)))
-        prescribed.append(motion)
-    return VertexConstraints(dim, model.vertex_count, pinned, sliding, prescribed)
-
-
-def _contact(params: MassSpringParams, dim: int) -> Contact:
-    spec = params.contact
-    sphere = None
-    if spec.sphere is not None:
-        sphere = (_vector(spec.sphere.center, dim, "contact.sphere.center"), spec.sphere.radius, spec.sphere.stiffness)
-    ground = None if spec.ground is None else (spec.ground.height, spec.ground.stiffness)
-    return Contact(ground=ground, sphere=sphere)
