@@ -240,12 +240,18 @@ def _on_paths(constraints, moving: np.ndarray, state: State, t: float) -> State:
 def _path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: float) -> float:
     """The power (W) that the drivers of the prescribed vertices put into the system: sum over their dofs
     of v (m a - f), with f = -dP/dx - D v the forces of the system on them (unfiltered) and a the paths'
-    accelerations: what holds the vertices on their paths against the springs, gravity and damping."""
-    force = -system.gradient(x)
-    if system.is_damped:
-        force -= system.damping_matrix(x) @ v
+    accelerations: what holds the vertices on their paths against the springs, gravity and damping.
+    Systems that can give f on those dofs alone (``driven_force``: the springs that touch them) do so."""
+    driven_force = getattr(system, "driven_force", None)
+    if driven_force is not None:
+        force = driven_force(x, v)
+    else:
+        force = -system.gradient(x)
+        if system.is_damped:
+            force -= system.damping_matrix(x) @ v
+        force = force[moving]
     accelerations = system.constraints.path_accelerations(t)
-    return float(v[moving] @ (system.mass[moving] * accelerations - force[moving]))
+    return float(v[moving] @ (system.mass[moving] * accelerations - force))
 
 
 def _error_at(system, t: float, x: np.ndarray, v: np.ndarray) -> float:

@@ -6,7 +6,6 @@ from __future__ import annotations
 from typing import Annotated, Literal, Union
 
 import numpy as np
-import scipy.sparse
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from .base import System, SystemParams
@@ -122,6 +121,8 @@ class Cloth(MassSpring):
                             sphere=None if contact.sphere is None else (np.array(contact.sphere.center), contact.sphere.radius,
                                                                         contact.sphere.stiffness)),
             triangles=model.triangles, grid_shape=model.grid_shape)
+
+    energy_reference_name = "max(M |g| L, |KE0| + |PE0|)"
 
     def energy_scale(self) -> float:
         """Energy of lifting the cloth by its longest side, M |g| L, or |KE0| + |PE0| if larger (J): a cloth

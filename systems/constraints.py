@@ -111,6 +111,15 @@ class PrescribedMotion:
         offset = self.positions(t) - center
         return _cross(rate * axis, offset)
 
+    def accelerations_along(self, velocities: np.ndarray) -> np.ndarray:
+        """(k, d) accelerations of the path as a function of the vertices' velocities: 0 for a constant
+        velocity, omega x v for a rotation at a constant rate (the path is the solution of x'' = omega x x'),
+        so that a method's stages move the vertices along the arc to the method's own order."""
+        if self.velocity is not None:
+            return np.zeros_like(velocities)
+        _, axis, rate = self.rotation
+        return _cross(rate * axis, velocities)
+
     def accelerations(self, t: float) -> np.ndarray:
         """(k, d) accelerations at time t (s^-2 m): zero for a velocity, centripetal for a rotation."""
         if self.velocity is not None:
@@ -190,6 +199,11 @@ class VertexConstraints:
         positions = [motion.positions(t) for motion in self.prescribed]
         velocities = [motion.velocities(t) for motion in self.prescribed]
         return np.concatenate(positions).ravel(), np.concatenate(velocities).ravel()
+
+    def accelerations_along(self, v: np.ndarray) -> np.ndarray:
+        """The paths' accelerations at the moving dofs (flat, ``moving_dofs`` order) for the velocities v (all dofs)."""
+        blocks = v.reshape(-1, self.dim)
+        return np.concatenate([motion.accelerations_along(blocks[motion.vertices]) for motion in self.prescribed]).ravel()
 
     def path_accelerations(self, t: float) -> np.ndarray:
         return np.concatenate([motion.accelerations(t) for motion in self.prescribed]).ravel()

@@ -5,9 +5,12 @@ apply) and what it measured against which tolerance. tests/test_systems.py asser
 registered system (built-in and plug-in); ``simrun check-system`` prints them for a user's system.
 
 Derivatives are compared at the generic state x = x0 + 0.05 L z (L = ``length_scale``, z ~ N(0, I), seeded),
-where no symmetry of x0 hides a wrong sign or a missing term, by central differences with the step
-h = 1e-6 L: their error is h^2/6 |P'''| (about 1e-12 relative) plus the round-off eps |P| / h (about 1e-10
-relative), so a relative error above 1e-6 is a wrong derivative, not a numerical one.
+where no symmetry of x0 hides a wrong sign or a missing term, by central differences with the step h = 1e-6 L:
+their error is h^2/6 |P'''| (about 1e-12 relative) plus the round-off eps |P| / h (about 1e-10 relative), so a
+relative error above 1e-6 is a wrong derivative, not a numerical one.
+
+The state, the probe directions and the matrix measures are in systems/contract_probes.py; this module stays
+the import point of the checks and of the helpers that tests use (``generic_state``, ``held_dofs``, ``max_abs``).
 """
 
 from __future__ import annotations
@@ -19,20 +22,17 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 import scipy.sparse
-import scipy.sparse.linalg
 
 from .base import ENERGY_ROUND_OFF, Capabilities, System, SystemParams
+from .contract_probes import (asymmetry, dense, free_dofs, generic_state, generic_velocity, held_dofs, max_abs,
+                              negativity, probes, relative_error, restricted)
 
-PERTURBATION = 0.05  # of the length scale: springs stay far from zero length, an orbit far from its centre
-SEED = 20240607
 FD_STEP = 1e-6  # of the length scale
 # central differences err by h^2/6 |P'''| (1e-12 relative) plus round-off eps |P|/h (1e-10 relative):
 # 1e-6 of the largest entry leaves room for stiff penalty terms next to soft springs
 FD_TOLERANCE = 1e-6
 PSD_TOLERANCE = 1e-9  # eigenvalues >= -1e-9 max|eigenvalue|: round-off of a projected (or exactly singular) matrix
 ROUND_OFF = 1e-12  # the same formulas on the same numbers, in another order
-DENSE_LIMIT = 400  # dof: above, derivatives are probed along random directions and eigenvalues found by Lanczos
-PROBE_COUNT = 8
 # The short run: STEP_COUNT steps of each RUN_INTEGRATORS method at a tenth of the fastest rate's stable step.
 STEP_COUNT = 20
 RUN_INTEGRATORS = ("symplectic_euler", "backward_euler")
@@ -40,11 +40,11 @@ STABLE_FRACTION = 0.1  # dt = 0.1 / w_max
 # |E - E0| <= 10 E_ref over the short run: a sound system moves its energy by at most about E_ref in 20 steps at a
 # tenth of its stable step (all of E0 only when strongly damped); the runner's divergence bound is 1e6 E_ref.
 RUN_ENERGY_TOLERANCE = 10.0  # of energy_scale()
-# E_ref = energy_scale() below 1e-8 of the work W0 = L sum_free |f(x0, v0)| that the initial forces do over the
-# length scale is the round-off of terms that cancel (|KE0| + |PE0| of a start whose energy is zero by
-# construction), not an energy of the motion: every relative energy error, and the divergence bound, would be
-# measured against noise. (A pendulum released 1e-3 rad from the bottom has E_ref / W0 = 5e-4.)
-ENERGY_REFERENCE_FLOOR = ENERGY_ROUND_OFF  # the floor System.energy_scale() itself applies
+# E_ref = energy_scale() below ENERGY_ROUND_OFF = 1e-8 of the work W0 = L sum_free |f(x0, v0)| that the initial
+# forces do over the length scale (the floor System.energy_scale() itself applies) is the round-off of terms that
+# cancel (|KE0| + |PE0| of a start whose energy is zero by construction), not an energy of the motion: every
+# relative energy error, and the divergence bound, would be measured against noise. (A pendulum released 1e-3 rad
+# from the bottom has E_ref / W0 = 5e-4.)
 
 
 @dataclass(frozen=True)
@@ -66,87 +66,6 @@ class Check:
 def _verdict(name: str, measured: str, problems: list[str]) -> Check:
     """PASS with what was measured, or FAIL with every problem found."""
     return Check(name, True, measured) if not problems else Check(name, False, "; ".join(problems))
-
-
-# -- the probes --------------------------------------------------------------------------------------------
-def generic_state(system: System) -> np.ndarray:
-    """x0 + 0.05 L z with a seeded z ~ N(0, I) (m): where the derivatives are compared."""
-    z = np.random.default_rng(SEED).standard_normal(system.dof_count)
-    return system.x0 + PERTURBATION * system.length_scale * z
-
-
-def generic_velocity(system: System) -> np.ndarray:
-    """v0 + z with a seeded z ~ N(0, I) (m/s), zero on the fixed dofs."""
-    v = system.v0 + np.random.default_rng(SEED + 1).standard_normal(system.dof_count)
-    v[system.fixed_dofs] = 0.0
-    return v
-
-
-
-
-def probes(system: System) -> np.ndarray:
-    """Directions (columns) along which derivatives are compared: all unit vectors, or seeded random unit vectors."""
-    n = system.dof_count
-    if n <= DENSE_LIMIT:
-        return np.eye(n)
-    directions = np.random.default_rng(SEED + 2).standard_normal((n, PROBE_COUNT))
-    return directions / np.linalg.norm(directions, axis=0)
-
-
-def dense(matrix) -> np.ndarray:
-    return matrix.toarray() if scipy.sparse.issparse(matrix) else np.asarray(matrix, dtype=float)
-
-
-def max_abs(values) -> float:
-    values = np.abs(np.asarray(values, dtype=float))
-    return float(values.max()) if values.size else 0.0
-
-
-def free_dofs(system: System) -> np.ndarray:
-    return np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
-
-
-def held_dofs(system: System) -> np.ndarray:
-    """The fixed dofs that never move: all of them but those of vertices on prescribed paths (which move with
-    their path, not by a force)."""
-    constraints = getattr(system, "constraints", None)
-    moving = constraints.moving_dofs if constraints is not None else ()
-    return np.setdiff1d(np.asarray(system.fixed_dofs, dtype=np.intp), moving).astype(np.intp)
-
-
-def eigenvalue_range(matrix) -> tuple[float, float]:
-    """(smallest eigenvalue, largest |eigenvalue|) of a symmetric matrix: LAPACK when small, Lanczos when large."""
-    if matrix.shape[0] <= DENSE_LIMIT:
-        eigenvalues = np.linalg.eigvalsh(dense(matrix))
-        return (float(eigenvalues[0]), float(np.abs(eigenvalues).max())) if eigenvalues.size else (0.0, 0.0)
-    operator = scipy.sparse.csr_matrix(matrix)
-    largest = float(abs(scipy.sparse.linalg.eigsh(operator, k=1, which="LM", return_eigenvectors=False)[0]))
-    # the smallest eigenvalue of A is the largest of the shifted -A + s I, s = |A|: a well separated end for Lanczos
-    shifted = scipy.sparse.linalg.eigsh(largest * scipy.sparse.identity(matrix.shape[0]) - operator, k=1, which="LA",
-                                        return_eigenvectors=False)[0]
-    return largest - float(shifted), largest
-
-
-def asymmetry(matrix) -> float:
-    """max |A - A^T| / max |A| (0 for a zero matrix)."""
-    matrix = scipy.sparse.csr_matrix(matrix)
-    return max_abs((matrix - matrix.T).data) / max(max_abs(matrix.data), 1e-300)
-
-
-def negativity(matrix) -> tuple[float, float]:
-    """(-smallest eigenvalue / largest |eigenvalue| (<= 0 for PSD), smallest eigenvalue)."""
-    smallest, largest = eigenvalue_range(matrix)
-    return -smallest / max(largest, 1e-300), smallest
-
-
-def _restricted(matrix, dofs: np.ndarray):
-    if scipy.sparse.issparse(matrix):
-        return scipy.sparse.csr_matrix(matrix)[dofs][:, dofs]
-    return np.asarray(matrix, dtype=float)[np.ix_(dofs, dofs)]
-
-
-def _relative(difference, reference) -> float:
-    return max_abs(difference) / max(max_abs(reference), 1e-300)
 
 
 # -- the checks --------------------------------------------------------------------------------------------
@@ -206,7 +125,7 @@ def check_gradient(system: System) -> Check:
     expected = gradient @ directions
     differences = np.array([(system.potential_energy(x + h * e) - system.potential_energy(x - h * e)) / (2 * h)
                             for e in directions.T])
-    error = _relative(differences - expected, expected)
+    error = relative_error(differences - expected, expected)
     measured = (f"relative FD error of dP/dx {error:.1e} <= {FD_TOLERANCE:g} (h = {h:.1e} m, "
                 f"{directions.shape[1]} directions)")
     problems = [] if error <= FD_TOLERANCE else [f"gradient(x) is not dP/dx: relative FD error {error:.1e} > {FD_TOLERANCE:g}"]
@@ -223,7 +142,7 @@ def check_hessian(system: System) -> Check:
         return _verdict("hessian", "", [f"hessian(x) has the shape {hessian.shape}, not ({system.dof_count}, {system.dof_count})"])
     expected = np.asarray(hessian @ directions)
     differences = np.array([(system.gradient(x + h * e) - system.gradient(x - h * e)) / (2 * h) for e in directions.T]).T
-    error = _relative(differences - expected, expected)
+    error = relative_error(differences - expected, expected)
     skew = asymmetry(hessian)
     kind = "sparse" if scipy.sparse.issparse(hessian) else "dense"
     problems = []
@@ -246,7 +165,7 @@ def check_projected_hessian(system: System) -> Check:
         skew = asymmetry(projected)
         if skew > ROUND_OFF:
             problems.append(f"hessian(x, project_spd=True) at {where} is not symmetric ({skew:.1e})")
-        negative, smallest = negativity(_restricted(projected, free))
+        negative, smallest = negativity(restricted(projected, free))
         worst = max(worst, negative)
         if negative > PSD_TOLERANCE:
             problems.append(f"hessian(x, project_spd=True) at {where} has the eigenvalue {smallest:.3g} on the free dofs")
@@ -306,7 +225,7 @@ def check_damping(system: System) -> Check:
     if negative > PSD_TOLERANCE:
         problems.append(f"damping_matrix(x) has the eigenvalue {smallest:.3g}: it would add energy")
     expected = -np.asarray(damping @ v)
-    error = _relative(system.damping_force(x, v) - expected, expected)
+    error = relative_error(system.damping_force(x, v) - expected, expected)
     if error > ROUND_OFF:
         problems.append(f"damping_force(x, v) differs from -D(x) v by {error:.1e}")
     return _verdict("damping", f"asymmetry {skew:.1e}, smallest eigenvalue {-negative:.1e} x max|eigenvalue|", problems)
@@ -322,17 +241,17 @@ def check_force(system: System) -> Check:
         system.sliding.apply(expected)
     force = system.force(x, v)
     problems = []
-    error = _relative(force - expected, expected)
+    error = relative_error(force - expected, expected)
     if error > ROUND_OFF:
         problems.append(f"force(x, v) differs from -g(x) - D(x) v by {error:.1e}")
     if np.any(force[system.fixed_dofs] != 0.0):
         problems.append("force(x, v) is not 0 on the fixed dofs")
     acceleration = expected / system.mass
-    if _relative(system.acceleration(x, v) - acceleration, acceleration) > ROUND_OFF:
+    if relative_error(system.acceleration(x, v) - acceleration, acceleration) > ROUND_OFF:
         problems.append("acceleration(x, v) is not force / mass")
     dt = 1e-3
     kicked = v + dt * acceleration
-    if _relative(system.kick(x, v, dt) - kicked, kicked) > ROUND_OFF:
+    if relative_error(system.kick(x, v, dt) - kicked, kicked) > ROUND_OFF:
         problems.append("kick(x, v, dt) is not v + dt force / mass")
     return _verdict("force", f"-g - D v to {error:.1e}, 0 on {len(system.fixed_dofs)} fixed dofs", problems)
 
@@ -369,7 +288,7 @@ def check_observables(system: System) -> Check:
     else:
         row = np.full(system.observable_width + 2, np.nan)
         energy = system.write_observables(x, v, row)
-        if _relative(row[:-2] - values, values) > ROUND_OFF or not np.isnan(row[-2:]).all():
+        if relative_error(row[:-2] - values, values) > ROUND_OFF or not np.isnan(row[-2:]).all():
             problems.append("write_observables(x, v, row) does not write the observables in layout order")
         if abs(energy - observed["energy"]) > ROUND_OFF * max(abs(observed["energy"]), energy_scale):
             problems.append("write_observables returns another energy than observables")
@@ -430,7 +349,7 @@ def check_test_frequency(system: System) -> Check:
         problems.append(f"test_frequency {w!r} needs w > 0 and no damping")
     for x in (system.x0, generic_state(system)):
         hessian = dense(system.hessian(x))
-        if _relative(hessian - w * w * np.diag(system.mass), hessian) > ROUND_OFF:
+        if relative_error(hessian - w * w * np.diag(system.mass), hessian) > ROUND_OFF:
             problems.append("hessian(x) is not w^2 M")
             break
     exact = system.exact_solution(np.array([2 * math.pi / w])) if w > 0 else None
@@ -452,9 +371,9 @@ def check_energy_reference(system: System) -> Check:
     motion: at least 1e-8 of W0 = L sum_free |f(x0, v0)|, not the round-off of cancelling terms."""
     reference, work = system.energy_scale(), work_scale(system)
     measured = f"E_ref = {reference:.3g} J, W0 = L sum|f(x0)| = {work:.3g} J"
-    if reference >= ENERGY_REFERENCE_FLOOR * work:
+    if reference >= ENERGY_ROUND_OFF * work:
         return _verdict("energy reference", f"{measured}, E_ref/W0 = {reference / work if work else math.inf:.2g} "
-                                            f">= {ENERGY_REFERENCE_FLOOR:g}", [])
+                                            f">= {ENERGY_ROUND_OFF:g}", [])
     return _verdict("energy reference", measured, [
         f"energy_scale() = {reference:.3g} J is round-off next to W0 = {work:.3g} J (|KE0| + |PE0| of terms that "
         f"cancel): every run would be 'diverged' at once; override energy_scale() with an energy of the motion, e.g. W0"])

@@ -204,3 +204,26 @@ def test_what_a_model_file_brings_is_used_unless_the_config_says_otherwise(tmp_p
     assert 2 in tiny.fixed_dofs  # a normal of length 1e-320 still has a direction: x, removed exactly
     rope = MassSpringParams(model={"rope": {"count": 4, "direction": [1.0, 0.0]}}, mass={"total": 1.0}).build()
     np.testing.assert_array_equal(rope.vertex_masses, 0.25)  # no triangles: equal shares
+
+
+def test_the_force_on_prescribed_vertices_from_their_springs_alone_is_the_full_force_there():
+    """driven_force (only the springs that touch the prescribed vertices) = -dP/dx - D v on their dofs, with
+    every damping model and contact; and their acceleration is the path's, omega x v for a rotation."""
+    params = MassSpringParams(model={"grid": {"resolution": [5, 4], "size": [0.4, 0.3]}}, stiffness={"stretch": 90.0, "shear": 9.0, "bend": 1.0},
+                              damping=[{"model": "spring", "coefficient": 0.3}, {"model": "relative", "coefficient": 0.1},
+                                       {"model": "drag", "coefficient": 0.05}, {"model": "rayleigh", "alpha": 0.2, "beta": 0.01}],
+                              contact={"ground": {"height": 0.01, "stiffness": 500.0}},
+                              prescribed=[{"vertices": [0, 6], "velocity": [0.1, 0.0, 0.2]},
+                                          {"vertices": [19], "rotation": {"center": [0.2, 0.15, 0.0], "axis": [0, 1, 1], "rate": 40.0}}])
+    system = params.build()
+    rng = np.random.default_rng(3)
+    x = system.x0 + 0.01 * rng.standard_normal(system.dof_count)
+    v = rng.standard_normal(system.dof_count)
+    moving = system.constraints.moving_dofs
+    full = -system.gradient(x) - system.damping_matrix(x) @ v
+    np.testing.assert_allclose(system.driven_force(x, v), full[moving], rtol=0, atol=1e-12 * np.abs(full).max())
+    acceleration = system.acceleration(x, v)
+    motion = system.constraints.prescribed[1]
+    omega = motion.rotation[1] * motion.rotation[2]
+    np.testing.assert_allclose(acceleration.reshape(-1, 3)[19], np.cross(omega, v.reshape(-1, 3)[19]), rtol=1e-14)
+    np.testing.assert_array_equal(acceleration.reshape(-1, 3)[[0, 6]], 0.0)

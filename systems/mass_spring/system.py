@@ -13,6 +13,7 @@ former cloth system, so a grid model reproduces its results bit for bit.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 import scipy.sparse
@@ -176,6 +177,9 @@ class MassSpring(System):
         self._build_pattern()
         self._constant_damping = self._assemble_constant_damping()
         self._geometry: SpringGeometry | None = None  # of the last x the springs were evaluated at
+        self._moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+        if self._moving.size:
+            self._build_driven()
 
     # -- setup ----------------------------------------------------------------------------------
     def _build_pattern(self) -> None:
@@ -275,6 +279,50 @@ class MassSpring(System):
             contacts.append((depth, normal, stiffness, distance))
         return contacts
 
+    # -- vertices on prescribed paths -----------------------------------------------------------
+    def acceleration(self, x, v):
+        """M^-1 f(x, v), and on the vertices of prescribed paths the paths' own acceleration (omega x v for a
+        rotation): explicit methods then move them along the arc within a step, to their own order."""
+        acceleration = self.force(x, v) / self.mass
+        if self._moving.size:
+            acceleration[self._moving] = self.constraints.accelerations_along(v)
+        return acceleration
+
+    def _build_driven(self) -> None:
+        """What ``driven_force`` needs: the springs that touch a prescribed vertex and their scatter onto its dofs."""
+        moving_vertices = self.constraints.moving_vertices
+        springs = np.flatnonzero(np.isin(self.first, moving_vertices) | np.isin(self.second, moving_vertices))
+        d, offsets = self.dim, np.arange(self.dim)
+        self._driven = SimpleNamespace(
+            springs=springs, incidence=self._incidence[moving_vertices][:, springs].tocsr(),
+            first_dofs=(d * self.first[springs][:, None] + offsets).ravel(),
+            second_dofs=(d * self.second[springs][:, None] + offsets).ravel(),
+            stiffness=self.stiffness[springs], rest_length=self.rest_length[springs],
+            rest_length_squared=self.rest_length_squared[springs], identity=self.identity,
+            damping_rows=None if self._constant_damping is None else self.pattern_matrix(self._constant_damping)[self._moving])
+
+    def driven_force(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The force -dP/dx - D v on the dofs of the prescribed vertices (``constraints.moving_dofs`` order),
+        unfiltered: what their drivers hold them against. Only the springs that touch them are evaluated."""
+        part = self._driven
+        delta = (np.take(x, part.first_dofs) - np.take(x, part.second_dofs)).reshape(-1, self.dim)
+        length = np.sqrt(np.square(delta) @ self._ones)
+        stretch = length - part.rest_length
+        geometry = SpringGeometry(x, delta, length, stretch, part.stiffness * stretch)
+        spring_force = -(delta.T * self.law.gradient_factor(part, geometry)).T
+        for term in self.damping_terms:
+            if term.model == "spring":  # -k_d ((v_i - v_j) . u) u on vertex i, the opposite on j
+                direction = geometry.direction
+                rate = (np.take(v, part.first_dofs) - np.take(v, part.second_dofs)).reshape(-1, self.dim)
+                spring_force -= term.coefficient * np.einsum("ij,ij->i", rate, direction)[:, None] * direction
+        force = (part.incidence @ spring_force).ravel() + self._gravity_force[self._moving]
+        positions = x.reshape(-1, self.dim)[self.constraints.moving_vertices]
+        for depth, normal, stiffness, _ in self._penetration(positions):
+            force += (stiffness * depth[:, None] * normal).ravel()
+        if part.damping_rows is not None:
+            force -= part.damping_rows @ v
+        return force
+
     # -- energy, gradient, Hessian ---------------------------------------------------------------
     def spring_energy(self, x: np.ndarray) -> float:
         geometry = self._springs(x)
@@ -345,16 +393,28 @@ class MassSpring(System):
         values.update(spring_energy=spring, gravity_energy=gravity, contact_energy=contact)
         return values
 
-    energy_reference_name = "max(M |g| L, |KE0| + |PE0|)"
-
-    def energy_scale(self) -> float:
-        """Energy of lifting the model by its largest extent, M |g| L, or |KE0| + |PE0| if larger (J): a model
-        at rest has E0 = 0 and a nudge of 1e-8 m/s gives E0 ~ 1e-18 J, which no drift should be divided by.
-        Without gravity: the larger of |KE0| + |PE0| and the spring energy of a 1 % stretch of every spring."""
+    def _energy_reference(self) -> tuple[float, str]:
+        """(E_ref, what it is): the larger of |KE0| + |elastic PE0| (springs and contact: gravity's energy depends on
+        where the origin is, which would make the reference of a translated model another) and a floor, the energy
+        of lifting the model by its largest extent, M |g| L, or without gravity the spring energy of a 1 % stretch
+        of every spring. A model at rest has E0 = 0, and a nudge of 1e-8 m/s gives E0 ~ 1e-18 J, which no drift
+        should be divided by."""
+        elastic = self.spring_energy(self.x0) + self.contact_energy(self.x0)
+        initial = abs(self.kinetic_energy(self.v0)) + abs(elastic)
         extent = float(np.max(np.ptp(self.rest, axis=0)))
         lift = float(np.sum(self.vertex_masses)) * float(np.linalg.norm(self.gravity)) * extent
-        strain = 0.5 * float(np.dot(self.stiffness, np.square(0.01 * self.rest_length)))
-        return max(super().energy_scale(), lift if lift > 0 else strain)
+        floor, floor_name = (lift, "M |g| L") if lift > 0 else (
+            0.5 * float(np.dot(self.stiffness, np.square(0.01 * self.rest_length))), "1 % strain energy")
+        if initial > floor:
+            return initial, f"|KE0| + |PE0 of springs and contact| (> {floor_name})"
+        return (floor, floor_name) if floor > 0 else (1.0, "1 J")
+
+    def energy_scale(self) -> float:
+        return self._energy_reference()[0]
+
+    @property
+    def energy_reference_name(self) -> str:
+        return self._energy_reference()[1]
 
     @property
     def frame_shape(self) -> tuple[int, int] | None:
