@@ -32,7 +32,7 @@ import numpy as np
 
 from simrun.integrators import INTEGRATORS, Integrator, State
 from simrun.solvers import solver_params
-from simrun.systems import SYSTEMS, SpringMassParams
+from simrun.systems import SpringMassParams
 
 # The probe's Newton solves a linear problem in one iteration; the tight tolerance only makes the
 # convergence test insist on round-off (the problem's residual floor ends it there).
@@ -309,7 +309,8 @@ def build_system(system_type: str, system_params: dict):
     """Rebuild a run's system from its stored parameters (``system_params`` in the results file)."""
     from simrun.systems.plugins import resolve  # built-in names, package.module:Class, entry points
 
-    return resolve(system_type).model_validate({**system_params, "type": system_type}).build()
+    # current_folder=False: reading a results file never imports code from the folder it is read in
+    return resolve(system_type, current_folder=False).model_validate({**system_params, "type": system_type}).build()
 
 
 # ==================================================================================================

@@ -39,10 +39,12 @@ class SystemTypeError(ValueError):
     """A ``system.type`` that names no usable system; the message is one line (without the config path)."""
 
 
-def resolve(name: Any) -> type[SystemParams]:
+def resolve(name: Any, current_folder: bool = True) -> type[SystemParams]:
     """The parameter model that config name ``name`` stands for (rules in the module docstring).
 
-    Raises SystemTypeError with a one-line message."""
+    current_folder: may a module path be imported from the current folder when Python does not find it
+    (a config beside its plug-in)? A results file names a module too, and reading a file must not run code
+    from wherever it is read: the readers pass False. Raises SystemTypeError with a one-line message."""
     from . import SYSTEMS  # at call time, so that simrun.systems may import this module
 
     if isinstance(name, str) and name in SYSTEMS:
@@ -52,7 +54,7 @@ def resolve(name: Any) -> type[SystemParams]:
     if not isinstance(name, str) or not name:
         raise SystemTypeError(_unknown(str(name)))
     if PATH_SEPARATOR in name:
-        model = _checked(name, _import_path(name))
+        model = _checked(name, _import_path(name, current_folder))
     else:
         entry = _entry_points().get(name)
         if entry is None:
@@ -96,12 +98,12 @@ def _unknown(name: str) -> str:
             + ", or a plug-in as package.module:ClassName")
 
 
-def _import_path(name: str) -> Any:
+def _import_path(name: str, current_folder: bool = True) -> Any:
     """The object that ``package.module:Attribute.Path`` names."""
     module_name, _, attribute = name.partition(PATH_SEPARATOR)
     if not _dotted(module_name) or not _dotted(attribute):
         raise SystemTypeError(f"{name!r} is not a plug-in path; write package.module:ClassName (e.g. mypackage.rope:RopeParams)")
-    module = _import_module(module_name, name)
+    module = _import_module(module_name, name, current_folder)
     return _attribute(module, attribute, name)
 
 
@@ -109,13 +111,13 @@ def _dotted(text: str) -> bool:
     return bool(text) and all(part.isidentifier() for part in text.split("."))
 
 
-def _import_module(module_name: str, name: str):
+def _import_module(module_name: str, name: str, current_folder: bool = True):
     """Import a plug-in's module; where Python does not find it, in the current folder too (as ``python -m`` would)."""
     try:
         return importlib.import_module(module_name)
     except ModuleNotFoundError as error:
         here = os.getcwd()
-        if not _is_the_module(error, module_name) or not _beside(here, module_name) \
+        if not current_folder or not _is_the_module(error, module_name) or not _beside(here, module_name) \
                 or here in (_absolute(entry) for entry in sys.path):
             raise SystemTypeError(_import_failed(module_name, name, error)) from None
     except Exception as error:  # noqa: BLE001 - a user's module may raise anything while it is imported

@@ -227,3 +227,14 @@ def test_the_force_on_prescribed_vertices_from_their_springs_alone_is_the_full_f
     omega = motion.rotation[1] * motion.rotation[2]
     np.testing.assert_allclose(acceleration.reshape(-1, 3)[19], np.cross(omega, v.reshape(-1, 3)[19]), rtol=1e-14)
     np.testing.assert_array_equal(acceleration.reshape(-1, 3)[[0, 6]], 0.0)
+
+
+def test_the_readme_example_of_a_mass_spring_system_builds():
+    """The `type: mass_spring` block of README.md is a config that loads and builds (it cannot drift)."""
+    import yaml
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = next(part.split("```")[0] for part in readme.split("```yaml\n")[1:] if "type: mass_spring" in part.split("```")[0])
+    system = yaml.safe_load(block)["system"]
+    experiment, _ = load_experiment({"name": "readme", "system": system, "integrators": ["backward_euler"], "sweep": {"dt": [0.01]}}, [])
+    assert experiment.system.build().dof_count == 3 * 16 * 12
