@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import NonlinearSolver, SolveStats
+from .base import LINEAR_FAILURES, NonlinearSolver, SolveStats
 
 
 class FallbackChain:
@@ -19,7 +19,9 @@ class FallbackChain:
     so a rescued step meets the same criterion as one the main solver finished. The statistics sum
     the iterations (nonlinear, linear, line search) over all attempts; ``solver_index`` says which
     solver finished the step (0: the main one, 1: the first fallback, ...) and ``converged`` whether
-    it converged. ``newton_step`` (the semi-implicit methods' single iteration) is the main solver's.
+    it converged. ``newton_step`` (the semi-implicit methods' single iteration) is the main solver's,
+    or, when its linear solve fails (an indefinite matrix for MPCG or Cholesky, a singular one), the first
+    solver's of the chain whose Newton matrix the solve takes (projected Newton's SPD one).
     """
 
     def __init__(self, solvers: list[NonlinearSolver]):
@@ -46,4 +48,12 @@ class FallbackChain:
                                      outcome.stats.converged, index)
 
     def newton_step(self, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
-        return self.main.newton_step(problem, start)
+        for index, solver in enumerate(self.solvers):
+            try:
+                y, stats = solver.newton_step(problem, start)
+            except LINEAR_FAILURES:
+                if index + 1 == len(self.solvers):
+                    raise
+                continue
+            return y, stats._replace(solver_index=index)
+        raise AssertionError("unreachable: the chain has at least one solver")

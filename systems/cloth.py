@@ -83,8 +83,8 @@ def grid_springs(nx: int, ny: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 class Cloth(MassSpring):
     """The mass-spring cloth on a grid: a ``MassSpring`` built from the grid generator with one stiffness
-    per spring kind, equal vertex masses, spring damping and penalty contact (the former cloth system,
-    kept as a config shorthand; its results are unchanged bit for bit).
+    per spring kind, equal vertex masses, spring damping and penalty contact: a config shorthand whose
+    frames and energies equal those recorded before the general system existed, bit for bit.
 
     Spring Hessian block (lectures): H_e = k [u u^T + (1 - l0/L)(I - u u^T)], u = (x_i - x_j)/L;
     the SPD projection clamps 1 - l0/L at 0 (the only eigenvalue that can turn negative, when the

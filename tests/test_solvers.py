@@ -645,3 +645,27 @@ def test_runs_keep_the_solvers_own_options_through_the_sweep():
 def test_unknown_keys_are_matched_against_the_chosen_solvers_options():
     assert _fields_at(["solver"], {"solver": {"type": "lbfgs"}}) == SOLVER_PARAMS["lbfgs"].model_fields
     assert _fields_at(["solver"], {"solver": {}}) == SOLVER_PARAMS["newton"].model_fields
+
+
+def test_a_chain_takes_the_one_newton_step_with_the_next_solver_when_the_linear_solve_fails():
+    """Semi-implicit methods take one Newton step; MPCG breaks down on an indefinite matrix (a compressed
+    spring), so the chain takes the step with the next solver's matrix (projected Newton's SPD one) and says so."""
+    from simrun.solvers.fallback import FallbackChain
+    from simrun.solvers.newton import Newton, ProjectedNewton
+
+    class Indefinite:
+        fixed_dofs = np.zeros(0, dtype=np.intp)
+        residual_floor = 0.0
+
+        def gradient(self, y):
+            return np.array([1.0, 1.0]) + np.array([-1.0, 2.0]) * y
+
+        def hessian(self, y, project_spd=False):
+            return np.diag([1.0, 2.0]) if project_spd else np.diag([-1.0, 2.0])
+
+    chain = FallbackChain([Newton(linear_solver="mpcg"), ProjectedNewton(linear_solver="mpcg")])
+    y, stats = chain.newton_step(Indefinite(), np.zeros(2))
+    assert stats.solver_index == 1
+    np.testing.assert_allclose(y, [-1.0, -0.5], rtol=1e-12)  # the projected matrix's step
+    with pytest.raises(np.linalg.LinAlgError):
+        FallbackChain([Newton(linear_solver="mpcg")]).newton_step(Indefinite(), np.zeros(2))

@@ -49,7 +49,7 @@ def grid_quads(index: np.ndarray) -> np.ndarray:
 
 
 class GridModel(BaseModel):
-    """A flat nx x ny grid in the plane z = height, vertex = row * nx + col (rows along y): today's cloth.
+    """A flat nx x ny grid in the plane z = height, vertex = row * nx + col (rows along y): the `cloth` config's grid.
 
     Springs in the cloth's order (``systems.cloth.grid_springs``): stretch along x, stretch along y, the two
     shear diagonals of every cell, bend (skip one vertex) along x, bend along y.

@@ -6,8 +6,9 @@ constraints (pins, sliding, prescribed paths) as filters (systems/constraints.py
 
 Every quantity is computed for all springs (or vertices) at once; the sparse Hessian's pattern is
 built once per system, so an evaluation only refills the values of a fixed CSR matrix with one
-``np.bincount`` over a precomputed scatter map. The hookean law runs exactly the arithmetic of the
-former cloth system, so a grid model reproduces its results bit for bit.
+``np.bincount`` over a precomputed scatter map. The hookean law's arithmetic is fixed (the same
+operations in the same order as results recorded before, tests/data/cloth_before_mass_spring.npz), so a
+grid model reproduces those results bit for bit.
 """
 
 from __future__ import annotations
