@@ -238,3 +238,14 @@ def test_the_readme_example_of_a_mass_spring_system_builds():
     system = yaml.safe_load(block)["system"]
     experiment, _ = load_experiment({"name": "readme", "system": system, "integrators": ["backward_euler"], "sweep": {"dt": [0.01]}}, [])
     assert experiment.system.build().dof_count == 3 * 16 * 12
+
+
+def test_start_positions_from_a_file_of_vertices_and_empty_selections(tmp_path):
+    """initial.file may hold the vertices alone; a constraint that selects nothing is refused, naming it."""
+    moved = np.array([[0.0, 0.0], [1.1, 0.0], [0.0, 0.9]])
+    np.savez(tmp_path / "start.npz", vertices=moved)
+    model = _npz(tmp_path / "triangle.npz")
+    system = MassSpringParams(model=str(model), gravity=[0.0, 0.0], initial={"file": str(tmp_path / "start.npz")}).build()
+    np.testing.assert_array_equal(system.x0, moved.ravel())
+    with pytest.raises(ValueError, match=r"constraints\[0\].vertices: selects no vertex"):
+        MassSpringParams(model=str(model), constraints=[{"vertices": [], "normal": [0.0, 1.0]}])

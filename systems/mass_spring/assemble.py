@@ -151,7 +151,7 @@ def _initial_state(params: MassSpringParams, model: SpringModel, rest: np.ndarra
     centroid = rest.mean(axis=0)
     if initial.file is not None:
         path = params._initial_file if params._initial_file is not None else find_file(initial.file, "initial.file")
-        x0 = load_model_file(path, dim).vertices.astype(float)
+        x0 = _start_positions(path, dim)
         if x0.shape != rest.shape:
             raise ModelError(f"initial.file: {x0.shape[0]} vertices in {dim}-D, but the model has {rest.shape[0]}")
     else:
@@ -176,6 +176,19 @@ def _initial_state(params: MassSpringParams, model: SpringModel, rest: np.ndarra
     elif spin:
         v0 += (np.cross([0.0, 0.0, spin], offset) if dim == 3 else spin * np.stack([-offset[:, 1], offset[:, 0]], axis=1))
     return x0, v0
+
+
+def _start_positions(path, dim: int) -> np.ndarray:
+    """initial.file's vertex positions: an .npz's `vertices` array alone (no springs needed), or any model file's."""
+    if str(path).endswith(".npz"):
+        with np.load(path, allow_pickle=False) as arrays:
+            if "vertices" not in arrays:
+                raise ModelError(f"initial.file: {path} has no array 'vertices'")
+            vertices = np.asarray(arrays["vertices"], dtype=float)
+        if vertices.ndim != 2 or vertices.shape[1] != dim or not np.all(np.isfinite(vertices)):
+            raise ModelError(f"initial.file: 'vertices' in {path} must be finite, n x {dim}; got shape {vertices.shape}")
+        return vertices
+    return load_model_file(path, dim).vertices.astype(float)
 
 
 def _check_axis(axis: np.ndarray, dim: int, field: str) -> None:
@@ -211,7 +224,9 @@ def select(selector, model: SpringModel, field: str) -> np.ndarray:
             if not 0 <= item < model.vertex_count:
                 raise ModelError(f"{field}: vertex {item} does not exist; the model has vertices 0..{model.vertex_count - 1}")
             chosen.append(np.array([item]))
-    return np.unique(np.concatenate(chosen)).astype(np.intp) if chosen else np.zeros(0, dtype=np.intp)
+    if not chosen:
+        raise ModelError(f"{field}: selects no vertex (give indices, names or boxes)")
+    return np.unique(np.concatenate(chosen)).astype(np.intp)
 
 
 def _constraints(params: MassSpringParams, model: SpringModel, rest: np.ndarray, x0: np.ndarray) -> VertexConstraints:
@@ -224,7 +239,7 @@ def _constraints(params: MassSpringParams, model: SpringModel, rest: np.ndarray,
             raise ModelError(f"{field}: vertex {int(taken[0])} is already constrained by {owner[taken[0]]}; a vertex takes one constraint")
         owner[vertices] = field
 
-    pinned = select(params.pinned, model, "pinned")
+    pinned = select(params.pinned, model, "pinned") if params.pinned != [] else np.zeros(0, dtype=np.intp)
     claim(pinned, "pinned")
     sliding = []
     for number, entry in enumerate(params.constraints):
