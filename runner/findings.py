@@ -33,19 +33,14 @@ from simrun.results import Status
 from simrun.tables import (DAMPING_TOLERANCE, ORDER_TOLERANCE, ROUND_OFF_DAMPING, OrderRow, SummaryRow,
                            energy_reference_text, error_runs, order_rows, summary_rows)
 
-# The damping budget of the ranking: at most this fraction of the energy gained or lost per period.
-DAMPING_BUDGET = 0.01
+DAMPING_BUDGET = 0.01  # the damping budget of the ranking: at most this fraction of the energy gained or lost per period
 # Error budgets are decades of the length scale, from this fraction down to the smallest error that
 # two methods reach; at most MAX_ERROR_BUDGETS of them are stated (the loosest, the tightest, one between).
 LOOSEST_ERROR_BUDGET, MAX_ERROR_BUDGETS = 0.1, 3
-# Wall times closer than this fraction are not ranked (≈): timing noise, runs sharing the cores.
-WALL_TIME_NOISE = 0.1
-# The damping per period is stated at the sweep's h w, at most this many of them (spread over the sweep).
-MAX_DAMPING_POINTS = 6
-# Bisection steps (in log h w) for the largest h w within the damping budget: 2^-40 of a decade.
-BUDGET_BISECTION_STEPS = 40
-# Where the budget search looks below the predicted grid: a method is within any budget at small enough h w.
-SMALLEST_BUDGET_HW = 1e-8
+WALL_TIME_NOISE = 0.1  # wall times closer than this fraction are not ranked (≈): timing noise, runs sharing the cores
+MAX_DAMPING_POINTS = 6  # the damping per period is stated at the sweep's h w, at most this many (spread over the sweep)
+BUDGET_BISECTION_STEPS = 40  # in log h w, for the largest h w within the damping budget: 2^-40 of a decade
+SMALLEST_BUDGET_HW = 1e-8  # where the budget search looks below the predicted grid: within any budget at small h w
 
 
 @dataclass(frozen=True)
@@ -240,10 +235,8 @@ def _largest_dt(data, several) -> list[Finding]:
         hws = {f"{run.hw:.3g}" for run in at if np.isfinite(run.hw)}
         where = f"dt = {largest:g} s" + (f" (h w = {hws.pop()})" if len(hws) == 1 else "")
         where += f" ({title})" if several and title else ""
-        if bounded:
-            sentence = f"At the largest dt, {where}, only {_and(bounded)} reached the end without diverging"
-        else:
-            sentence = f"At the largest dt, {where}, no method reached the end"
+        sentence = (f"At the largest dt, {where}, only {_and(bounded)} reached the end without diverging" if bounded
+                    else f"At the largest dt, {where}, no method reached the end")
         if diverged:
             sentence += f"; {_and(diverged)} diverged"
         if failed:
@@ -346,17 +339,15 @@ def _damping_budget(data, predictions) -> list[Finding]:
         limit = prediction.stability_limit
         if limit == 0:
             parts.append(f"{label} at no h w (unstable at every step size)")
-            continue
-        if math.isinf(value):
+        elif math.isinf(value):
             parts.append(f"{label} at every h w up to {prediction.hw[-1]:g}")
-            continue
-        if value == 0:
+        elif value == 0:
             parts.append(f"{label} at no h w")
-            continue
-        notes = [f"dt = {value / frequencies[0]:.2g} s"] if len(frequencies) == 1 else []
-        if limit < math.inf and math.isclose(value, limit, rel_tol=1e-3):
-            notes.append("its stability limit")
-        parts.append(f"{label} up to h w = {value:.2g}" + (f" ({'; '.join(notes)})" if notes else ""))
+        else:
+            notes = [f"dt = {value / frequencies[0]:.2g} s"] if len(frequencies) == 1 else []
+            if limit < math.inf and math.isclose(value, limit, rel_tol=1e-3):
+                notes.append("its stability limit")
+            parts.append(f"{label} up to h w = {value:.2g}" + (f" ({'; '.join(notes)})" if notes else ""))
     at = f" at w = {frequencies[0]:.4g} rad/s" if len(frequencies) == 1 else ""
     sentence = (f"Largest step within a damping budget of {100 * DAMPING_BUDGET:g} % of the energy gained or lost per "
                 f"period (predicted{at}): " + "; ".join(parts) + ".")

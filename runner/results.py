@@ -9,7 +9,9 @@
 Figures, the report, ``simrun show`` and the writer's summary row all read through this module. It
 imports h5py and numpy only (pandas and yaml when a table or the config is asked for), never the
 config, the simulation or the library packages, so that results can be read where simrun's
-simulation could not even be imported.
+simulation could not even be imported. What older files did not store, ``drift_scale`` and the
+deprecated ``load_summary`` are in ``simrun.results_compat``, imported when an older file (or one of
+those two names) asks for it.
 """
 
 from __future__ import annotations
@@ -21,11 +23,15 @@ import json
 import math
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
 
 from simrun.errors import ResultsFileError
+
+if TYPE_CHECKING:  # at run time through __getattr__, on first use
+    from simrun.results_compat import drift_scale, load_summary
 
 FORMAT_VERSION = 2  # what this simrun writes
 READABLE_VERSIONS = (1, 2)
@@ -58,18 +64,7 @@ def energy_reference(attrs, energy: np.ndarray, kinetic: np.ndarray, potential: 
     it: its drifts were relative to ``drift_scale``, which stays its reference."""
     if "energy_scale" in attrs:
         return float(attrs["energy_scale"]), _text(attrs.get("energy_reference_name", "the system's energy scale"))
-    return drift_scale(energy, kinetic, potential), "|E0| (format 1)"
-
-
-def drift_scale(energy: np.ndarray, kinetic: np.ndarray, potential: np.ndarray) -> float:
-    """Format 1's drift reference (J): |E0|, else |KE0| + |PE0| (E0 = 0), else 1 J."""
-    if energy.size and np.isfinite(energy[0]) and energy[0] != 0:
-        return abs(float(energy[0]))
-    if kinetic.size and potential.size:
-        scale = abs(float(kinetic[0])) + abs(float(potential[0]))
-        if np.isfinite(scale) and scale > 0:
-            return scale
-    return 1.0
+    return _compat().drift_scale(energy, kinetic, potential), "|E0| (format 1)"
 
 
 def energy_drift(energy: np.ndarray, scale: float) -> tuple[float, float]:
@@ -115,30 +110,6 @@ def summary_row(run_id: str, group: h5py.Group) -> tuple:
         float(newton.mean()) if newton.size else 0.0, float(linear.mean()) if linear.size else 0.0,
         float(attrs["wall_time"]),
     )
-
-
-# -- capabilities of format-1 files ------------------------------------------------------------------
-# Format 1 did not store what a system declares about itself (format 2 does, as run attributes). Its
-# three systems are a closed set, so what each declares is restated here once, from its stored
-# parameters, keyed by its name in format 1 (tests/test_results.py checks it against the systems).
-def _spring_mass_format1(params: dict) -> dict:
-    undamped = float(params.get("damping", 0.0)) == 0.0
-    frequency = math.sqrt(float(params.get("stiffness", 100.0)) / float(params.get("mass", 1.0))) if undamped else math.nan
-    return {"test_frequency": frequency, "planar": False, "frame_shape": np.zeros(0, dtype=np.int64)}
-
-
-def _circular_motion_format1(params: dict) -> dict:
-    frequency = float(params.get("angular_velocity", 1.0)) if params.get("force", "linear") == "linear" else math.nan
-    return {"test_frequency": frequency, "planar": True, "frame_shape": np.zeros(0, dtype=np.int64)}
-
-
-def _cloth_format1(params: dict) -> dict:
-    rows_and_columns = np.array(params["resolution"][::-1], dtype=np.int64)  # resolution is [nx, ny]
-    return {"test_frequency": math.nan, "planar": False, "frame_shape": rows_and_columns}
-
-
-FORMAT1_CAPABILITIES = {"spring_mass": _spring_mass_format1, "circular_motion": _circular_motion_format1,
-                        "cloth": _cloth_format1}
 
 
 # -- one run ----------------------------------------------------------------------------------------
@@ -331,24 +302,16 @@ class StoredRun:
         row and column neighbours of the frame_shape grid; None for runs without frames or a model to draw."""
         if "model_edges" in self.datasets:
             return np.asarray(self["model_edges"], dtype=np.int32).reshape(-1, 2)
-        grid = self._vertex_grid
-        return _grid_edges(grid) if grid else None
+        return _compat().grid_model(self)[0]
 
     @functools.cached_property
     def model_triangles(self) -> np.ndarray | None:
-        """(t, 3) vertex indices of the model's surface triangles (dataset ``model_triangles``, stored only for
-        models with a surface); for files written before ``model_edges``, two per cell of the frame_shape grid;
-        None for models without a surface (a rope, a 2-D square)."""
+        """(t, 3) vertex indices of the model's triangles (dataset ``model_triangles``, stored for models that have
+        them); for files written before ``model_edges``, two per cell of the frame_shape grid; None for models
+        without triangles (a rope)."""
         if "model_triangles" in self.datasets:
             return np.asarray(self["model_triangles"], dtype=np.int32).reshape(-1, 3)
-        grid = self._vertex_grid
-        return _grid_triangles(grid) if grid and "model_edges" not in self.datasets else None
-
-    @property
-    def _vertex_grid(self) -> tuple[int, int] | None:
-        """(rows, columns) of a run with frames on a regular grid (frame_shape of two sizes), else None."""
-        shape = self.frame_shape if "frames" in self.datasets else None
-        return shape if shape is not None and len(shape) == 2 else None
+        return None if "model_edges" in self.datasets else _compat().grid_model(self)[1]
 
     @property
     def dof_count(self) -> int:
@@ -364,30 +327,10 @@ class StoredRun:
         return bool(self._capability("planar"))
 
     def _capability(self, key: str):
-        if key in self.attrs:
-            return self.attrs[key]
-        if self.system not in FORMAT1_CAPABILITIES:
-            raise ResultsFileError(f"results: run {self.run_id!r} stores no {key!r} and its system {self.system!r} "
-                                   "is not one of format 1; the file is damaged")
-        return FORMAT1_CAPABILITIES[self.system](self.system_params)[key]
+        return self.attrs[key] if key in self.attrs else _compat().format1_capability(self, key)
 
     def _json(self, key: str) -> dict:
         return json.loads(self.attrs.get(key) or "{}")
-
-
-def _grid_edges(shape: tuple[int, int]) -> np.ndarray:
-    """(m, 2) int32: the row and column neighbours of a (rows, columns) vertex grid, vertex = row * columns + column."""
-    index = np.arange(shape[0] * shape[1], dtype=np.int32).reshape(shape)
-    pairs = [(index[:, :-1], index[:, 1:]), (index[:-1, :], index[1:, :])]
-    return np.concatenate([np.stack([first.ravel(), second.ravel()], axis=1) for first, second in pairs])
-
-
-def _grid_triangles(shape: tuple[int, int]) -> np.ndarray:
-    """(t, 3) int32: each cell of a (rows, columns) vertex grid split along its diagonal into two triangles."""
-    index = np.arange(shape[0] * shape[1], dtype=np.int32).reshape(shape)
-    corner, right, below, across = index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:]
-    return np.concatenate([np.stack([corner.ravel(), right.ravel(), across.ravel()], axis=1),
-                           np.stack([corner.ravel(), across.ravel(), below.ravel()], axis=1)])
 
 
 # -- the file ---------------------------------------------------------------------------------------
@@ -529,20 +472,18 @@ def _decoded(column: np.ndarray):
     return [_text(item) for item in column] if column.dtype.kind == "O" else column
 
 
-def load_summary(path: str | Path) -> np.ndarray:
-    """Deprecated (use ``load(path).summary``): the summary table as a numpy structured array, strings decoded.
+def _compat():
+    """simrun.results_compat, imported when an older file (or ``drift_scale``, ``load_summary``) asks for it."""
+    from simrun import results_compat
 
-    Kept for one version after format 2; it reads through ``load``."""
-    import warnings
+    return results_compat
 
-    warnings.warn("load_summary(path) is deprecated: use simrun.load(path).summary (a pandas DataFrame)",
-                  DeprecationWarning, stacklevel=2)
-    frame = load(path).summary
-    table = np.empty(len(frame), dtype=[(name, object if SUMMARY_DTYPE[name].kind == "O" else SUMMARY_DTYPE[name])
-                                        for name in SUMMARY_COLUMNS])
-    for name in SUMMARY_COLUMNS:
-        table[name] = frame[name].to_numpy()
-    return table
+
+def __getattr__(name: str):
+    """``drift_scale`` and the deprecated ``load_summary``, which live in simrun.results_compat."""
+    if name in ("drift_scale", "load_summary"):
+        return getattr(_compat(), name)
+    raise AttributeError(f"module 'simrun.results' has no attribute {name!r}")
 
 
 __all__ = ["FORMAT_VERSION", "READABLE_VERSIONS", "RESULTS_NAME", "Results", "ResultsFileError", "Status", "StoredRun",
