@@ -11,7 +11,7 @@ Forces, search directions and velocities are passed through S, so the constraine
 change through a force. Components that S removes along a coordinate axis (a pin, a plane normal
 [0, 1, 0], a rail along [1, 0, 0]) are plain fixed degrees of freedom, which every solver already
 drops exactly; only filters that are not aligned with the axes remain as 3x3 (2x2) blocks, held by
-``SlidingFilter``, which solvers apply to vectors and to the Newton matrix (S A S + I - S).
+``SlidingFilter``, which solvers apply to vectors and to the Newton matrix (S A S + C (I - S)).
 """
 
 from __future__ import annotations
@@ -44,15 +44,24 @@ class SlidingFilter:
         return vector
 
     @property
+    def block_entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, columns) of every entry of the filtered vertices' d x d blocks, and their dofs (cached)."""
+        cached = self.__dict__.get("_block_entries")
+        if cached is None:
+            d = self.dim
+            dofs = d * self.vertices[:, None] + np.arange(d)  # (s, d)
+            cached = (np.repeat(dofs, d, axis=1).ravel(), np.tile(dofs, (1, d)).ravel(), dofs.ravel())
+            object.__setattr__(self, "_block_entries", cached)
+        return cached
+
+    @property
     def matrix(self) -> scipy.sparse.csr_matrix:
         """S as a sparse (size x size) matrix: identity except the filtered blocks."""
         cached = self.__dict__.get("_matrix")
         if cached is None:
-            d = self.dim
-            rows = (d * self.vertices[:, None, None] + np.arange(d)[None, :, None] + 0 * np.arange(d)[None, None, :]).ravel()
-            cols = (d * self.vertices[:, None, None] + 0 * np.arange(d)[None, :, None] + np.arange(d)[None, None, :]).ravel()
+            rows, cols, dofs = self.block_entries
             identity = np.ones(self.size)
-            identity[(d * self.vertices[:, None] + np.arange(d)).ravel()] = 0.0
+            identity[dofs] = 0.0
             keep = np.flatnonzero(identity)
             cached = scipy.sparse.csr_matrix(
                 (np.concatenate([identity[keep], self.projectors.ravel()]),
@@ -69,13 +78,11 @@ class SlidingFilter:
         Jacobi, Gauss-Seidel and CG depend on. Its solution p of (S A S + C (I - S)) p = S b has
         (I - S) p = 0 and S A S p = S b (Ascher & Boxerman 2003), whatever C > 0."""
         projector, d = self.matrix, self.dim
-        dofs = (d * self.vertices[:, None] + np.arange(d)).ravel()
+        rows, cols, dofs = self.block_entries
         diagonal = (matrix.diagonal() if scipy.sparse.issparse(matrix) else np.diag(np.asarray(matrix)))[dofs]
         scale = np.abs(diagonal.reshape(-1, d)).mean(axis=1)
         scale = np.where(scale > 0, scale, 1.0)
         complement = scale[:, None, None] * (np.eye(d) - self.projectors)
-        rows = (d * self.vertices[:, None, None] + np.arange(d)[None, :, None] + 0 * np.arange(d)[None, None, :]).ravel()
-        cols = (d * self.vertices[:, None, None] + 0 * np.arange(d)[None, :, None] + np.arange(d)[None, None, :]).ravel()
         removed = scipy.sparse.csr_matrix((complement.ravel(), (rows, cols)), shape=(self.size, self.size))
         if scipy.sparse.issparse(matrix):
             return (projector @ matrix.tocsr() @ projector + removed).tocsr()
