@@ -108,7 +108,7 @@ class PrescribedMotion:
         if self.velocity is not None:
             return self.start + t * self.velocity
         center, axis, rate = self.rotation
-        return center + _rotate(self.start - center, axis, rate * t)
+        return center + rotate(self.start - center, axis, rate * t)
 
     def velocities(self, t: float) -> np.ndarray:
         """(k, d) velocities at time t (s)."""
@@ -116,7 +116,7 @@ class PrescribedMotion:
             return np.broadcast_to(self.velocity, self.start.shape).copy()
         center, axis, rate = self.rotation
         offset = self.positions(t) - center
-        return _cross(rate * axis, offset)
+        return cross(rate * axis, offset)
 
     def accelerations_along(self, velocities: np.ndarray) -> np.ndarray:
         """(k, d) accelerations of the path as a function of the vertices' velocities: 0 for a constant
@@ -125,25 +125,27 @@ class PrescribedMotion:
         if self.velocity is not None:
             return np.zeros_like(velocities)
         _, axis, rate = self.rotation
-        return _cross(rate * axis, velocities)
+        return cross(rate * axis, velocities)
 
     def accelerations(self, t: float) -> np.ndarray:
         """(k, d) accelerations at time t (s^-2 m): zero for a velocity, centripetal for a rotation."""
         if self.velocity is not None:
             return np.zeros_like(self.start)
         center, axis, rate = self.rotation
-        return _cross(rate * axis, self.velocities(t))
+        return cross(rate * axis, self.velocities(t))
 
 
-def _cross(omega: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """omega x offset for 3-D offsets, or the in-plane part for 2-D ones (omega along z)."""
+def cross(omega: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """omega x offset (rows) for 3-D offsets, or the in-plane part for 2-D ones (omega along z): the velocities of
+    a rigid spin (the start spin of a model, a prescribed rotation)."""
     if offset.shape[1] == 2:
         return omega[2] * np.stack([-offset[:, 1], offset[:, 0]], axis=1)
     return np.cross(omega, offset)
 
 
-def _rotate(offset: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
-    """Rodrigues' rotation of the rows of offset by angle (rad) about the unit axis (2-D: about z)."""
+def rotate(offset: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues' rotation of the rows of offset by angle (rad) about the unit axis (2-D: about +z or -z, the sign
+    of axis[2]): a prescribed rotation's path, a model's start shape."""
     cos, sin = math.cos(angle), math.sin(angle)
     if offset.shape[1] == 2:
         sign = axis[2]

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..constraints import PrescribedMotion, VertexConstraints, filter_block
+from ..constraints import PrescribedMotion, VertexConstraints, cross, filter_block, rotate
 from .files import find_file, load_model_file, lumped_area_masses
 from .model import ModelError, SpringModel
 from .system import Contact, Damping
@@ -24,10 +24,10 @@ if TYPE_CHECKING:
 def resolve(params: MassSpringParams) -> dict[str, Any]:
     """The keyword arguments of MassSpring; ModelError (naming the config field) for anything inconsistent."""
     model = params.spring_model()
-    dim, n = model.dim, model.vertex_count
+    dim = model.dim
     rest = model.vertices.astype(float)
-    gravity = np.zeros(dim) if params.gravity is None else None
-    if params.gravity is None:
+    if params.gravity is None:  # -9.81 m/s^2 along the last axis: y in 2-D, z in 3-D
+        gravity = np.zeros(dim)
         gravity[-1] = -9.81
     else:
         gravity = _vector(params.gravity, dim, "gravity")
@@ -135,17 +135,6 @@ def _damping(params: MassSpringParams) -> tuple[Damping, ...]:
                  if term.coefficient > 0 or term.alpha > 0 or term.beta > 0)
 
 
-def _rotation_matrix(axis: np.ndarray, degrees: float, dim: int) -> np.ndarray:
-    angle = math.radians(degrees)
-    cos, sin = math.cos(angle), math.sin(angle)
-    if dim == 2:
-        sign = 1.0 if axis[2] >= 0 else -1.0
-        return np.array([[cos, -sign * sin], [sign * sin, cos]])
-    unit = axis / np.linalg.norm(axis)
-    cross = np.array([[0, -unit[2], unit[1]], [unit[2], 0, -unit[0]], [-unit[1], unit[0], 0]])
-    return cos * np.eye(3) + sin * cross + (1 - cos) * np.outer(unit, unit)
-
-
 def _initial_state(params: MassSpringParams, model: SpringModel, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     initial, dim = params.initial, model.dim
     centroid = rest.mean(axis=0)
@@ -160,7 +149,7 @@ def _initial_state(params: MassSpringParams, model: SpringModel, rest: np.ndarra
         axis, degrees = ((np.array([0.0, 0.0, 1.0]), float(rotation)) if not hasattr(rotation, "degrees")
                          else (_vector(rotation.axis, 3, "initial.rotate.axis"), rotation.degrees))
         _check_axis(axis, dim, "initial.rotate.axis")
-        x0 = (rest - centroid) * scale @ _rotation_matrix(axis, degrees, dim).T + centroid
+        x0 = rotate((rest - centroid) * scale, axis / np.linalg.norm(axis), math.radians(degrees)) + centroid
         if initial.translate is not None:
             x0 = x0 + _vector(initial.translate, dim, "initial.translate")
     v0 = np.zeros_like(x0)
@@ -172,9 +161,9 @@ def _initial_state(params: MassSpringParams, model: SpringModel, rest: np.ndarra
         omega = _vector(spin, 3, "initial.spin")
         if dim == 2 and (omega[0] or omega[1]):
             raise ModelError("initial.spin: a 2-D model spins about z only; give a number or [0, 0, w]")
-        v0 += np.cross(omega, offset) if dim == 3 else omega[2] * np.stack([-offset[:, 1], offset[:, 0]], axis=1)
+        v0 += cross(omega, offset)
     elif spin:
-        v0 += (np.cross([0.0, 0.0, spin], offset) if dim == 3 else spin * np.stack([-offset[:, 1], offset[:, 0]], axis=1))
+        v0 += cross(np.array([0.0, 0.0, float(spin)]), offset)
     return x0, v0
 
 
