@@ -37,7 +37,9 @@ def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResul
     finally:
         if not finished:  # Ctrl-C (the workers ignore it) or a consumer that stopped: no run in flight is waited for
             stop_workers(pool)
-        pool.shutdown(wait=finished, cancel_futures=True)
+        # wait even when the workers were stopped: the pool's manager thread then ends before the
+        # interpreter's exit hook wakes it (Python 3.11 races there and prints a traceback at exit)
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def run_dask(runs: list[Run], jobs: int, scheduler: str | None) -> Iterator[tuple[Run, RunResult]]:
