@@ -120,6 +120,40 @@ def _constrained_start(system: System, start: np.ndarray, y_tilde: np.ndarray) -
     return start
 
 
+INITIAL_GUESSES = ("start", "inertial", "predictor", "adaptive")
+
+
+def initial_guess(problem, kind: str, scale: float) -> np.ndarray:
+    """Where a solve of one step starts, for the unknown y at t_n + theta h:
+    ``start`` x_n; ``inertial`` x_n + theta h v_n (the lecture's "x_n + h v_n" for backward Euler);
+    ``predictor`` the method's y~; ``adaptive`` y~ + c h^2 a~, a~ the part of the acceleration at the
+    step's start along the external field g, clamped to [0, |g|] per vertex (Chen et al., "Vertex block
+    descent", SIGGRAPH 2024, sec. 3.7, with the acceleration at (x_n, v_n) in place of their finite
+    difference of the last two velocities); ``predictor`` where the system has no external field."""
+    if kind == "predictor":
+        return problem.y_tilde
+    if problem.step_start is None:
+        raise ValueError(f"initial_guess {kind!r}: this problem does not know the state at the start of its step")
+    x_start, v_start, dt = problem.step_start
+    if kind == "start":
+        return x_start
+    if kind == "inertial":
+        return x_start + (problem.fraction * dt) * v_start
+    if kind != "adaptive":
+        raise ValueError(f"initial_guess must be one of {', '.join(INITIAL_GUESSES)}, got {kind!r}")
+    system = problem.system
+    field = system.external_acceleration
+    if field is None:
+        return problem.y_tilde
+    dim = max(system.dim, 1)
+    field_blocks = field.reshape(-1, dim)
+    strength = np.sqrt(np.square(field_blocks).sum(axis=1))
+    direction = field_blocks / np.where(strength > 0.0, strength, 1.0)[:, None]
+    acceleration = system.acceleration(x_start, v_start).reshape(-1, dim)
+    along = np.clip(np.einsum("ij,ij->i", acceleration, direction), 0.0, strength)
+    return problem.y_tilde + scale * (along[:, None] * direction).ravel()
+
+
 class IncrementalPotential:
     """E(y) = 1/2 (y - y~)^T M (y - y~) + s [P(y) + 1/(2 b) (y - a)^T D (y - a)],  s = c h^2.
 
@@ -129,17 +163,24 @@ class IncrementalPotential:
     at the start of the step (exact for constant D).
 
     Parameters: system; y_tilde (m), shape (dof_count,); scale s = c h^2 (s^2);
-    velocity_origin a (m) and velocity_divisor b (s); damping_at: positions at which D is taken.
+    velocity_origin a (m) and velocity_divisor b (s); damping_at: positions at which D is taken;
+    step_start (x_n, v_n, h) and fraction theta: the unknown is the position at t_n + theta h (1 for
+    backward Euler, 1/2 for the implicit midpoint rule), which the initial guesses use.
     """
 
     fresh_gradient = True  # gradient() builds a new float64 array each call (M is float64): no copy needed
+    projective = True  # the form projective dynamics minimises (with a system whose projective_form is None)
 
     def __init__(self, system: System, y_tilde: np.ndarray, scale: float,
                  velocity_origin: np.ndarray | None = None, velocity_divisor: float = 1.0,
-                 damping_at: np.ndarray | None = None):
+                 damping_at: np.ndarray | None = None, step_start: tuple[np.ndarray, np.ndarray, float] | None = None,
+                 fraction: float = 1.0):
         self.system = system
         self.y_tilde = y_tilde
         self.scale = scale
+        self.velocity_divisor = velocity_divisor
+        self.step_start = step_start
+        self.fraction = fraction
         self.fixed_dofs = system.fixed_dofs
         self.sliding = system.sliding
         damping = None if damping_at is None else system.damping_matrix(damping_at)
@@ -181,6 +222,27 @@ class IncrementalPotential:
     def direction_guess(self, y: np.ndarray) -> np.ndarray:
         """An estimate of the first Newton step from y: the step to the inertial predictor, y~ - y."""
         return self.y_tilde - y
+
+    def initial_guess(self, kind: str) -> np.ndarray:
+        """The solve's start (before ``start_point``): see ``initial_guess``."""
+        return initial_guess(self, kind, self.scale)
+
+    def rest_hessian(self):
+        """M + s K_r (+ (s/b) D when D does not depend on x), K_r the system's ``rest_stiffness``: the constant
+        matrix of projective dynamics' global step and of L-BFGS's rest-shape initial Hessian; None where the
+        system has no rest stiffness. ``rest_key`` names it (equal keys, equal matrices) so that a solver may
+        keep one factorisation for every step of a run."""
+        stiffness = self.system.rest_stiffness()
+        if stiffness is None:
+            return None
+        matrix = self.scale * stiffness
+        if self.damping is not None and self.system.damping_is_constant:
+            matrix = matrix + self.damping_weight * self.damping
+        return add_diagonal(matrix, self.system.mass)
+
+    @property
+    def rest_key(self) -> tuple:
+        return (id(self.system), self.scale, self.damping_weight if self.damping is not None else None)
 
     def hessian(self, y: np.ndarray, project_spd: bool = False):
         if self._in_pattern:
@@ -246,6 +308,29 @@ class SegmentPotential:
                 self.damping_end = end if self.damping_end is None else self.damping_end + end
         self._start_energy = None
         self.residual_floor = residual_floor(system.mass, y_tilde)
+        self.step_start = (x_start, v_start, dt)
+        self.fraction = 1.0  # the unknown is x_{n+1}
+        self._rest_scale = self.h2 * float(np.dot(self.weights, self.nodes))
+
+    projective = False  # forces sampled along the step: not the form projective dynamics minimises
+
+    def initial_guess(self, kind: str) -> np.ndarray:
+        """As ``IncrementalPotential.initial_guess``, with c h^2 = h^2 sum_j c_j s_j."""
+        return initial_guess(self, kind, self._rest_scale)
+
+    def rest_hessian(self):
+        """M + h^2 sum_j c_j s_j K_r (+ (h^2/b) D_end when D does not depend on x): the Hessian's form at rest."""
+        stiffness = self.system.rest_stiffness()
+        if stiffness is None:
+            return None
+        matrix = self._rest_scale * stiffness
+        if self.damping_end is not None and self.system.damping_is_constant:
+            matrix = matrix + (self.h2 / self.velocity_divisor) * self.damping_end
+        return add_diagonal(matrix, self.system.mass)
+
+    @property
+    def rest_key(self) -> tuple:
+        return (id(self.system), self._rest_scale, self.h2 / self.velocity_divisor if self.damping_end is not None else None)
 
     def _points(self, y: np.ndarray):
         step = y - self.x_start

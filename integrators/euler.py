@@ -57,6 +57,7 @@ class BackwardEuler(Integrator):
 
     def step(self, system, state, dt, solver):
         problem = IncrementalPotential(system, state.x + dt * state.v, dt * dt,
-                                       velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x)
+                                       velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x,
+                                       step_start=(state.x, state.v, dt))
         x, stats = solver.minimize(problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - state.x) / dt), stats

@@ -36,7 +36,8 @@ class ImplicitMidpoint(Integrator):
         half = 0.5 * dt
         predictor = state.x + half * state.v  # x_{n+1/2} to O(h^2): D(x) there keeps the method second order
         problem = IncrementalPotential(system, predictor, 0.25 * dt * dt,
-                                       velocity_origin=state.x, velocity_divisor=half, damping_at=predictor)
+                                       velocity_origin=state.x, velocity_divisor=half, damping_at=predictor,
+                                       step_start=(state.x, state.v, dt), fraction=0.5)
         midpoint, stats = solver.minimize(problem, problem.start_point(state.x))
         v_half = (midpoint - state.x) / half
         return State(state.t + dt, 2.0 * midpoint - state.x, 2.0 * v_half - state.v), stats
@@ -62,7 +63,8 @@ def _newmark_like_step(system, state, dt, solver, beta, gamma, alpha_m=0.0, alph
     y_tilde = y_start - (scale * dt * dt * alpha_m) * acceleration
     # D(x) at y_start, the evaluation point to O(h^2), so that damping keeps the method's order
     problem = IncrementalPotential(system, y_tilde, scale * dt * dt, velocity_origin=origin,
-                                   velocity_divisor=divisor, damping_at=y_start)
+                                   velocity_divisor=divisor, damping_at=y_start,
+                                   step_start=(state.x, state.v, dt), fraction=1.0 - alpha_f)
     y, stats = solver.minimize(problem, problem.start_point(state.x))
     x = state.x + (y - state.x) / (1.0 - alpha_f)
     new_acceleration = (x - x_hat) / (beta * dt * dt)
@@ -168,7 +170,8 @@ class SemiImplicitBackwardEuler(Integrator):
 
     def step(self, system, state, dt, solver):
         problem = IncrementalPotential(system, state.x + dt * state.v, dt * dt,
-                                       velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x)
+                                       velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x,
+                                       step_start=(state.x, state.v, dt))
         x, stats = solver.newton_step(problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - state.x) / dt), stats
 

@@ -44,7 +44,8 @@ class BDF2(Integrator):
         divisor = BDF2_IMPLICIT_WEIGHT * dt
         predictor = x_hat + divisor * v_hat  # x_{n+1} to O(h^2): D(x) there keeps the method second order
         problem = IncrementalPotential(system, predictor, divisor * divisor,
-                                       velocity_origin=x_hat, velocity_divisor=divisor, damping_at=predictor)
+                                       velocity_origin=x_hat, velocity_divisor=divisor, damping_at=predictor,
+                                       step_start=(state.x, state.v, dt))
         x, stats = solver.minimize(problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - x_hat) / divisor, (state.x, state.v)), stats
 

@@ -18,7 +18,17 @@ Implementers supply
   sits in its data array) and ``hessian_data(x, project_spd)`` (the Hessian's values in that pattern):
   implicit methods then assemble M + s K + ... in one data array instead of adding sparse matrices;
 - optionally, what it declares about itself (``capabilities``, stored with every run): ``test_frequency``,
-  ``length_scale``, ``energy_scale()``, ``frame_shape`` and ``planar``, each with a neutral default.
+  ``length_scale``, ``energy_scale()``, ``frame_shape`` and ``planar``, each with a neutral default;
+- optionally, for the solvers of graphics practice: ``rest_stiffness()`` (a constant SPD matrix, the
+  rest-shape stiffness of projective dynamics and of L-BFGS's initial Hessian), ``projective_form``
+  (None when the potential is Hookean springs plus linear terms, else why not), ``damping_is_constant``
+  and ``external_acceleration`` (the constant acceleration of gravity per dof).
+
+``hessian(x, project_spd)``: ``project_spd`` is False (the exact Hessian), True or ``"clamp"`` (the
+system's own cheap SPD projection: negative eigenvalues of its blocks set to 0) or ``"abs"`` (the
+same blocks with their eigenvalues mirrored, |lambda|: Chen et al., "Trust-region eigenvalue
+filtering for projected Newton", SIGGRAPH Asia 2024). A system that knows one projection only may
+answer every true value with it.
 
 A system's config is a ``SystemParams`` model whose ``system_class`` is the System subclass it builds.
 """
@@ -122,6 +132,29 @@ class System(ABC):
     def damping_matrix(self, x: np.ndarray):
         """D(x) in the damping force f_d = -D(x) v, or None for an undamped system."""
         return None
+
+    # -- what projective dynamics, L-BFGS's rest-shape Hessian and VBD's initial guess use -------------
+    def rest_stiffness(self):
+        """K_r (N/m): a constant symmetric positive semi-definite matrix, sum_e kappa_e (L_e kron I_d) over
+        the springs e (kappa_e the spring's stiffness along itself at rest, L_e its graph Laplacian), the
+        matrix of projective dynamics' global step (Liu et al. 2013) and of the rest-shape initial Hessian of
+        L-BFGS (Liu, Bouaziz & Kavan 2017); in the Hessian's pattern where the system has one. None: the
+        system has none (the solvers that need it are refused)."""
+        return None
+
+    @property
+    def projective_form(self) -> str | None:
+        """None when P is a sum of Hookean springs (k/2 (|x_i - x_j| - l0)^2, or k/2 |x - a|^2 to an anchor)
+        plus terms linear in x, and D does not depend on x: projective dynamics then minimises the
+        incremental potential exactly. Otherwise the reason, in a few words, for the one-line refusal."""
+        return f"{type(self).__name__} does not declare its potential as Hookean springs"
+
+    @property
+    def damping_is_constant(self) -> bool:
+        """Is D(x) the same at every x (or is there no damping)?"""
+        return not self.is_damped
+
+    external_acceleration: np.ndarray | None = None  # (dof_count,) m/s^2 of the constant external field (gravity), or None
 
     @functools.cached_property
     def is_damped(self) -> bool:

@@ -121,8 +121,19 @@ class CircularMotion(System):
         hessian = self.gm_m * (np.eye(self.dof_count) / r ** 3 - 3.0 * np.outer(x, x) / r ** 5)
         if project_spd:
             eigenvalues, eigenvectors = np.linalg.eigh(hessian)
-            hessian = (eigenvectors * np.maximum(eigenvalues, 0.0)) @ eigenvectors.T
+            filtered = np.abs(eigenvalues) if project_spd == "abs" else np.maximum(eigenvalues, 0.0)
+            hessian = (eigenvectors * filtered) @ eigenvectors.T
         return hessian
+
+    damping_is_constant = True  # undamped
+
+    @property
+    def projective_form(self):
+        # the linear law k/2 |x|^2 is a zero-length Hookean spring to the centre
+        return None if self.linear else "the gravitational law -GMm/|x| is not a Hookean spring"
+
+    def rest_stiffness(self):
+        return self._linear_hessian if self.linear else None
 
     energy_reference_name = "|E0| (initial energy)"
 

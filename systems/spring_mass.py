@@ -89,6 +89,13 @@ class SpringMass(System):
     def damping_matrix(self, x):
         return self._damping
 
+    # k q^2 / 2 is a zero-length Hookean spring to the origin; D = d is constant
+    projective_form = None
+    damping_is_constant = True
+
+    def rest_stiffness(self):
+        return self._hessian
+
     energy_reference_name = "E0 (initial energy)"  # = |KE0| + |PE0|: both parts are >= 0
 
     def exact_solution(self, t):

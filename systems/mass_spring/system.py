@@ -13,6 +13,7 @@ grid model reproduces those results bit for bit.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -48,6 +49,7 @@ class HookeanLaw:
     k [u u^T + (1 - l0/L)(I - u u^T)], whose transverse factor turns negative under compression."""
 
     name = "hookean"
+    rest_factor = 1.0  # d^2 W / dL^2 at L = l0, in units of k
 
     @staticmethod
     def energy(system: "MassSpring", geometry: SpringGeometry) -> float:
@@ -61,9 +63,7 @@ class HookeanLaw:
     @staticmethod
     def blocks(system: "MassSpring", geometry: SpringGeometry, project_spd: bool) -> np.ndarray:
         outer = geometry.direction[:, :, None] * geometry.direction[:, None, :]
-        transverse = 1.0 - system.rest_length / geometry.length
-        if project_spd:
-            transverse = np.maximum(transverse, 0.0)
+        transverse = filter_eigenvalues(1.0 - system.rest_length / geometry.length, project_spd)
         return system.stiffness[:, None, None] * (outer + transverse[:, None, None] * (system.identity - outer))
 
 
@@ -73,6 +73,7 @@ class SquaredLengthLaw:
     2k [(3 s - 1) u u^T + (s - 1)(I - u u^T)]. The SPD projection clamps both factors at 0."""
 
     name = "squared_length"
+    rest_factor = 4.0  # d^2 W / dL^2 at L = l0: k l0^2/2 * 8 L^2 / l0^4 = 4 k
 
     @staticmethod
     def _ratio(system, geometry):
@@ -90,12 +91,19 @@ class SquaredLengthLaw:
     @staticmethod
     def blocks(system, geometry, project_spd):
         ratio = SquaredLengthLaw._ratio(system, geometry)
-        along, transverse = 3.0 * ratio - 1.0, ratio - 1.0
-        if project_spd:
-            along, transverse = np.maximum(along, 0.0), np.maximum(transverse, 0.0)
+        along = filter_eigenvalues(3.0 * ratio - 1.0, project_spd)
+        transverse = filter_eigenvalues(ratio - 1.0, project_spd)
         outer = geometry.direction[:, :, None] * geometry.direction[:, None, :]
         return (2.0 * system.stiffness)[:, None, None] * (along[:, None, None] * outer
                                                          + transverse[:, None, None] * (system.identity - outer))
+
+
+def filter_eigenvalues(values: np.ndarray, project_spd) -> np.ndarray:
+    """Eigenvalue factors of the spring and contact blocks as the projection asks: as they are (False),
+    clamped at 0 (True, "clamp") or mirrored (``"abs"``)."""
+    if not project_spd:
+        return values
+    return np.abs(values) if project_spd == "abs" else np.maximum(values, 0.0)
 
 
 SPRING_LAWS = {law.name: law for law in (HookeanLaw, SquaredLengthLaw)}
@@ -369,12 +377,37 @@ class MassSpring(System):
                 continue
             n = normal[touching]
             contact_outer = n[:, :, None] * n[:, None, :]
-            if distance is None or project_spd:
+            if distance is None or (project_spd and project_spd != "abs"):
                 vertex_block[touching] += stiffness * contact_outer
-            else:  # sphere: k n n^T - k (r - d)/d (I - n n^T); the second term is negative
+            else:  # sphere: k n n^T - k (r - d)/d (I - n n^T); the second term is negative (mirrored by abs)
                 curvature = (depth[touching] / distance[touching])[:, None, None]
-                vertex_block[touching] += stiffness * (contact_outer - curvature * (self.identity - contact_outer))
+                sign = 1.0 if project_spd == "abs" else -1.0
+                vertex_block[touching] += stiffness * (contact_outer + sign * curvature * (self.identity - contact_outer))
         return self._spring_hessian_data(geometry, project_spd, vertex_block)
+
+    # -- for projective dynamics, L-BFGS's rest-shape Hessian and VBD's initial guess ------------------
+    def rest_stiffness(self):
+        """sum_e kappa_e (L_e kron I_d), kappa_e = the law's stiffness along the spring at rest, in the Hessian's pattern."""
+        kappa = self.law.rest_factor * self.stiffness
+        return self.pattern_matrix(self._scatter_blocks(kappa[:, None, None] * self.identity))
+
+    @property
+    def projective_form(self) -> str | None:
+        if self.law is not HookeanLaw:
+            return f"spring_law {self.law.name} is not Hookean"
+        if self.contact.ground is not None or self.contact.sphere is not None:
+            return "penalty contact is not a spring of fixed rest length"
+        if not self.damping_is_constant:
+            return "spring damping depends on the spring directions (use relative, drag or rayleigh damping)"
+        return None
+
+    @property
+    def damping_is_constant(self) -> bool:
+        return not any(term.model == "spring" for term in self.damping_terms)
+
+    @functools.cached_property
+    def external_acceleration(self) -> np.ndarray:
+        return np.tile(self.gravity, self.vertex_count)
 
     def damping_matrix(self, x):
         data = None
