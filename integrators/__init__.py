@@ -15,6 +15,7 @@ from .exponential import ExponentialRosenbrockEuler
 from .implicit import (AverageVectorField, GeneralizedAlpha, ImplicitMidpoint, Newmark,
                        SemiImplicitBackwardEuler)
 from .multistep import BDF2, BDF2MidpointMix
+from .xpbd import XPBD
 
 # config name -> class: the one place where a new method is made known
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -34,6 +35,7 @@ INTEGRATORS: dict[str, type[Integrator]] = {
         SemiImplicitBackwardEuler,
         ExponentialRosenbrockEuler,
         AverageVectorField,
+        XPBD,
     )
 }
 

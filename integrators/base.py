@@ -26,8 +26,9 @@ import scipy.sparse
 from pydantic import BaseModel, ConfigDict
 
 from simrun.solvers import SolveStats
-from simrun.solvers.base import FLOAT64, SMALL_VECTOR, max_norm
+from simrun.solvers.base import FLOAT64, INITIAL_GUESSES, SMALL_VECTOR, max_norm
 from simrun.systems import System
+from simrun.systems.base import diagonal_blocks
 
 
 @dataclass(slots=True)  # not frozen: built once per step, and a frozen __init__ is slower (docs/performance.md)
@@ -51,6 +52,9 @@ class Integrator(BaseModel):
     order: ClassVar[int]
     explicit: ClassVar[bool]
     summary: ClassVar[str]
+    # the problem its steps hand the solver: "incremental_potential" (IncrementalPotential), "segment_potential"
+    # (SegmentPotential), or None (no solver); solvers that need one kind refuse the others at config time
+    problem_kind: ClassVar[str | None] = None
 
     def start(self, system: System, state: State) -> State:
         return state
@@ -120,9 +124,6 @@ def _constrained_start(system: System, start: np.ndarray, y_tilde: np.ndarray) -
     return start
 
 
-INITIAL_GUESSES = ("start", "inertial", "predictor", "adaptive")
-
-
 def initial_guess(problem, kind: str, scale: float) -> np.ndarray:
     """Where a solve of one step starts, for the unknown y at t_n + theta h:
     ``start`` x_n; ``inertial`` x_n + theta h v_n (the lecture's "x_n + h v_n" for backward Euler);
@@ -151,7 +152,13 @@ def initial_guess(problem, kind: str, scale: float) -> np.ndarray:
     direction = field_blocks / np.where(strength > 0.0, strength, 1.0)[:, None]
     acceleration = system.acceleration(x_start, v_start).reshape(-1, dim)
     along = np.clip(np.einsum("ij,ij->i", acceleration, direction), 0.0, strength)
-    return problem.y_tilde + scale * (along[:, None] * direction).ravel()
+    # filtered as every solver's direction is: pinned vertices stay, sliding ones stay on their planes and lines
+    displacement = scale * (along[:, None] * direction).ravel()
+    if system.fixed_dofs.size:
+        displacement[system.fixed_dofs] = 0.0
+    if system.sliding is not None:
+        system.sliding.apply(displacement)
+    return problem.y_tilde + displacement
 
 
 class IncrementalPotential:
@@ -200,6 +207,17 @@ class IncrementalPotential:
             rate = y - self.velocity_origin
             energy += 0.5 * self.damping_weight * float(rate @ (self.damping @ rate))
         return energy
+
+    def value_magnitude(self, y: np.ndarray) -> float:
+        """The size of the terms ``value`` sums (J s^2... in E's units), which bounds E's round-off."""
+        # the inertia term from y - y~, each difference with an error of about eps |y|
+        offset = y - self.y_tilde
+        momentum = np.abs(self.system.mass * offset)
+        magnitude = float(momentum @ (0.5 * np.abs(offset) + np.abs(y))) + self.scale * self.system.potential_magnitude(y)
+        if self.damping is not None:
+            rate = y - self.velocity_origin
+            magnitude += 0.5 * self.damping_weight * abs(float(rate @ (self.damping @ rate)))
+        return magnitude
 
     def gradient(self, y: np.ndarray) -> np.ndarray:
         gradient = self.system.mass * (y - self.y_tilde) + self.scale * self.system.gradient(y)
@@ -263,9 +281,64 @@ class IncrementalPotential:
         data[system.diagonal_positions] += system.mass
         return system.pattern_matrix(data)
 
+    # -- vertex by vertex: what vertex block descent needs (solvers/vbd.py) ------------------------------
+    def vertex_colouring(self) -> list[np.ndarray]:
+        """The system's colours: no two vertices of a colour share a term of P or of D (D lies in P's pattern)."""
+        return self.system.vertex_colouring()
+
+    def vertex_blocks(self, y: np.ndarray, vertices: np.ndarray, project_spd=False) -> tuple[np.ndarray, np.ndarray]:
+        """E's gradient and Hessian blocks at the vertices i (k,): shapes (k, d) and (k, d, d),
+
+            g_i = M_i (y_i - y~_i) + s dP/dy_i + (s/b) (D (y - a))_i,    H_i = M_i + s d^2P/dy_i^2 + (s/b) D_ii,
+
+        with the system's blocks (``project_spd`` as ``hessian``). Not filtered: the solver applies the fixed
+        dofs and sliding filters (E's own ``gradient`` zeroes them)."""
+        system, d = self.system, self.system.dim
+        vertices = np.asarray(vertices, dtype=np.intp)
+        dofs = d * vertices[:, None] + np.arange(d)
+        gradient, hessian = system.vertex_blocks(y, vertices, project_spd)
+        mass = system.mass[dofs]
+        gradient = mass * (y[dofs] - self.y_tilde[dofs]) + self.scale * gradient
+        hessian = self.scale * hessian
+        diagonal = np.arange(d)
+        hessian[:, diagonal, diagonal] += mass
+        if self.damping is not None:
+            rows, damping_blocks = self._damping_rows(vertices, dofs)
+            gradient += self.damping_weight * (rows @ (y - self.velocity_origin)).reshape(-1, d)
+            hessian += self.damping_weight * damping_blocks
+        return gradient, hessian
+
+    def vertex_energy_changes(self, y: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """The change of E (J), shape (k,), when vertex i moves by u = steps[i] ((k, d), m) and the others stay at y,
+
+            dE_i = u^T M_i (y_i - y~_i + u/2) + s dP_i + (s/b) [u^T (D (y - a))_i + u^T D_ii u / 2],
+
+        dP_i the system's ``vertex_energy_changes``; each term formed without cancellation, so that the change is
+        resolved long after it has dropped below the round-off of E. The vertices must not interact (one colour)."""
+        system, d = self.system, self.system.dim
+        vertices = np.asarray(vertices, dtype=np.intp)
+        dofs = d * vertices[:, None] + np.arange(d)
+        changes = np.einsum("ij,ij->i", system.mass[dofs] * steps, y[dofs] - self.y_tilde[dofs] + 0.5 * steps)
+        changes += self.scale * system.vertex_energy_changes(y, vertices, steps)
+        if self.damping is not None:
+            rows, damping_blocks = self._damping_rows(vertices, dofs)
+            rates = (rows @ (y - self.velocity_origin)).reshape(-1, d)
+            changes += self.damping_weight * (np.einsum("ki,ki->k", steps, rates)
+                                              + 0.5 * np.einsum("ki,kij,kj->k", steps, damping_blocks, steps))
+        return changes
+
+    def _damping_rows(self, vertices: np.ndarray, dofs: np.ndarray):
+        """D's rows at the vertices' dofs and its diagonal blocks D_ii (k, d, d), kept per vertex set for this step."""
+        kept = self.__dict__.setdefault("_damping_parts", {})
+        key = vertices.tobytes()
+        part = kept.get(key)
+        if part is None:
+            part = kept[key] = (self.damping[dofs.ravel()], diagonal_blocks(self.damping, vertices, self.system.dim))
+        return part
+
 
 class SegmentPotential:
-    """E(y) = 1/2 (y - y~)^T M (y - y~) + h^2 sum_j c_j [P(z_j) - P(x_n)] / s_j  + damping term,
+    """E(y) = 1/2 (y - y~)^T M (y - y~) + h^2 sum_j c_j P(z_j) / s_j  + damping term,
     with z_j = x_n + s_j (y - x_n) points of the segment from x_n to the unknown y = x_{n+1}.
 
     Its gradient is the residual of methods that sample the force along the step,
@@ -306,7 +379,6 @@ class SegmentPotential:
                 start, end = (c * (1.0 - s)) * damping, (c * s) * damping
                 self.damping_start = start if self.damping_start is None else self.damping_start + start
                 self.damping_end = end if self.damping_end is None else self.damping_end + end
-        self._start_energy = None
         self.residual_floor = residual_floor(system.mass, y_tilde)
         self.step_start = (x_start, v_start, dt)
         self.fraction = 1.0  # the unknown is x_{n+1}
@@ -337,17 +409,30 @@ class SegmentPotential:
         return [self.x_start + s * step for s in self.nodes]
 
     def value(self, y: np.ndarray) -> float:
-        if self._start_energy is None:
-            self._start_energy = self.system.potential_energy(self.x_start)
         offset = y - self.y_tilde
         energy = 0.5 * float(np.dot(self.system.mass * offset, offset))
         for s, c, z in zip(self.nodes, self.weights, self._points(y)):
-            energy += self.h2 * c * (self.system.potential_energy(z) - self._start_energy) / s
+            # P(z_j) whole, not P(z_j) - P(x_n): the constant changes no comparison, and without it |E|
+            # keeps the size of its terms, which the line search's round-off allowance is relative to
+            energy += self.h2 * c * self.system.potential_energy(z) / s
         if self.damping_end is not None:
             rate = y - self.velocity_origin
             energy += self.h2 * (float(self.v_start @ (self.damping_start @ y))
                                  + 0.5 / self.velocity_divisor * float(rate @ (self.damping_end @ rate)))
         return energy
+
+    def value_magnitude(self, y: np.ndarray) -> float:
+        """As ``IncrementalPotential.value_magnitude``: the size of the terms ``value`` sums."""
+        offset = y - self.y_tilde
+        momentum = np.abs(self.system.mass * offset)
+        magnitude = float(momentum @ (0.5 * np.abs(offset) + np.abs(y)))
+        for s, c, z in zip(self.nodes, self.weights, self._points(y)):
+            magnitude += self.h2 * abs(c) * self.system.potential_magnitude(z) / s
+        if self.damping_end is not None:
+            rate = y - self.velocity_origin
+            magnitude += self.h2 * (abs(float(self.v_start @ (self.damping_start @ y)))
+                                    + 0.5 / self.velocity_divisor * abs(float(rate @ (self.damping_end @ rate))))
+        return magnitude
 
     def gradient(self, y: np.ndarray) -> np.ndarray:
         gradient = self.system.mass * (y - self.y_tilde)

@@ -53,6 +53,7 @@ class BackwardEuler(Integrator):
     name: ClassVar[str] = "backward_euler"
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "implicit Euler; energy shrinks by 1/(1 + (h w)^2) per step on the spring"
 
     def step(self, system, state, dt, solver):

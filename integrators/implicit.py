@@ -30,6 +30,7 @@ class ImplicitMidpoint(Integrator):
     name: ClassVar[str] = "implicit_midpoint"
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "symplectic, 2nd order, A-stable with no artificial damping"
 
     def step(self, system, state, dt, solver):
@@ -88,6 +89,7 @@ class Newmark(Integrator):
     name: ClassVar[str] = "newmark"
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "Newmark family (beta > 0); defaults = trapezoidal rule: 2nd order, no damping"
 
     beta: float = Field(0.25, gt=0.0, le=1.0, allow_inf_nan=False,
@@ -126,6 +128,7 @@ class GeneralizedAlpha(Integrator):
     name: ClassVar[str] = "generalized_alpha"
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "Chung-Hulbert generalized-alpha; 2nd order, high-frequency damping set by rho_inf"
 
     rho_inf: float = Field(0.5, ge=0.0, le=1.0, allow_inf_nan=False,
@@ -165,6 +168,7 @@ class SemiImplicitBackwardEuler(Integrator):
     name: ClassVar[str] = "semi_implicit_backward_euler"
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = ("Baraff-Witkin: backward Euler with one Newton iteration from x_n "
                               "(not symplectic Euler, also called semi-implicit)")
 
@@ -204,6 +208,7 @@ class AverageVectorField(Integrator):
     name: ClassVar[str] = "average_vector_field"
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "segment_potential"
     summary: ClassVar[str] = "energy-conserving AVF: force averaged along the step by Gauss-Legendre quadrature"
 
     quadrature_points: int = Field(3, ge=1, le=MAX_QUADRATURE_POINTS,

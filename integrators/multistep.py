@@ -32,6 +32,7 @@ class BDF2(Integrator):
     name: ClassVar[str] = "bdf2"
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "two-step BDF, started with one backward Euler step; 2nd order, L-stable (damps)"
 
     def step(self, system, state, dt, solver):
@@ -71,6 +72,7 @@ class BDF2MidpointMix(Integrator):
     name: ClassVar[str] = "bdf2_midpoint_mix"
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "segment_potential"
     summary: ClassVar[str] = "Ascher's theta * BDF2 + (1 - theta) * implicit midpoint; 2nd order, more theta = more damping"
 
     theta: float = Field(0.5, ge=0.0, le=1.0, allow_inf_nan=False,

@@ -29,11 +29,12 @@ from simrun.figures import frames as frame_figures
 from simrun.figures import FIGURES, Figure, FigureData, figure_data
 from simrun.findings import Finding, drift_text, findings
 from simrun.reference import REFERENCE_RTOL, reference_errors
-from simrun.results import Results, Status, load
-from simrun.table_text import damping_text, number_text
+from simrun.results import FRAME_TIME, Results, Status, load
+from simrun.table_text import damping_text, frame_time_text, number_text, real_time_text
 from simrun.tables import (DAMPING_TOLERANCE, DETERMINANT_TOLERANCE, ORDER_TOLERANCE, DeterminantRow, OrderRow,
-                           StabilityRow, SummaryRow, determinant_rows, energy_reference_differs, energy_reference_text,
-                           error_time_text, iteration_name, mixed_solvers, order_rows, stability_rows, summary_rows)
+                           StabilityRow, SummaryRow, any_safeguards, determinant_rows,
+                           energy_reference_differs, energy_reference_text, error_time_text, iteration_name,
+                           mixed_solvers, order_rows, stability_rows, steps_text, summary_rows)
 
 REPORT_DPI = 100  # the figures' inches become about as many CSS pixels at this resolution
 # A summary table longer than this scrolls inside its box.
@@ -186,8 +187,15 @@ def _table(headings: list[tuple[str, bool | str]], body_rows: list[list[str]], s
     return f'<div class="box{" scroll" if scroll else ""}">{table}</div>'
 
 
-def _status(status: str) -> str:
-    return f'<span class="status {_e(status)}">{_e(status.replace("_", " "))}</span>'
+def _status(status: str, message: str = "") -> str:
+    title = f' title="{_e(message)}"' if message else ""
+    return f'<span class="status {_e(status)}"{title}>{_e(status.replace("_", " "))}</span>'
+
+
+def _status_cell(row: SummaryRow) -> str:
+    """The run's status, its message on hover, and below it where it went wrong (``SummaryRow.status_detail``)."""
+    detail = row.status_detail
+    return _status(row.status, row.message) + (f'<br><span class="sub">{_e(detail)}</span>' if detail else "")
 
 
 def _verdict(text: str) -> str:
@@ -240,18 +248,21 @@ def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
             if row is None:
                 line += "<td></td>"
             elif row.status in (Status.DIVERGED, Status.FAILED):
-                line += f"<td>{_status(row.status)}</td>"
+                line += f"<td>{_status_cell(row)}</td>"
             else:
                 top = ((number_text(row.error) + " m" if np.isfinite(row.error) else "–") if errors
                        else drift_text(row.max_rel_energy_drift))
-                flag = "" if row.status == Status.OK else f" {_status(row.status)}"
-                line += f'<td>{_e(top)}{flag}<br><span class="sub">{row.wall_time:.3g} s</span></td>'
+                flag = "" if row.status == Status.OK else f" {_status(row.status, row.message)}"
+                cost = f"{row.wall_time:.3g} s" + (f" · {real_time_text(row.real_time_factor)}"
+                                                   if np.isfinite(row.real_time_factor) else "")
+                line += f'<td>{_e(top)}{flag}<br><span class="sub">{_e(cost)}</span></td>'
         body.append(f"<tr>{line}</tr>")
     what = (f"the error at {error_time_text(rows)} (against the "
             + ("reference" if any(row.error_from_reference for row in rows) else "exact") + " solution)"
             if errors else f"the largest energy change max |E − E0| / E_ref ({energy_reference_text(rows)})")
     note = (f'<h3>Error and cost at each dt</h3><p class="note">Each cell: {_e(what)}; below it the wall time of the '
-            "whole run. Stopped runs show their status.</p>")
+            "whole run and its real-time factor (simulated over wall time, > 1x faster than real time). Stopped runs "
+            "show their status and the step at which they stopped.</p>")
     return note + f'<div class="box"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
 
 
@@ -265,11 +276,11 @@ def _summary_section(rows: list[SummaryRow]) -> str:
     columns = [  # heading, kind, cell, shown
         ("#", False, lambda row: str(row.index), True),
         ("integrator", "label", lambda row: _e(row.integrator), True),
-        ("group", True, lambda row: _e(row.group), len({row.group for row in rows}) > 1),
+        ("group", "wrap", lambda row: _e(row.group), len({row.group for row in rows}) > 1),
         ("solver", True, lambda row: _e(row.solver or "–"), mixed_solvers(rows)),
         ("dt (s)", False, lambda row: f"{row.dt:.4g}", True),
         ("h w", False, lambda row: "–" if not np.isfinite(row.hw) else f"{row.hw:.3g}", any(finite(row.hw) for row in rows)),
-        ("status", True, lambda row: _status(row.status), True),
+        ("status", True, _status_cell, True),
         ("steps", False, lambda row: str(row.steps), True),
         ("order", False, lambda row: str(row.order), True),
         ("E_ref (J)", False, lambda row: number_text(row.energy_reference), energy_reference_differs(rows)),
@@ -281,6 +292,11 @@ def _summary_section(rows: list[SummaryRow]) -> str:
         ("linear it/step", False, lambda row: number_text(row.mean_linear_iterations) if row.solver else "–",
          any(finite(row.mean_linear_iterations) for row in rows)),
         ("wall (s)", False, lambda row: f"{row.wall_time:.3g}", True),
+        ("real-time", False, lambda row: real_time_text(row.real_time_factor),
+         any(finite(row.real_time_factor) for row in rows)),
+        ("wall/frame (ms)", False, lambda row: frame_time_text(row.wall_time_per_frame),
+         any(finite(row.wall_time_per_frame) for row in rows)),
+        ("safeguards", False, lambda row: steps_text(row.safeguard_steps, row) or "–", any_safeguards(rows)),
         ("d/w measured", False, _measured_cell, any(np.isfinite(row.measured_damping) for row in rows)),
         ("d/w predicted", False, lambda row: damping_text(row.predicted_damping),
          any(np.isfinite(row.predicted_damping) for row in rows)),
@@ -300,6 +316,17 @@ def _summary_section(rows: list[SummaryRow]) -> str:
         notes.append(f"{iterations} it/step: the solver's iterations per step"
                      + (" (the solver column says which)" if mixed_solvers(rows) else "")
                      + "; – for explicit methods, which solve nothing")
+    if "real-time" in shown or "wall/frame (ms)" in shown:
+        notes.append("real-time: simulated time (steps × dt) over the wall time of the stepping loop, > 1x faster than "
+                     f"real time; wall/frame: wall time per 1/{1 / FRAME_TIME:g} s of simulated time (an animation "
+                     f"frame: real time needs it below {1e3 * FRAME_TIME:.3g} ms)")
+    if any(row.status_detail for row in rows):
+        notes.append("status: below it, the step at which a run diverged, or the first step that did not converge and "
+                     "how many did (under on_not_converged: accept such steps are the price of a real-time budget and "
+                     "the run stays ok)")
+    if "safeguards" in shown:
+        notes.append("safeguards: steps where a solver safeguard fired (the line search cut the step, the Hessian was "
+                     "SPD-projected or regularised, or a fallback solver finished the step)")
     if "d/w measured" in shown or "d/w predicted" in shown:
         notes.append("d/w: the artificial damping d_method/w = −2 ln ρ/(h w), measured from the decay of ln E(t) of runs "
                      "on the undamped test equation and predicted from the probed amplification matrix at the run's h w; "

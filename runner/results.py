@@ -91,8 +91,24 @@ SUMMARY_DTYPE = np.dtype([
     ("mean_newton_iterations", "f8"),
     ("mean_linear_iterations", "f8"),
     ("wall_time", "f8"),
+    ("real_time_factor", "f8"),
+    ("wall_time_per_frame", "f8"),
 ])
 SUMMARY_COLUMNS = SUMMARY_DTYPE.names
+# the frame of real-time animation, simulated seconds: wall_time_per_frame is the wall time per 1/60 s
+FRAME_TIME = 1.0 / 60.0
+
+
+def real_time_factor(steps: int, dt: float, wall_time: float) -> float:
+    """Simulated time over wall time (> 1: faster than real time); NaN when either is zero or unknown."""
+    simulated = steps * dt
+    return simulated / wall_time if simulated > 0.0 and wall_time > 0.0 else math.nan
+
+
+def wall_time_per_frame(steps: int, dt: float, wall_time: float) -> float:
+    """Wall time (s) per FRAME_TIME of simulated time: real time needs it below FRAME_TIME."""
+    simulated = steps * dt
+    return wall_time * FRAME_TIME / simulated if simulated > 0.0 else math.nan
 
 
 def summary_row(run_id: str, group: h5py.Group) -> tuple:
@@ -109,6 +125,8 @@ def summary_row(run_id: str, group: h5py.Group) -> tuple:
         float(attrs.get("error_time", math.nan)), float(attrs.get("error", math.nan)),
         float(newton.mean()) if newton.size else 0.0, float(linear.mean()) if linear.size else 0.0,
         float(attrs["wall_time"]),
+        real_time_factor(int(attrs["steps"]), float(attrs["dt"]), float(attrs["wall_time"])),
+        wall_time_per_frame(int(attrs["steps"]), float(attrs["dt"]), float(attrs["wall_time"])),
     )
 
 
@@ -221,6 +239,16 @@ class StoredRun:
     @property
     def wall_time(self) -> float:
         return float(self.attrs.get("wall_time", math.nan))
+
+    @property
+    def real_time_factor(self) -> float:
+        """Simulated time (steps dt) over wall time: > 1 runs faster than real time."""
+        return real_time_factor(self.steps, self.dt, self.wall_time)
+
+    @property
+    def wall_time_per_frame(self) -> float:
+        """s of wall time per 1/60 s of simulated time (an animation frame)."""
+        return wall_time_per_frame(self.steps, self.dt, self.wall_time)
 
     @property
     def final_error(self) -> float:

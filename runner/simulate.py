@@ -115,8 +115,11 @@ def simulate(run: Run) -> RunResult:
         "line_search_steps": np.zeros(step_count, dtype=np.int32),
         "residual": np.zeros(step_count),
         "solver_index": np.zeros(step_count, dtype=np.int8),
+        "safeguards": np.zeros(step_count, dtype=np.uint8),
     }
     stop_on_not_converged = run.solver.on_not_converged == "stop"
+    # a real-time budget: a step that used up max_iterations is what the budget bought, not a failure
+    accept_not_converged = run.solver.on_not_converged == "accept"
 
     state = State(0.0, system.x0.copy(), system.v0.copy())
     energy0 = system.total_energy(state.x, state.v)
@@ -127,6 +130,7 @@ def simulate(run: Run) -> RunResult:
     damped = system.is_damped
     newton_iterations, linear_iterations = per_step["newton_iterations"], per_step["linear_iterations"]
     line_search_steps, residuals, solver_index = per_step["line_search_steps"], per_step["residual"], per_step["solver_index"]
+    safeguards = per_step["safeguards"]
 
     record_sample, record_frame, total_energy = recorder.record, recorder.record_frame, system.total_energy
     step = integrator.step
@@ -143,6 +147,7 @@ def simulate(run: Run) -> RunResult:
         record_frame(0.0, state.x)
     path_power = _path_power(system, moving, state.x, state.v, 0.0) if moving.size else 0.0
     status, message, t_diverged, not_converged_steps = Status.OK, "", None, 0
+    first_not_converged = diverged_step = 0  # 1-based step numbers; 0: none
     steps = 0
     start = time.perf_counter()
     try:
@@ -172,6 +177,7 @@ def simulate(run: Run) -> RunResult:
                     line_search_steps[n] = stats.line_search_steps
                     residuals[n] = stats.residual
                     solver_index[n] = stats.solver_index
+                    safeguards[n] = stats.safeguards
                 if steps == error_step:
                     error_state = (t, state.x.copy(), state.v.copy())
                 last = steps == step_count
@@ -181,18 +187,21 @@ def simulate(run: Run) -> RunResult:
                 framed = with_frames and (steps % frame_stride == 0 or last)
                 if framed:
                     record_frame(t, state.x)
-                if steps % check_every == 0 or last:
+                # a step that stops the run for not converging is checked for divergence first: a run
+                # whose energy left the bound is diverged, whatever else went wrong in the step
+                if steps % check_every == 0 or last or (stop_on_not_converged and not stats.converged):
                     if energy is None:
                         energy = total_energy(state.x, state.v)
                     # math.isfinite: cheaper than np.isfinite on one float (docs/performance.md)
                     # the work of prescribed paths is energy put in on purpose, not a sign of instability
                     if not math.isfinite(energy) or abs(energy - work - energy0) > energy_bound:
-                        status, t_diverged = Status.DIVERGED, t
+                        status, t_diverged, diverged_step = Status.DIVERGED, t, steps
                         message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {t:.6g} s"
                         record_stop(t, state, sampled, framed)
                         break
                 if not stats.converged:
                     not_converged_steps += 1
+                    first_not_converged = first_not_converged or steps
                     if stop_on_not_converged:
                         message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
                         record_stop(t, state, sampled, framed)
@@ -200,12 +209,14 @@ def simulate(run: Run) -> RunResult:
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = Status.FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start
-    if status is Status.OK and not_converged_steps:
+    if status is Status.OK and not_converged_steps and not accept_not_converged:
         status = Status.NOT_CONVERGED
         if not message:
             message = f"{not_converged_steps} of {steps} steps did not converge within max_iterations"
     samples = recorder.result()
     attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps,
+             "first_not_converged_step": first_not_converged, "diverged_step": diverged_step,
+             "safeguard_steps": int(np.count_nonzero(safeguards[:steps])),
              **system.capabilities.as_attrs()}
     if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
         attrs["error_time"], samples["error_positions"], _ = error_state

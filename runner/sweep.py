@@ -19,7 +19,7 @@ from pydantic import ValidationError
 from simrun.config import Experiment, Run, describe_error, set_path
 from simrun.errors import ConfigError
 from simrun.integrators import Integrator
-from simrun.solvers import SOLVERS
+from simrun.solvers import SOLVER_PARAMS, SOLVERS, NonlinearSolver, SolverParams
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
 MAX_RUNS = 100_000
@@ -43,6 +43,7 @@ def expand_runs(experiment: Experiment) -> list[Run]:
     base["integrators"] = list(experiment.integrators)
     labels = family_labels(experiment.integrators)
     runs = []
+    systems: dict[str, Any] = {}  # built systems by their config, for the solvers' refusals
     seen = set()  # (integrator's position, the swept keys it uses) already expanded
     for assignment in combinations:
         resolved = _resolve(base, assignment)
@@ -52,6 +53,7 @@ def expand_runs(experiment: Experiment) -> list[Run]:
             if identity in seen:
                 continue
             seen.add(identity)
+            _check_solver_fits(resolved, integrator, systems)
             for dt in experiment.sweep["dt"]:
                 if dt > resolved.duration:
                     raise ConfigError(f"sweep.dt: {dt:g} is longer than duration {resolved.duration:g}; a step must fit in the run")
@@ -79,6 +81,8 @@ def uses_swept_key(key: str, integrator: Integrator, solver) -> bool:
     if not key.startswith("solver."):
         return True
     if integrator.explicit:
+        return False
+    if _foreign_solver_key(key, solver.type):
         return False
     if key not in LINEAR_SOLVER_KEYS:
         return True
@@ -131,10 +135,43 @@ def resolved_config(experiment: Experiment) -> str:
     return yaml.safe_dump(resolved_document(experiment), sort_keys=False)
 
 
+def _check_solver_fits(resolved: Experiment, integrator: Integrator, systems: dict[str, Any]) -> None:
+    """A solver that cannot solve this integrator's problems on this system (projective dynamics on squared-length
+    springs, VBD on forces sampled along the step, ...) is refused in one line before any run starts."""
+    kind = integrator.problem_kind
+    if kind is None:
+        return
+    solver = resolved.solver.build()
+    members = getattr(solver, "solvers", (solver,))
+    if all(type(member).refusal is NonlinearSolver.refusal for member in members):
+        return  # none of them refuses anything: no system to build
+    key = json.dumps(resolved.system.model_dump(mode="json"), sort_keys=True)
+    if key not in systems:
+        systems[key] = resolved.system.build()
+    for member in members:
+        reason = member.refusal(systems[key], kind)
+        if reason is not None:
+            raise ConfigError(f"solver.type: {reason} (integrator {integrator.label})")
+
+
+def _foreign_solver_key(key: str, solver_type: Any) -> bool:
+    """Is ``key`` (solver.<option>) another solver's own option, not one that ``solver_type`` takes? Sweeping
+    solver.type with solver.chebyshev_rho then gives the solvers with that option each value, and the
+    others one run without it; an option that no solver takes is still refused as a misspelling."""
+    option = key.split(".", 1)[1] if key.startswith("solver.") else ""
+    if not option or "." in option or option in SolverParams.model_fields or solver_type not in SOLVER_PARAMS:
+        return False
+    return option not in SOLVER_PARAMS[solver_type].model_fields and any(
+        option in model.model_fields for model in SOLVER_PARAMS.values())
+
+
 def _resolve(base: dict, assignment: dict[str, Any]) -> Experiment:
     raw = copy.deepcopy({key: value for key, value in base.items() if key != "integrators"})
     raw["integrators"] = base["integrators"]
+    solver_type = assignment.get("solver.type", (raw.get("solver") or {}).get("type", "newton"))
     for key, value in assignment.items():
+        if _foreign_solver_key(key, solver_type):
+            continue  # an option of the other swept solvers: this one does not take it
         parts = key.split(".")
         if parts[0] not in Experiment.model_fields or parts[0] in ("sweep", "name", "output", "integrators"):
             allowed = ", ".join(k for k in Experiment.model_fields if k not in ("sweep", "name", "output", "integrators"))

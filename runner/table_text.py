@@ -11,8 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simrun.tables import (ROUND_OFF_DAMPING, SummaryRow, energy_reference_differs, energy_reference_text,
-                           error_time_text, iteration_name, mixed_solvers)
+from simrun.results import FRAME_TIME
+from simrun.tables import (ROUND_OFF_DAMPING, SummaryRow, any_not_converged, any_safeguards, energy_reference_differs,
+                           energy_reference_text, error_time_text, iteration_name, mixed_solvers, steps_text)
 
 # `simrun show` fits a terminal this wide by default (--wide: every column).
 TERMINAL_WIDTH = 100
@@ -43,6 +44,12 @@ def _measured_text(row: SummaryRow) -> str:
     return damping_text(row.measured_damping).replace("–", "") + ("?" if unresolved else "")
 
 
+def _status_text(row: SummaryRow) -> str:
+    """The status with the first step that went wrong: "diverged@37", "not_converged@3"."""
+    step = row.diverged_step if row.status == "diverged" else row.first_not_converged_step if row.status == "not_converged" else 0
+    return f"{row.status}@{step}" if step else row.status
+
+
 def terminal_columns(rows: list[SummaryRow]) -> list[Column]:
     """The columns of `simrun show`, each named by what it counts; those with nothing to show are left out."""
     iterations = iteration_name(rows)
@@ -52,7 +59,7 @@ def terminal_columns(rows: list[SummaryRow]) -> list[Column]:
         Column("solver", ("", "solver"), lambda row: row.solver or "–", 8, text=True, shown=mixed_solvers),
         Column("dt", ("dt", "(s)"), lambda row: f"{row.dt:.4g}", 9),
         Column("hw", ("", "h w"), lambda row: "" if not np.isfinite(row.hw) else f"{row.hw:.3g}", 3, shown=_any(lambda row: row.hw)),
-        Column("status", ("", "status"), lambda row: row.status, 9, text=True),
+        Column("status", ("", "status"), _status_text, 9, text=True),
         Column("steps", ("", "steps"), lambda row: str(row.steps), 1),
         Column("max_drift", ("max", "drift"), lambda row: number_text(row.max_rel_energy_drift), 8),
         Column("e_ref", ("E_ref", "(J)"), lambda row: number_text(row.energy_reference), 2,
@@ -64,6 +71,14 @@ def terminal_columns(rows: list[SummaryRow]) -> list[Column]:
         Column("linear", ("linear", "it/step"), lambda row: number_text(row.mean_linear_iterations) if row.solver else "",
                4, shown=_any(lambda row: row.mean_linear_iterations)),
         Column("wall", ("wall", "(s)"), lambda row: f"{row.wall_time:.3g}", 8),
+        Column("real_time", ("", "real-time"), lambda row: real_time_text(row.real_time_factor), 7,
+               shown=_any(lambda row: row.real_time_factor)),
+        Column("wall_per_frame", ("wall/frame", "(ms)"), lambda row: frame_time_text(row.wall_time_per_frame), 3,
+               shown=_any(lambda row: row.wall_time_per_frame)),
+        Column("not_converged", ("not conv.", "steps"), lambda row: steps_text(row.not_converged_steps, row), 6,
+               shown=any_not_converged),
+        Column("safeguards", ("", "safeguards"), lambda row: steps_text(row.safeguard_steps, row), 5,
+               shown=any_safeguards),
         Column("measured", ("d/w", "meas."), _measured_text, 6, shown=_any(lambda row: row.measured_damping)),
         Column("predicted", ("d/w", "pred."), lambda row: damping_text(row.predicted_damping).replace("–", ""), 5,
                shown=_any(lambda row: row.predicted_damping)),
@@ -124,6 +139,19 @@ def format_table(rows: list[SummaryRow], name: str = "", wide: bool = False, wid
         reference = any(row.error_from_reference for row in rows)
         notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
                      f"{error_time_text(rows)}")
+    if any(column.key == "real_time" for column in columns):
+        notes.append("real-time: simulated time (steps dt) over wall time, > 1x faster than real time")
+    if any(column.key == "wall_per_frame" for column in columns):
+        notes.append(f"wall/frame: wall time per 1/{1 / FRAME_TIME:g} s of simulated time (real time: below "
+                     f"{1e3 * FRAME_TIME:.3g} ms)")
+    if any(column.key == "status" for column in columns) and any(_status_text(row) != row.status for row in rows):
+        notes.append("status@n: the first step that diverged or did not converge")
+    if any(column.key == "not_converged" for column in columns):
+        notes.append("not conv.: steps that used up max_iterations"
+                     + (" (an ok run accepted them: on_not_converged accept)" if any(row.accepted for row in rows) else ""))
+    if any(column.key == "safeguards" for column in columns):
+        notes.append("safeguards: steps where the solver cut a step by line search, projected or regularised the "
+                     "Hessian, or fell back to another solver")
     if any(column.key in ("measured", "predicted") for column in columns):
         notes.append("d/w: artificial damping d_method / w (meas.: energy decay, ? = not resolved by the run; "
                      "pred.: amplification matrix)")
@@ -158,6 +186,12 @@ CSV_COLUMNS = (  # header (with its unit), value
     ("solver_iterations_per_step", lambda row: row.mean_newton_iterations),
     ("linear_iterations_per_step", lambda row: row.mean_linear_iterations),
     ("wall_time_s", lambda row: row.wall_time),
+    ("real_time_factor", lambda row: row.real_time_factor),  # dimensionless: steps dt / wall_time
+    ("wall_time_per_frame_s", lambda row: row.wall_time_per_frame),  # per 1/60 s of simulated time
+    ("not_converged_steps", lambda row: row.not_converged_steps),
+    ("first_not_converged_step", lambda row: row.first_not_converged_step),  # 1-based; 0: none
+    ("diverged_step", lambda row: row.diverged_step),  # 1-based; 0: none
+    ("safeguard_steps", lambda row: row.safeguard_steps),
     ("measured_damping_over_w", lambda row: row.measured_damping),  # dimensionless: d_method / w
     ("measured_damping_resolved", lambda row: row.measured_resolved),
     ("predicted_damping_over_w", lambda row: row.predicted_damping),
@@ -180,6 +214,18 @@ def csv_number(value):
     if isinstance(value, np.integer):
         return int(value)
     return value
+
+
+def real_time_text(value: float) -> str:
+    """The real-time factor: "0.31x", "12x", "1234x"; "–" when unknown. Two digits: timing is noisier than that."""
+    if value is None or not np.isfinite(value):
+        return "–"
+    return f"{value:.0f}x" if value >= 10 else f"{value:.2g}x"
+
+
+def frame_time_text(value: float) -> str:
+    """Wall time per 1/60 s frame (given in s) in ms: "16.7", "0.42"; "–" when unknown."""
+    return "–" if value is None or not np.isfinite(value) else f"{1e3 * value:.3g}"
 
 
 def damping_text(value: float) -> str:

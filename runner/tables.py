@@ -32,7 +32,8 @@ MAX_DETERMINANT_ROWS = 60
 
 # What a solver's iterations are called in the tables: the solver's own name for its iteration.
 SOLVER_ITERATION_NAMES = {"newton": "Newton", "projected_newton": "Newton", "lbfgs": "L-BFGS",
-                          "gradient_descent": "gradient descent", "jacobi_chebyshev": "Jacobi-Chebyshev"}
+                          "gradient_descent": "gradient descent", "jacobi_chebyshev": "Jacobi-Chebyshev",
+                          "projective_dynamics": "local-global", "vbd": "VBD sweep"}
 
 
 @dataclass
@@ -63,6 +64,36 @@ class SummaryRow:
     measured_damping: float  # d_method / w from the energy decay (NaN where not measured)
     measured_resolved: bool
     predicted_damping: float  # d_method / w from the amplification matrix at this h w
+    real_time_factor: float = math.nan  # steps dt / wall_time: > 1 faster than real time
+    wall_time_per_frame: float = math.nan  # s of wall time per FRAME_TIME (1/60 s) of simulated time
+    not_converged_steps: int = 0  # steps whose solver used up max_iterations (accepted ones too)
+    accepted: bool = False  # solver.on_not_converged is accept: such steps leave the run ok
+    first_not_converged_step: int = 0  # 1-based; 0: none (or not recorded, files before it)
+    diverged_step: int = 0  # 1-based step at which the energy left the bound; 0: none (or not recorded)
+    t_diverged: float = math.nan  # s, when the energy left the bound
+    safeguard_steps: int = 0  # steps where any of the solver's safeguards fired (solvers.newton.SAFEGUARDS)
+    message: str = ""  # why the run is not ok (the run's attribute)
+
+    @property
+    def status_detail(self) -> str:
+        """Where the run went wrong, in a few words: "at step 37" (diverged), "from step 3, 12/200 steps"
+        (not converged), "12/200 steps accepted" (ok under on_not_converged: accept); "" otherwise."""
+        parts = []
+        if self.status == Status.DIVERGED:
+            if self.diverged_step:
+                parts.append(f"at step {self.diverged_step}")
+            elif np.isfinite(self.t_diverged):
+                parts.append(f"at t = {self.t_diverged:.4g} s")
+        if self.not_converged_steps:
+            counted = f"{self.not_converged_steps}/{self.steps} steps"
+            if self.status == Status.OK:
+                parts.append(f"{counted} accepted")
+            elif self.first_not_converged_step:
+                parts.append(("not converged " if self.status == Status.DIVERGED else "")
+                             + f"from step {self.first_not_converged_step}, {counted}")
+            else:
+                parts.append(("not converged: " if self.status == Status.DIVERGED else "") + counted)
+        return "; ".join(parts)
 
     @property
     def damping_difference(self) -> float:
@@ -103,6 +134,7 @@ def summary_rows(data: FigureData) -> list[SummaryRow]:
         if run.frequency is not None and run.method is not None:
             predicted = _predicted_damping(run.method, run.hw)
         error, error_time, from_reference = run.error, run.error_time, run.error_from_reference
+        attrs = run.stored.attrs
         rows.append(SummaryRow(
             index=run.index, run_id=run.run_id, integrator=run.label, group=titles.get(id(run), ""),
             solver="" if run.explicit else solver_text(run.stored.solver),
@@ -118,6 +150,12 @@ def summary_rows(data: FigureData) -> list[SummaryRow]:
             wall_time=run.wall_time,
             measured_damping=measured, measured_resolved=bool(fit is not None and fit.resolved),
             predicted_damping=predicted,
+            real_time_factor=float(row["real_time_factor"]), wall_time_per_frame=float(row["wall_time_per_frame"]),
+            not_converged_steps=int(attrs.get("not_converged_steps", 0)),
+            accepted=run.stored.solver.get("on_not_converged") == "accept" and not run.explicit,
+            first_not_converged_step=int(attrs.get("first_not_converged_step", 0)),
+            diverged_step=int(attrs.get("diverged_step", 0)), t_diverged=float(attrs.get("t_diverged", math.nan)),
+            safeguard_steps=int(attrs.get("safeguard_steps", 0)), message=run.stored.message,
         ))
     return rows
 
@@ -154,6 +192,21 @@ def iteration_name(rows: list[SummaryRow]) -> str:
 
 def mixed_solvers(rows: list[SummaryRow]) -> bool:
     return len(_iteration_kinds(rows)) > 1
+
+
+def any_safeguards(rows: list[SummaryRow]) -> bool:
+    """Some run had a step where a solver safeguard fired: the safeguards column is shown."""
+    return any(row.safeguard_steps for row in rows)
+
+
+def any_not_converged(rows: list[SummaryRow]) -> bool:
+    """Some run had a step that used up max_iterations (accepted or not): the not-converged column is shown."""
+    return any(row.not_converged_steps for row in rows)
+
+
+def steps_text(count: int, row: SummaryRow) -> str:
+    """"12/200": steps of the run's steps taken; "" for none."""
+    return f"{count}/{row.steps}" if count else ""
 
 
 def energy_reference_text(rows: list[SummaryRow]) -> str:

@@ -18,10 +18,14 @@ from .fallback import FallbackChain
 from .linear import LINEAR_SOLVERS, LinearSolver
 from .newton import Newton, ProjectedNewton
 from .params import (SOLVER_PARAMS, SOLVERS, GradientDescentParams, JacobiChebyshevParams, LBFGSParams, NewtonParams,
-                     ProjectedNewtonParams, SolverField, SolverOptionError, SolverParams, solver_params)
+                     ProjectedNewtonParams, ProjectiveDynamicsParams, SolverField, SolverOptionError, SolverParams,
+                     VBDParams, solver_params)
+from .projective import ProjectiveDynamics, refusal, solver_refusal
+from .vbd import VertexBlockDescent
 
 __all__ = ["SOLVERS", "SOLVER_PARAMS", "LINEAR_SOLVERS", "SolverParams", "NewtonParams", "ProjectedNewtonParams",
            "LBFGSParams", "GradientDescentParams", "JacobiChebyshevParams", "solver_params", "SolverField",
            "SolverOptionError", "Newton", "ProjectedNewton", "LBFGS", "GradientDescent", "JacobiChebyshev",
            "FallbackChain", "NonlinearSolver", "LinearSolver", "NonlinearProblem", "SolveStats", "ConvergenceTest",
-           "EXPLICIT_STEP"]
+           "EXPLICIT_STEP", "ProjectiveDynamics", "ProjectiveDynamicsParams", "refusal", "solver_refusal",
+           "VertexBlockDescent", "VBDParams"]

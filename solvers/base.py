@@ -43,6 +43,10 @@ ROUNDOFF_STEP = 16 * np.finfo(float).eps
 SMALL_VECTOR = 8
 # A failing linear solve (exactly singular factor, non-finite matrix) ends the nonlinear solve as not converged.
 LINEAR_FAILURES = (np.linalg.LinAlgError, RuntimeError, ValueError, FloatingPointError)
+TOLERANCE_MODES = ("residual", "absolute", "step", "velocity")
+STEP_MODES = ("step", "velocity")
+# where a solve starts: the kinds of a problem's initial_guess (integrators/base.py: initial_guess)
+INITIAL_GUESSES = ("start", "inertial", "predictor", "adaptive")  # the modes that test the Newton direction (Newton-type solvers only)
 
 
 class NonlinearProblem(Protocol):
@@ -67,6 +71,7 @@ class SolveStats(NamedTuple):
     residual: float = 0.0  # |gradient|_inf at the returned point
     converged: bool = True
     solver_index: int = 0  # which solver of the fallback chain finished the step (0: the main one)
+    safeguards: int = 0  # bits of the safeguards that fired (solvers/newton.py SAFEGUARDS; 0: none)
 
 
 EXPLICIT_STEP = SolveStats()  # what an explicit step reports: nothing solved
@@ -118,30 +123,48 @@ class ConvergenceTest:
     """When a nonlinear solve has converged; fixed at the start point of the step.
 
     ``residual`` mode: |g(y_k)|_inf <= tolerance |g(y_0)|_inf, relative to the starting residual so
-    that it needs no units. ``step`` mode (Newton-type solvers): |p_k|_inf <= tolerance |p_0|_inf with
-    p the (unscaled) Newton direction; near the solution p_k estimates the error y_k - y*, so this is
-    the error-oriented test of Deuflhard ("Newton Methods for Nonlinear Problems", sec. 2.1), the
-    dimensionless form of the lectures' |p|_inf / h < tolerance. In both modes two round-off limits
-    end the iteration as converged: the residual below the problem's ``residual_floor``, or a
+    that it needs no units. ``absolute``: |g(y_k)|_inf <= tolerance, in the residual's own units (kg m
+    for an incremental potential: M (y - y~) + c h^2 dP/dy). ``step`` mode (Newton-type solvers):
+    |p_k|_inf <= tolerance |p_0|_inf with p the (unscaled) Newton direction; near the solution p_k
+    estimates the error y_k - y*, so this is the error-oriented test of Deuflhard ("Newton Methods for
+    Nonlinear Problems", sec. 2.1). ``velocity`` (Newton-type solvers): the lectures' own rule,
+    |p_k|_inf / b <= tolerance in m/s, b the problem's ``velocity_divisor`` (h for backward Euler: the
+    course code's |p|_inf / h < 1e-2; h/2 for the implicit midpoint rule, whose unknown is x_{n+1/2}),
+    so the solver needs no time step. In the step modes the direction that meets the test is applied
+    before the solve ends (as both lectures do: x <- x + a p, then test). In every mode two round-off
+    limits end the iteration as converged: the residual below the problem's ``residual_floor``, or a
     direction that no longer changes y beyond its last bits.
     """
 
     tolerance: float
-    mode: str  # "residual" | "step"
+    mode: str  # "residual" | "absolute" | "step" | "velocity"
     threshold: float  # the residual at which the solve has converged
     first_direction: float | None = None  # |p_0|_inf, set by the first direction (step mode)
+    step_limit: float = 0.0  # velocity mode: the largest |p|_inf that meets the test, tolerance * b (m)
 
     @classmethod
     def at_start(cls, tolerance: float, mode: str, problem, residual: float) -> "ConvergenceTest":
         floor = float(getattr(problem, "residual_floor", 0.0))
-        relative = tolerance * residual if mode == "residual" else 0.0
-        return cls(tolerance, mode, max(relative, floor))
+        threshold = tolerance * residual if mode == "residual" else tolerance if mode == "absolute" else 0.0
+        test = cls(tolerance, mode, max(threshold, floor))
+        if mode == "velocity":
+            divisor = getattr(problem, "velocity_divisor", None)
+            if divisor is None:
+                raise ValueError("tolerance_mode velocity: this problem has no velocity_divisor (the b in v(y) = (y - a)/b)")
+            test.step_limit = tolerance * float(divisor)
+        return test
 
     def residual_met(self, residual: float) -> bool:
         return residual <= self.threshold
 
+    @property
+    def tests_steps(self) -> bool:
+        return self.mode == "step" or self.mode == "velocity"
+
     def step_met(self, direction_norm: float) -> bool:
-        """Step mode: the direction is small enough (the first direction only sets the reference)."""
+        """Step modes: the direction is small enough (step mode: the first direction only sets the reference)."""
+        if self.mode == "velocity":
+            return direction_norm <= self.step_limit
         if self.mode != "step":
             return False
         if self.first_direction is None:
@@ -191,10 +214,13 @@ class Outcome:
 class NonlinearSolver(ABC):
     """Base of the nonlinear solvers: the loop, the counts and the convergence test (see the module docstring).
 
-    Parameters: tolerance (dimensionless, see ``ConvergenceTest``); max_iterations per solve;
+    Parameters: tolerance (see ``ConvergenceTest``); max_iterations per solve;
     linear_solver: a name of LINEAR_SOLVERS or a LinearSolver (Newton directions, and the one Newton
-    step of ``newton_step`` for every solver); tolerance_mode ``residual`` or ``step``;
-    callback(y, gradient), called after the start and every iteration (tests record histories with it).
+    step of ``newton_step`` for every solver); tolerance_mode ``residual``, ``absolute``, ``step`` or
+    ``velocity``; initial_guess: where ``minimize`` starts (``start``: the point the integrator gives,
+    x_n; ``inertial``, ``predictor``, ``adaptive``: the problem's ``initial_guess(kind)``, see
+    integrators/base.py); callback(y, gradient), called after the start and every iteration (tests
+    record histories with it).
     """
 
     name: ClassVar[str]
@@ -202,11 +228,12 @@ class NonlinearSolver(ABC):
     uses_linear_solver: ClassVar[bool] = False  # are its directions linear solves (else only newton_step uses one)?
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver: str | LinearSolver = "direct",
-                 *, tolerance_mode: str = "residual", callback: Callable | None = None):
-        if tolerance_mode not in ("residual", "step"):
-            raise ValueError(f"tolerance_mode must be 'residual' or 'step', got {tolerance_mode!r}")
-        if tolerance_mode == "step" and not self.supports_step_test:
-            raise ValueError(f"tolerance_mode 'step' needs a Newton-type solver; {self.name} steps do not estimate the error")
+                 *, tolerance_mode: str = "residual", initial_guess: str = "start", callback: Callable | None = None):
+        if tolerance_mode not in TOLERANCE_MODES:
+            raise ValueError(f"tolerance_mode must be one of {', '.join(TOLERANCE_MODES)}, got {tolerance_mode!r}")
+        if tolerance_mode in STEP_MODES and not self.supports_step_test:
+            raise ValueError(f"tolerance_mode {tolerance_mode!r} needs a Newton-type solver; {self.name} steps do not estimate the error")
+        self.initial_guess = initial_guess
         self.tolerance = tolerance
         self.max_iterations = max_iterations
         self.linear_solver = LINEAR_SOLVERS[linear_solver]() if isinstance(linear_solver, str) else linear_solver
@@ -215,9 +242,21 @@ class NonlinearSolver(ABC):
 
     # -- public ------------------------------------------------------------------------------
     def minimize(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
-        """Minimise (or zero the residual of) ``problem`` from ``start``; returns (y, SolveStats)."""
-        y, stats, _, _ = self._run(problem, start, None)
+        """Minimise (or zero the residual of) ``problem`` from ``start`` (or from the configured initial
+        guess); returns (y, SolveStats)."""
+        y, stats, _, _ = self._run(problem, self.starting_point(problem, start), None)
         return y, stats
+
+    def starting_point(self, problem, start: np.ndarray) -> np.ndarray:
+        """``start``, or the problem's initial guess of the configured kind (with its filtered components
+        taken from y~, as ``start_point`` does for x_n)."""
+        if self.initial_guess == "start":
+            return start
+        guess = getattr(problem, "initial_guess", None)
+        if guess is None:
+            raise ValueError(f"initial_guess {self.initial_guess!r}: this problem offers no initial guesses")
+        point = guess(self.initial_guess)
+        return problem.start_point(point) if hasattr(problem, "start_point") else point
 
     def solve(self, problem: NonlinearProblem, start: np.ndarray, test: ConvergenceTest | None = None) -> Outcome:
         """``minimize`` with everything a fallback chain needs; ``test`` carries the chain's first start."""
@@ -239,9 +278,10 @@ class NonlinearSolver(ABC):
         converged = current.residual <= test.threshold  # test.residual_met, inlined
         if callback is not None:
             callback(current.y, current.gradient)
+        state = None
         if not converged and math.isfinite(current.residual):
             state = self._begin(problem, current, free)
-            step_mode = test.mode == "step"
+            step_mode = test.tests_steps
             while iterations < self.max_iterations:
                 try:
                     direction, cost = self._direction(problem, current, state)
@@ -253,14 +293,17 @@ class NonlinearSolver(ABC):
                 size = max_norm(direction)
                 if not math.isfinite(size):
                     break
-                # test.step_met (in step mode) and test.stalled, inlined
-                if (step_mode and test.step_met(size)) or size <= ROUNDOFF_STEP * max_norm(current.y):
+                # test.stalled, inlined: a direction below y's last bits changes nothing
+                if size <= ROUNDOFF_STEP * max_norm(current.y):
                     converged = True
                     break
+                # step modes: the direction that meets the test is applied, then the solve ends
+                final = step_mode and test.step_met(size)
                 advance = self._advance(problem, current, direction, state)
                 iterations += 1
                 line_search_steps += advance.line_search_steps
                 if not advance.ok:
+                    converged = final  # a step below the tolerance that E cannot resolve: met all the same
                     break
                 gradient = advance.gradient
                 if gradient is None:
@@ -274,10 +317,11 @@ class NonlinearSolver(ABC):
                     best_residual, best = residual, current.y
                 if not math.isfinite(residual):
                     break
-                if residual <= test.threshold:  # test.residual_met
+                if residual <= test.threshold or final:  # test.residual_met, or the step test met
                     converged = True
                     break
-        stats = SolveStats(iterations, linear_iterations, line_search_steps, current.residual, bool(converged))
+        stats = SolveStats(iterations, linear_iterations, line_search_steps, current.residual, bool(converged),
+                           0, self._safeguards(state))
         return current.y, stats, best, test
 
     def newton_step(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
@@ -306,6 +350,15 @@ class NonlinearSolver(ABC):
 
     def _begin(self, problem, current: Iterate, free: FreeDofs):
         return None
+
+    def refusal(self, system, problem_kind: str) -> str | None:
+        """Why this solver cannot solve the ``problem_kind`` problems (``Integrator.problem_kind``) of ``system``,
+        in one line, or None: the config refuses such a run before any starts. Most solvers take every problem."""
+        return None
+
+    def _safeguards(self, state) -> int:
+        """The SAFEGUARDS bits that fired in a solve (solvers with safeguards keep them in their state)."""
+        return getattr(state, "safeguards", 0) if state is not None else 0
 
     @abstractmethod
     def _direction(self, problem, current: Iterate, state) -> tuple[np.ndarray, int]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .base import LINEAR_FAILURES, NonlinearSolver, SolveStats
+from .newton import SAFEGUARDS
 
 
 class FallbackChain:
@@ -34,9 +35,10 @@ class FallbackChain:
         return self.solvers[0]
 
     def minimize(self, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
-        outcome = self.main.solve(problem, start)
+        outcome = self.main.solve(problem, self.main.starting_point(problem, start))
         iterations, linear, line_search = (outcome.stats.iterations, outcome.stats.linear_iterations,
                                            outcome.stats.line_search_steps)
+        safeguards = outcome.stats.safeguards
         index = 0
         while not outcome.stats.converged and index + 1 < len(self.solvers):
             index += 1
@@ -44,8 +46,9 @@ class FallbackChain:
             iterations += outcome.stats.iterations
             linear += outcome.stats.linear_iterations
             line_search += outcome.stats.line_search_steps
+            safeguards |= outcome.stats.safeguards | SAFEGUARDS["fallback"]
         return outcome.y, SolveStats(iterations, linear, line_search, outcome.stats.residual,
-                                     outcome.stats.converged, index)
+                                     outcome.stats.converged, index, safeguards)
 
     def newton_step(self, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
         for index, solver in enumerate(self.solvers):

@@ -24,47 +24,69 @@ MAX_LINE_SEARCH = 40
 ENERGY_ROUNDOFF = 1024 * np.finfo(float).eps
 
 
-def judge(rule: str, energy: float, candidate_energy: float, predicted: float) -> bool | None:
+def judge(rule: str, energy: float, candidate_energy: float, predicted: float, magnitude: float | None = None) -> bool | None:
     """True: acceptable; False: not; None: the change is below the round-off of E (judge by the gradient).
 
     ``predicted`` is g^T (y_candidate - y), the first-order change; a non-negative prediction never
-    licenses an increase."""
+    licenses an increase. ``magnitude``: the size of the terms E sums (its round-off is relative to it,
+    not to |E|, where they cancel); max(|E|, |E_candidate|) when the problem does not say."""
     if not np.isfinite(candidate_energy):
         return False
     limit = energy + (ARMIJO_C * min(predicted, 0.0) if rule == "armijo" else 0.0)
     if candidate_energy <= limit:
         return True
-    if abs(candidate_energy - energy) <= ENERGY_ROUNDOFF * max(abs(energy), abs(candidate_energy)):
+    scale = max(abs(energy), abs(candidate_energy), magnitude or 0.0)
+    if abs(candidate_energy - energy) <= ENERGY_ROUNDOFF * scale:
         return None
     return False
 
 
 def accept(problem, free: FreeDofs, current: Iterate, rule: str, candidate: np.ndarray,
-           candidate_energy: float) -> tuple[bool, np.ndarray | None]:
-    """Is ``candidate`` an acceptable next iterate? Returns (verdict, its gradient if it was computed)."""
-    verdict = judge(rule, current.energy, candidate_energy, float(current.gradient @ (candidate - current.y)))
+           candidate_energy: float, within_roundoff: bool = False) -> tuple[bool, np.ndarray | None]:
+    """Is ``candidate`` an acceptable next iterate? Returns (verdict, its gradient if it was computed).
+
+    ``within_roundoff``: a change of E below its round-off is accepted as it is (Newton's full step near
+    the solution, where E cannot tell and the residual is at its own noise), not judged by the gradient."""
+    verdict = judge(rule, current.energy, candidate_energy, float(current.gradient @ (candidate - current.y)),
+                    value_magnitude(problem, candidate))
+    if verdict is None and within_roundoff:
+        return True, None
     if verdict is None:
         gradient = free.zero_fixed(np.array(problem.gradient(candidate), dtype=float))
         return bool(max_norm(gradient) < current.residual), gradient
     return verdict, None
 
 
-def line_search(problem, free: FreeDofs, current: Iterate, direction: np.ndarray, rule: str) -> Advance:
+def line_search(problem, free: FreeDofs, current: Iterate, direction: np.ndarray, rule: str,
+                within_roundoff: bool = False) -> Advance:
     """y + a p for the first a = 1, 1/2, 1/4, ... that ``rule`` accepts; a full step for ``none`` or
-    for a problem without a value. A direction that is not a descent direction (g^T p >= 0) fails."""
+    for a problem without a value. A direction that is not a descent direction (g^T p >= 0) fails.
+    ``within_roundoff``: see ``accept``."""
     if rule == "none" or current.energy is None:
         return Advance(current.y + direction)
-    if not float(current.gradient @ direction) < 0.0:
+    slope = float(current.gradient @ direction)
+    if not slope < 0.0:
         return Advance(current.y, ok=False)
+    if within_roundoff and -slope <= ENERGY_ROUNDOFF * max(abs(current.energy), value_magnitude(problem, current.y) or 0.0):
+        # the decrease the step promises (-g^T p, twice the quadratic model's for a Newton step) is below
+        # what E resolves: E cannot judge the step, which is Newton's converging one; it is taken whole
+        candidate = current.y + direction
+        return Advance(candidate, None, problem.value(candidate), 0)
     step = 1.0
     for reductions in range(MAX_LINE_SEARCH + 1):
         candidate = current.y + step * direction
         energy = problem.value(candidate)
-        ok, gradient = accept(problem, free, current, rule, candidate, energy)
+        ok, gradient = accept(problem, free, current, rule, candidate, energy, within_roundoff)
         if ok:
             return Advance(candidate, gradient, energy, reductions)
         step *= 0.5
     return Advance(current.y, line_search_steps=MAX_LINE_SEARCH, ok=False)
+
+
+def value_magnitude(problem, y: np.ndarray) -> float | None:
+    """The problem's ``value_magnitude(y)`` (the size of E's terms), or None where it offers none."""
+    magnitude = getattr(problem, "value_magnitude", None)
+    return magnitude(y) if magnitude is not None else None
 
 
 def has_value(problem) -> bool:

@@ -14,16 +14,19 @@ both at the bottom of this module.
 from __future__ import annotations
 
 import difflib
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, ValidationError, field_validator, model_validator
+from typing_extensions import TypeAliasType
 
-from .base import NonlinearSolver
-from .descent import LBFGS, GradientDescent, JacobiChebyshev
+from .base import INITIAL_GUESSES, STEP_MODES, TOLERANCE_MODES, NonlinearSolver
+from .descent import INITIAL_HESSIANS, LBFGS, GradientDescent, JacobiChebyshev
 from .fallback import FallbackChain
 from .line_search import LINE_SEARCHES
 from .linear import LINEAR_SOLVERS
 from .newton import SPD_PROJECTIONS, Newton, ProjectedNewton
+from .projective import CHEBYSHEV_RHO_AUTO, ProjectiveDynamics
+from .vbd import VBD_SPD_PROJECTIONS, VertexBlockDescent
 
 # Fields that are not arguments of the solver's constructor: `type` picks the class, the runner reads
 # the other two; linear_tolerance and linear_max_iterations go to the linear solver's.
@@ -112,15 +115,16 @@ class SolverParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     type: str = Field(description="nonlinear solver")
-    tolerance: float = Field(1e-10, gt=0, lt=1, allow_inf_nan=False, description="residual mode: stop when |residual|_inf <= tolerance * |initial residual|_inf; step mode: when |p|_inf <= tolerance * |first p|_inf")
-    tolerance_mode: Literal["residual", "step"] = Field("residual", description="residual (every solver) or step (newton, projected_newton: the Newton step relative to the first one)")
+    tolerance: float = Field(1e-10, gt=0, allow_inf_nan=False, description="residual mode: stop when |residual|_inf <= tolerance * |initial residual|_inf (< 1); absolute: when |residual|_inf <= tolerance (kg m for an incremental potential); step mode: when |p|_inf <= tolerance * |first p|_inf (< 1); velocity: when |p|_inf / b <= tolerance (m/s)")
+    tolerance_mode: Literal[TOLERANCE_MODES] = Field("residual", description="residual or absolute (every solver); step or velocity (newton, projected_newton: the Newton step relative to the first one, or as a velocity |p|_inf / h, the lectures' rule; the step that meets it is applied)")  # type: ignore[valid-type]
+    initial_guess: Literal[INITIAL_GUESSES] = Field("start", description="where each step's solve starts: start (x_n) | inertial (x_n + theta h v_n, theta h the time from t_n to the unknown) | predictor (the method's y~) | adaptive (y~ + c h^2 times the acceleration along gravity, clamped: the VBD paper's)")  # type: ignore[valid-type]
     max_iterations: int = Field(50, ge=1, description="nonlinear iterations per step (per solver of the fallback chain) before the step counts as not converged")
     linear_solver: Literal[tuple(LINEAR_SOLVERS)] = Field("direct", description="linear solver for Newton directions: " + " | ".join(LINEAR_SOLVERS))  # type: ignore[valid-type]
     linear_tolerance: float = Field(1e-10, gt=0, lt=1, allow_inf_nan=False, description="iterative linear solvers: stop when |b - A p|_2 <= linear_tolerance * |b|_2")
     linear_max_iterations: int = Field(1000, ge=1, description="iterative linear solvers: iterations per linear solve")
     mpcg_start: Literal["zero", "filtered"] = Field("zero", description="mpcg: start from p0 = z (Baraff & Witkin) or from p0 = S g + (I - S) z with g the step to the inertial predictor (Ascher & Boxerman)")
     fallback: list[FallbackEntry] = Field([], description="solvers tried in turn when the previous one does not converge on a step (from its best iterate): names, or mappings {type: name, its own option: value}; the shared options are this solver's")
-    on_not_converged: Literal["continue", "stop"] = Field("continue", description="go on after a step that did not converge (status not_converged at the end), or stop the run there")
+    on_not_converged: Literal["continue", "stop", "accept"] = Field("continue", description="go on after a step that did not converge (status not_converged at the end), stop the run there, or accept it (a real-time budget: max_iterations is the work per step; the run stays ok and counts the steps)")
 
     @classmethod
     def solver_name(cls) -> str:
@@ -166,14 +170,17 @@ class SolverParams(BaseModel):
 
     @model_validator(mode="after")
     def _consistent_chain(self) -> "SolverParams":
+        if self.tolerance_mode in ("residual", "step") and not self.tolerance < 1.0:
+            raise SolverOptionError(("tolerance",), f"in {self.tolerance_mode} mode the tolerance is a fraction of the first "
+                                    f"{'residual' if self.tolerance_mode == 'residual' else 'step'}: it must be < 1 (got {self.tolerance:g})")
         chain = self.chain_names()
         if len(set(chain)) != len(chain):
             raise SolverOptionError(("fallback",), f"each solver may appear once in the chain {chain}; a repeat would redo the same attempt")
-        if self.tolerance_mode == "step":
+        if self.tolerance_mode in STEP_MODES:
             unsupported = [name for name in chain if not SOLVERS[name].supports_step_test]
             if unsupported:
                 newton_type = ", ".join(name for name, cls in SOLVERS.items() if cls.supports_step_test)
-                raise SolverOptionError(("tolerance_mode",), f"step needs Newton-type solvers ({newton_type}), not "
+                raise SolverOptionError(("tolerance_mode",), f"{self.tolerance_mode} needs Newton-type solvers ({newton_type}), not "
                                         f"{', '.join(unsupported)}: their steps do not estimate the error")
         return self
 
@@ -210,9 +217,12 @@ SpdProjection = Literal[SPD_PROJECTIONS]  # type: ignore[valid-type]
 
 
 class NewtonParams(SolverParams):
-    """Full Newton steps on the residual with the raw Hessian; it takes only the shared options."""
+    """Newton with the raw Hessian, a line search and safeguards (the projected Hessian, then M added, where
+    the raw direction does not descend)."""
 
     type: Literal["newton"] = "newton"
+    line_search: LineSearch = "backtracking"
+    spd_projection: SpdProjection = Field("none", description="the Newton matrix: none (raw Hessian; the projected one only where a safeguard needs it) | clamp (the system's own projection) | abs (block eigenvalues mirrored) | eigen (whole-matrix clamp, dense problems) | adaptive (abs while far from the solution, raw once its quadratic model is trusted)")
 
 
 class ProjectedNewtonParams(SolverParams):
@@ -220,7 +230,7 @@ class ProjectedNewtonParams(SolverParams):
 
     type: Literal["projected_newton"] = "projected_newton"
     line_search: LineSearch = "backtracking"
-    spd_projection: SpdProjection = Field("clamp", description="none | clamp (the system's own projection) | eigen (whole-matrix eigenvalue clamp for dense problems; clamp for sparse ones)")
+    spd_projection: SpdProjection = Field("clamp", description="none | clamp (the system's own projection) | abs (block eigenvalues mirrored: Chen et al. 2024) | eigen (whole-matrix eigenvalue clamp for dense problems; clamp for sparse ones) | adaptive (abs while far from the solution, raw once its quadratic model is trusted)")
 
 
 class LBFGSParams(SolverParams):
@@ -229,6 +239,7 @@ class LBFGSParams(SolverParams):
     type: Literal["lbfgs"] = "lbfgs"
     line_search: LineSearch = "backtracking"
     history: int = Field(8, ge=1, le=1000, description="number of (s, dg) pairs kept")
+    initial_hessian: Literal[INITIAL_HESSIANS] = Field("scalar", description="H_0 of the two-loop recursion: scalar ((s^T dg / dg^T dg) I) | rest (A^{-1}, A = M + h^2 K_r the rest-shape matrix, factorised once per run: Liu, Bouaziz & Kavan 2017) | scaled_rest ((s^T dg / dg^T A^{-1} dg) A^{-1}); rest and scaled_rest need a system with a rest stiffness")  # type: ignore[valid-type]
 
 
 class GradientDescentParams(SolverParams):
@@ -248,13 +259,48 @@ class JacobiChebyshevParams(SolverParams):
     spd_projection: SpdProjection = Field("clamp", description="the Hessian whose diagonal is D: none (raw) | clamp (the system's own projection) | eigen (as clamp: a diagonal has no whole-matrix clamp)")
 
 
+# chebyshev_rho of projective dynamics: a number, or "auto" (estimated from the warm-up). A named alias, so
+# that the schema and its readers see one type rather than a union of a bounded float and a literal.
+ChebyshevRho = TypeAliasType("ChebyshevRho", Union[float, Literal[CHEBYSHEV_RHO_AUTO]])  # type: ignore[valid-type]
+
+
+class ProjectiveDynamicsParams(SolverParams):
+    """Projective dynamics (Hookean springs, incremental potentials) with optional Chebyshev acceleration."""
+
+    type: Literal["projective_dynamics"] = "projective_dynamics"
+    chebyshev_rho: ChebyshevRho = Field(0.0, description="estimated spectral radius rho of the PD iteration (dimensionless, [0, 1)): 0 plain PD | a number | auto (estimated from the update norms of the warm-up)")
+    chebyshev_warmup: int = Field(10, ge=1, le=10000, description="plain PD iterations of each solve before the Chebyshev acceleration starts (Wang 2015's S)")
+    relaxation: float = Field(1.0, gt=0, le=1, allow_inf_nan=False, description="under-relaxation gamma of each global step (dimensionless; 1: the plain PD step)")
+
+    @field_validator("chebyshev_rho", mode="before")
+    @classmethod
+    def _rho_or_auto(cls, value: Any) -> Any:
+        # one message for both forms (a union would report each member's error under its own tag)
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if value == CHEBYSHEV_RHO_AUTO or (number and 0.0 <= value < 1.0):
+            return value
+        raise ValueError(f"must be a number in [0, 1) or {CHEBYSHEV_RHO_AUTO!r} (got {value!r})")
+
+
+class VBDParams(SolverParams):
+    """Vertex block descent: Gauss-Seidel over vertex colours, a d x d Newton step per vertex (Chen et al. 2024)."""
+
+    type: Literal["vbd"] = "vbd"
+    initial_guess: Literal[INITIAL_GUESSES] = Field("adaptive", description="where each step's solve starts; vbd's default is the paper's adaptive initialisation (sec. 3.7): start | inertial | predictor | adaptive")  # type: ignore[valid-type]
+    spd_projection: Literal[VBD_SPD_PROJECTIONS] = Field("clamp", description="each vertex block M_i + s K_i + (s/b) D_ii with the system's element blocks projected: clamp (negative eigenvalues set to 0) | abs (mirrored)")  # type: ignore[valid-type]
+    chebyshev_rho: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False, description="estimated spectral radius rho of the sweep (dimensionless): 0 no acceleration; else Chebyshev's y_{k+1} = omega (y^ - y_{k-1}) + y_{k-1}, restarted where it raises the energy (one energy evaluation per sweep)")
+    determinant_floor: float = Field(1e-20, ge=0, lt=1, allow_inf_nan=False, description="skip a vertex in a sweep where |det H_i| <= determinant_floor |H_i|_F^d (dimensionless; the paper's small-determinant skip)")
+
+
 # config name -> solver class, and -> its parameter model: the one place where a new solver is made known
 SOLVERS: dict[str, type[NonlinearSolver]] = {
-    cls.name: cls for cls in (Newton, ProjectedNewton, LBFGS, GradientDescent, JacobiChebyshev)
+    cls.name: cls for cls in (Newton, ProjectedNewton, LBFGS, GradientDescent, JacobiChebyshev, ProjectiveDynamics,
+                              VertexBlockDescent)
 }
 SOLVER_PARAMS: dict[str, type[SolverParams]] = {
     model.solver_name(): model
-    for model in (NewtonParams, ProjectedNewtonParams, LBFGSParams, GradientDescentParams, JacobiChebyshevParams)
+    for model in (NewtonParams, ProjectedNewtonParams, LBFGSParams, GradientDescentParams, JacobiChebyshevParams,
+                  ProjectiveDynamicsParams, VBDParams)
 }
 
 

@@ -48,6 +48,8 @@ from pydantic import BaseModel, ConfigDict
 
 # |KE0| + |PE0| below this fraction of the work of the initial forces over the length scale is round-off
 ENERGY_ROUND_OFF = 1e-8
+# P sums terms of both signs: a difference of two values of P below this fraction of them is round-off
+ENERGY_DIFFERENCE_ROUNDOFF = 1024 * np.finfo(float).eps
 
 
 @dataclass(frozen=True)
@@ -149,10 +151,28 @@ class System(ABC):
         incremental potential exactly. Otherwise the reason, in a few words, for the one-line refusal."""
         return f"{type(self).__name__} does not declare its potential as Hookean springs"
 
+    # -- what position-based integrators (XPBD) use --------------------------------------------------
+    def compliant_springs(self):
+        """The system's Hookean springs and their dampers as compliant constraints (a
+        ``systems.compliant.CompliantSprings``), or None: XPBD is then refused with ``compliant_form``."""
+        return None
+
+    @property
+    def compliant_form(self) -> str | None:
+        """None when ``compliant_springs()`` declares the springs; otherwise why not, in a few words."""
+        return f"{type(self).__name__} does not declare its springs as compliant constraints"
+
     @property
     def damping_is_constant(self) -> bool:
         """Is D(x) the same at every x (or is there no damping)?"""
         return not self.is_damped
+
+    def potential_magnitude(self, x: np.ndarray) -> float:
+        """J: the scale of P(x)'s round-off over eps. A term W(x) is computed from differences of
+        coordinates, each with an error of about eps |x|, so its error is about eps |dW/dx| |x|, which for
+        a nearly relaxed spring (W ~ stretch^2) is far above eps W. The default is |P| + sum_i |g_i x_i|;
+        a line search cannot judge changes of E below ENERGY_ROUNDOFF times this."""
+        return abs(self.potential_energy(x)) + float(np.abs(self.gradient(x) * x).sum())
 
     external_acceleration: np.ndarray | None = None  # (dof_count,) m/s^2 of the constant external field (gravity), or None
 
@@ -161,6 +181,63 @@ class System(ABC):
         """Does the system have physical damping? Decided once (at x0), so that undamped systems skip
         ``damping_matrix`` on every force and step; a system's damping model does not switch on and off with x."""
         return self.damping_matrix(self.x0) is not None
+
+    # -- what vertex block descent uses (solvers/vbd.py) ----------------------------------------------
+    def vertex_blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd=False) -> tuple[np.ndarray, np.ndarray]:
+        """Per-vertex blocks of P at x: (dP/dx_i, shape (k, dim), N; d^2P/dx_i^2, shape (k, dim, dim), N/m)
+        for the k vertices i (vertex i owns the dofs dim i .. dim i + dim - 1), ``project_spd`` as ``hessian``.
+
+        The generic form reads them off the full gradient and Hessian: right for every system, at the cost
+        of a whole evaluation; systems of elements (MassSpring) sum the elements that touch each vertex."""
+        vertices = np.asarray(vertices, dtype=np.intp)
+        gradient = np.asarray(self.gradient(x), dtype=float).reshape(-1, self.dim)[vertices]
+        return gradient, diagonal_blocks(self.hessian(x, project_spd=project_spd), vertices, self.dim)
+
+    def vertex_energy_changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """The change of P (J), shape (k,), when vertex i of ``vertices`` moves by steps[i] ((k, dim), m) and every
+        other vertex stays at x: what vertex block descent's backtracking judges. Systems of elements form it
+        without cancellation from the elements at the vertex (MassSpring); the generic form evaluates P once per
+        vertex, and where P(x + s_i) - P(x) is below P's round-off it takes the second-order change
+        g_i . s_i + s_i^T H_i s_i / 2 instead (exact to O(|s_i|^3), far below that round-off)."""
+        d = self.dim
+        vertices = np.asarray(vertices, dtype=np.intp)
+        energy = self.potential_energy(x)
+        moved = np.array(x, dtype=float)
+        changes, scales = np.empty(len(vertices)), np.empty(len(vertices))
+        for index, (vertex, step) in enumerate(zip(vertices.tolist(), steps)):
+            dofs = slice(d * vertex, d * vertex + d)
+            moved[dofs] = x[dofs] + step
+            moved_energy = self.potential_energy(moved)
+            changes[index], scales[index] = moved_energy - energy, max(abs(moved_energy), abs(energy))
+            moved[dofs] = x[dofs]
+        unresolved = np.abs(changes) <= ENERGY_DIFFERENCE_ROUNDOFF * scales
+        if unresolved.any():
+            gradient, hessian = self.vertex_blocks(x, vertices[unresolved])
+            step = steps[unresolved]
+            changes[unresolved] = np.einsum("ki,ki->k", gradient, step) + 0.5 * np.einsum("ki,kij,kj->k", step, hessian, step)
+        return changes
+
+    def vertex_colouring(self) -> list[np.ndarray]:
+        """Vertices in groups of which no two interact (vertex arrays, one per colour): a greedy colouring of
+        the graph whose edges are the nonzero off-diagonal blocks of the Hessian's pattern and of D's at x0
+        (``hessian_pattern`` where the system has one). Built once per system."""
+        cached = self.__dict__.get("_vertex_colouring")
+        if cached is None:
+            d = self.dim
+            matrices = [self.hessian_pattern if self.hessian_pattern is not None else self.hessian(self.x0)]
+            damping = self.damping_matrix(self.x0)
+            if damping is not None:
+                matrices.append(damping)
+            pairs = []
+            for matrix in matrices:
+                if scipy.sparse.issparse(matrix):
+                    matrix = matrix.tocoo()
+                    rows, cols = matrix.row, matrix.col
+                else:
+                    rows, cols = np.nonzero(np.asarray(matrix))
+                pairs.append(np.stack([rows // d, cols // d], axis=1))
+            cached = self.__dict__["_vertex_colouring"] = colour_vertices(self.dof_count // d, np.concatenate(pairs))
+        return cached
 
     def exact_solution(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Exact (x, v) at times t, shapes (len(t), dof_count), or None where none is known."""
@@ -384,3 +461,32 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     if a.ctypes.data == b.ctypes.data and a.strides == b.strides and a.dtype == b.dtype:
         return True
     return bool(np.array_equal(a, b))
+
+
+def diagonal_blocks(matrix, vertices: np.ndarray, dim: int) -> np.ndarray:
+    """The dim x dim diagonal blocks of a dense array or scipy sparse matrix at ``vertices``: shape (k, dim, dim)."""
+    offsets = np.arange(dim)
+    first = (dim * np.asarray(vertices, dtype=np.intp))[:, None, None]
+    rows = np.broadcast_to(first + offsets[None, :, None], (len(vertices), dim, dim)).ravel()
+    cols = np.broadcast_to(first + offsets[None, None, :], (len(vertices), dim, dim)).ravel()
+    if scipy.sparse.issparse(matrix):
+        values = np.asarray(matrix.tocsr()[rows, cols], dtype=float).ravel()
+    else:
+        values = np.asarray(matrix, dtype=float)[rows, cols]
+    return values.reshape(len(vertices), dim, dim)
+
+
+def colour_vertices(vertex_count: int, pairs: np.ndarray) -> list[np.ndarray]:
+    """A greedy colouring of the graph on ``vertex_count`` vertices with edges ``pairs`` ((m, 2) vertex indices;
+    pairs (i, i) are ignored): one sorted index array per colour, no two vertices of a colour joined by an edge.
+    networkx's ``greedy_color`` with the largest-first order (Welsh & Powell 1967): at most max degree + 1 colours."""
+    import networkx  # here, not at the top: the command line starts without it, and only VBD colours vertices
+
+    pairs = np.sort(np.asarray(pairs, dtype=np.intp).reshape(-1, 2), axis=1)
+    pairs = np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+    graph = networkx.Graph()
+    graph.add_nodes_from(range(vertex_count))
+    graph.add_edges_from(pairs.tolist())
+    colour_of = networkx.greedy_color(graph, strategy="largest_first")
+    colours = np.array([colour_of[vertex] for vertex in range(vertex_count)], dtype=np.intp)
+    return [np.flatnonzero(colours == colour) for colour in range(int(colours.max(initial=-1)) + 1)]

@@ -9,6 +9,7 @@ import numpy as np
 from pydantic import ConfigDict, Field
 
 from .base import System, SystemParams
+from .compliant import anchored_springs
 
 
 class CircularMotionParams(SystemParams):
@@ -134,6 +135,14 @@ class CircularMotion(System):
 
     def rest_stiffness(self):
         return self._linear_hessian if self.linear else None
+
+    @property
+    def compliant_form(self):
+        # the linear law m w^2 |x|^2 / 2 is the vector constraint C = x - 0 of compliance 1/(m w^2)
+        return None if self.linear else "the gravitational law -GMm/|x| is not a Hookean spring"
+
+    def compliant_springs(self):
+        return anchored_springs(self.stiffness, 0.0, self.dim) if self.linear else None
 
     energy_reference_name = "|E0| (initial energy)"
 

@@ -10,6 +10,7 @@ import scipy.linalg
 from pydantic import ConfigDict, Field
 
 from .base import System, SystemParams
+from .compliant import anchored_springs
 
 
 class SpringMassParams(SystemParams):
@@ -95,6 +96,12 @@ class SpringMass(System):
 
     def rest_stiffness(self):
         return self._hessian
+
+    # the same spring as a compliant constraint: C = q - 0 with compliance 1/k, its damper d along it (beta = d)
+    compliant_form = None
+
+    def compliant_springs(self):
+        return anchored_springs(self.stiffness, self.damping, dim=1)
 
     energy_reference_name = "E0 (initial energy)"  # = |KE0| + |PE0|: both parts are >= 0
 

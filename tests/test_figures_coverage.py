@@ -32,6 +32,7 @@ SHORT = {
     "spring_stability": ["duration=1.0", "sweep.dt=[0.01,0.19,0.25]"],
     "circular_orbits": ["duration=3.0", "sweep.dt=[0.1,0.3]"],
     "damping_curves": ["duration=12.0", "sweep.dt=[0.3,1.0,3.0]"],
+    "xpbd_damping": ["duration=12.0", "sweep.dt=[0.3,1.0,3.0]"],
     "cloth_hang": [*CLOTH, "duration=0.06", "sweep.dt=[0.02,0.03]"],
     "cloth_sphere": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
     "cloth_convergence": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],

@@ -33,7 +33,7 @@ EULERS = ["forward_euler", "symplectic_euler", "backward_euler"]
 # what differs between two writes of the same config: when (root) and how long (each run, its summary row)
 TIMING_ROOT_ATTRIBUTES = {"created", "command_line"}  # when, and how it was asked for (argv or simrun.run)
 TIMING_RUN_ATTRIBUTES = {"wall_time"}
-TIMING_SUMMARY_COLUMNS = {"wall_time"}
+TIMING_SUMMARY_COLUMNS = {"wall_time", "real_time_factor", "wall_time_per_frame"}  # the last two: wall time per simulated time
 TINY_YAML = """\
 # two runs of the spring: 10 steps each
 name: tiny

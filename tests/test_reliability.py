@@ -320,7 +320,7 @@ BAD_INPUTS = [
     (BASE.replace("name: x", "name: ../escape"), "name: String should match pattern"),
     (BASE.replace("{dt: [0.1]}", "{dt: {logspace: [-3, -1]}}"), "logspace takes three finite numbers"),
     (BASE.replace("{dt: [0.1]}", "{dt: {geomspace: [1, 2, 3]}}"), "expected a list, {logspace"),
-    (BASE.replace("{dt: [0.1]}", "{dt: [0.1], solver.tolerance: [1e-8, 2.0]}"), "sweep: solver.tolerance: Input should be less than 1"),
+    (BASE.replace("{dt: [0.1]}", "{dt: [0.1], solver.tolerance: [1e-8, 2.0]}"), "sweep: solver.tolerance: in residual mode the tolerance is a fraction of the first residual: it must be < 1"),
     (BASE.replace("{dt: [0.1]}", "{dt: [0.1], name: [a, b]}"), "sweep.name: cannot sweep 'name'"),
     (BASE.replace("{dt: [0.1]}", "{dt: {logspace: [-6, -1, 2000]}, system.stiffness: {linspace: [1, 100, 2000]}}"), "runs exceed the limit"),
     ("name: x\nsystem: {type: spring_mass\n", "line 3, column 1: malformed YAML"),

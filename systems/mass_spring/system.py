@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse
 
 from ..base import System
+from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
 
 
@@ -56,6 +57,12 @@ class HookeanLaw:
         return 0.5 * float(np.dot(geometry.tension, geometry.stretch))
 
     @staticmethod
+    def energy_changes(system, length: np.ndarray, moved_length: np.ndarray, squared_change: np.ndarray) -> np.ndarray:
+        """W(L') - W(L) per spring (J) without cancellation: k/2 (L' - L)(L' + L - 2 l0), L' - L = (L'^2 - L^2)/(L' + L),
+        from the lengths (m) and ``squared_change`` L'^2 - L^2 (m^2), which the caller forms without cancellation."""
+        return 0.5 * system.stiffness * squared_change / (moved_length + length) * (moved_length + length - 2.0 * system.rest_length)
+
+    @staticmethod
     def gradient_factor(system: "MassSpring", geometry: SpringGeometry) -> np.ndarray:
         """c_e with dW_e/dx_i = c_e (x_i - x_j): k (L - l0) / L."""
         return geometry.tension / geometry.length
@@ -83,6 +90,12 @@ class SquaredLengthLaw:
     def energy(system, geometry) -> float:
         strain = SquaredLengthLaw._ratio(system, geometry) - 1.0
         return 0.5 * float(np.dot(system.stiffness * system.rest_length_squared, np.square(strain)))
+
+    @staticmethod
+    def energy_changes(system, length, moved_length, squared_change):
+        """W(L') - W(L) per spring (J) without cancellation: k/2 (L'^2 - L^2)(s' + s - 2), s = L^2/l0^2."""
+        ratios = (np.square(moved_length) + np.square(length)) / system.rest_length_squared
+        return 0.5 * system.stiffness * squared_change * (ratios - 2.0)
 
     @staticmethod
     def gradient_factor(system, geometry) -> np.ndarray:
@@ -349,6 +362,14 @@ class MassSpring(System):
     def potential_energy(self, x):
         return self.spring_energy(x) + self.gravity_energy(x) + self.contact_energy(x)
 
+    def potential_magnitude(self, x):
+        """spring energy + sum_e |dW_e/dL| L_e + sum_i |m_i g . x_i| + contact energy: each spring's W is computed
+        from a length with round-off eps L, so its error is eps |dW/dL| L; the gravity terms cancel in P, not
+        in its round-off (System.potential_magnitude)."""
+        geometry = self._springs(x)
+        virial = float(np.abs(self.law.gradient_factor(self, geometry)) @ np.square(geometry.length))
+        return self.spring_energy(x) + virial + float(np.abs(self._gravity_force * x).sum()) + self.contact_energy(x)
+
     def gradient(self, x):
         geometry = self._springs(x)
         # dW/dx_i of each spring, c_e (x_i - x_j); the rows scaled through the transposed view, whose inner
@@ -404,6 +425,44 @@ class MassSpring(System):
     @property
     def damping_is_constant(self) -> bool:
         return not any(term.model == "spring" for term in self.damping_terms)
+
+    # -- for XPBD ------------------------------------------------------------------------------
+    @property
+    def compliant_form(self) -> str | None:
+        if self.law is not HookeanLaw:
+            return f"spring_law {self.law.name} is not a Hookean spring (XPBD needs k/2 (L - l0)^2)"
+        return None
+
+    def compliant_springs(self) -> CompliantSprings | None:
+        """The springs as distance constraints |x_i - x_j| - l0 of compliance 1/k, with the ``spring`` damping
+        model's coefficient as the damper along each (beta); None for a law that is not Hookean. The other damping
+        models (relative, drag, rayleigh) and penalty contact are not springs of this kind: ``other_forces`` says
+        they exist, and XPBD applies them explicitly, as f(x, v) minus the springs' force."""
+        if self.compliant_form is not None:
+            return None
+        along = sum(term.coefficient for term in self.damping_terms if term.model == "spring")
+        other = (any(term.model != "spring" for term in self.damping_terms)
+                 or self.contact.ground is not None or self.contact.sphere is not None)
+        return CompliantSprings(first=self.first, second=self.second, anchor=np.zeros((self.spring_count, self.dim)),
+                                rest_length=self.rest_length, stiffness=self.stiffness,
+                                damping=np.full(self.spring_count, float(along)), vertex_count=self.vertex_count,
+                                other_forces=bool(other))
+
+    # -- for vertex block descent: only the springs at each vertex (blocks.py) ------------------------
+    @functools.cached_property
+    def _vertex_blocks(self):
+        from .blocks import VertexBlocks  # here: blocks.py builds on this module's SpringGeometry
+
+        return VertexBlocks(self)
+
+    def vertex_blocks(self, x, vertices, project_spd=False):
+        return self._vertex_blocks.blocks(x, vertices, project_spd)
+
+    def vertex_energy_changes(self, x, vertices, steps):
+        return self._vertex_blocks.energy_changes(x, vertices, steps)
+
+    def vertex_colouring(self):
+        return self._vertex_blocks.colouring()
 
     @functools.cached_property
     def external_acceleration(self) -> np.ndarray:

@@ -1,0 +1,296 @@
+"""Projective dynamics with Chebyshev acceleration, and the rest-shape matrix it shares with L-BFGS.
+
+Both solvers use the constant matrix A = M + s K_r (+ (s/b) D) of a problem's ``rest_hessian()``,
+factorised once and reused for every iteration and every step while the problem's ``rest_key`` (and the
+free degrees of freedom) stay the same: ``RestFactor``. Solvers that need something of the system say so
+in ``requires`` (``projective``: the incremental potential of Hookean springs, ``rest_stiffness``: a
+K_r at all); ``refusal`` gives the one-line reason why a system cannot be solved by them, for the config
+layer to refuse a run before it starts and for the solvers to refuse a problem they are handed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, ClassVar
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
+
+from .base import Advance, NonlinearSolver
+from .dofs import FreeDofs
+from .line_search import accept, has_value
+from .linear import SPLU_ORDERING, SPLU_SPD_OPTIONS, CholeskySolver, cholmod_module
+
+# The auto estimate of rho is capped here: the Chebyshev weights approach 2 / (1 + sqrt(1 - rho^2)) -> 2, and
+# an estimate too close to 1 over-extrapolates every step (the energy check then restarts the sequence
+# again and again); at 0.999 the accelerated contraction is already ~ 1 - sqrt(2 (1 - rho)) = 0.955 per iteration.
+AUTO_RHO_MAX = 0.999
+# The auto estimate is the mean contraction over the last iterations of the warm-up: the first ones contract
+# irregularly while the fast modes die out (why Wang 2015, sec. 4, starts the acceleration late).
+AUTO_WINDOW = 5
+CHEBYSHEV_RHO_AUTO = "auto"
+
+
+# ------------------------------------------------------------------------------------------------
+# What a solver needs of the system, and the one-line refusal
+# ------------------------------------------------------------------------------------------------
+def refusal(solver_name: str, requires: tuple[str, ...], system, projective: bool) -> str | None:
+    """Why a solver that needs ``requires`` cannot solve the problems of ``system``, in one line, or None.
+
+    ``projective``: is the integrator's problem an incremental potential (``IncrementalPotential.projective``;
+    False for the methods that sample the force along the step, whose ``SegmentPotential`` is not the
+    energy projective dynamics minimises). Requirements: ``projective`` (the problem is an incremental
+    potential, the system's potential Hookean springs plus linear terms with constant damping:
+    ``System.projective_form`` None, and it has a rest stiffness) and ``rest_stiffness`` (the system has a
+    K_r: ``System.rest_stiffness()`` not None)."""
+    reason = _projective_refusal(solver_name, system, projective) if "projective" in requires else None
+    if reason is None and ("projective" in requires or "rest_stiffness" in requires) and _rest_stiffness(system) is None:
+        reason = f"{solver_name} needs the rest stiffness K_r of the system, and {_system_label(system)} has none"
+    return reason
+
+
+def _projective_refusal(solver_name: str, system, projective: bool) -> str | None:
+    """The ``projective`` requirement without the rest stiffness (which costs an assembly to judge)."""
+    if not projective:
+        return (f"{solver_name} needs an incremental potential, and this integrator samples the force along the step "
+                "(as average_vector_field and bdf2_midpoint_mix do)")
+    reason = getattr(system, "projective_form", f"{type(system).__name__} does not declare its potential as Hookean springs")
+    return None if reason is None else f"{solver_name} minimises the incremental potential of Hookean springs only: {reason}"
+
+
+def solver_refusal(solver, system, projective: bool) -> str | None:
+    """``refusal`` for a built solver (or a FallbackChain: its first solver that refuses), from its ``requires``."""
+    for member in getattr(solver, "solvers", (solver,)):
+        reason = refusal(_requirement_label(member), tuple(getattr(member, "requires", ())), system, projective)
+        if reason is not None:
+            return reason
+    return None
+
+
+def _requirement_label(solver) -> str:
+    initial_hessian = getattr(solver, "initial_hessian", None)
+    return f"{solver.name} with initial_hessian {initial_hessian}" if initial_hessian in ("rest", "scaled_rest") else solver.name
+
+
+def _rest_stiffness(system):
+    method = getattr(system, "rest_stiffness", None)
+    return method() if callable(method) else None
+
+
+def _system_label(system) -> str:
+    reason = getattr(system, "projective_form", None)
+    return f"{type(system).__name__} ({reason})" if reason else type(system).__name__
+
+
+def problem_refusal(solver_name: str, requires: tuple[str, ...], problem) -> str | None:
+    """``refusal`` for the problem a solver is handed, as far as the problem tells without building a matrix
+    (the rest stiffness is judged when ``RestFactor.prepare`` asks for the problem's ``rest_hessian``)."""
+    if "projective" not in requires:
+        return None
+    system = getattr(problem, "system", None)
+    if system is None:
+        return f"{solver_name} needs an integrator's incremental potential; this problem is not one"
+    return _projective_refusal(solver_name, system, bool(getattr(problem, "projective", False)))
+
+
+# ------------------------------------------------------------------------------------------------
+# The rest-shape matrix, factorised once
+# ------------------------------------------------------------------------------------------------
+class RestFactor:
+    """Solves A p = b on the free dofs for A = ``problem.rest_hessian()``, factorised once per (rest_key, free dofs).
+
+    A is symmetric positive definite (M > 0, K_r and D positive semi-definite), so the factorisation is
+    CHOLMOD's Cholesky where scikit-sparse is installed (``CholeskySolver``), otherwise SuperLU with
+    diagonal pivots in symmetric mode (``direct``'s SPD options); dense matrices (the small systems) take
+    LAPACK's Cholesky. Fixed dofs are dropped (the free block A_ff) and sliding vertices filtered as the
+    Newton matrix is (S A S + (I - S), ``FreeDofs.filter_matrix``), so the solution is zero on fixed dofs
+    and moves sliding vertices along their allowed directions only. One object lives as long as its
+    solver, i.e. a run: the integrator hands a new problem every step, with the same ``rest_key``.
+    """
+
+    def __init__(self):
+        self._key = None  # (rest_key, FreeDofs) of the factor held
+        self._system = None  # the system of that key, kept alive: its id() is part of rest_key and must not be reused
+        self._solve: Callable[[np.ndarray], np.ndarray] | None = None
+
+    def prepare(self, problem, free: FreeDofs, solver_name: str) -> None:
+        """Factorise the problem's A unless the factor held is already its; ValueError (one line naming
+        ``solver_name``) where the problem has no rest-shape matrix."""
+        rest_hessian = getattr(problem, "rest_hessian", None)
+        if rest_hessian is None:
+            raise ValueError(f"{solver_name} needs a problem with a rest-shape matrix (an integrator's incremental potential); this one has none")
+        key = (problem.rest_key, free)
+        if self._solve is not None and key == self._key:
+            return
+        matrix = rest_hessian()
+        if matrix is None:
+            raise ValueError(f"{solver_name} needs the rest stiffness K_r of the system, and {_system_label(problem.system)} has none")
+        self._solve = None  # a failing factorisation leaves no stale factor behind
+        self._solve = factorise_spd(free.restrict_matrix(free.filter_matrix(matrix)))
+        self._key, self._system = key, problem.system
+
+    def solve(self, free: FreeDofs, rhs: np.ndarray) -> np.ndarray:
+        """p with A_ff p_f = rhs_f (filtered), zero on the fixed dofs, with the factor of the last ``prepare``."""
+        reduced = free.restrict(rhs)
+        if reduced.size == 0:
+            return np.zeros_like(rhs)
+        return free.extend(self._solve(reduced))
+
+
+def factorise_spd(matrix) -> Callable[[np.ndarray], np.ndarray]:
+    """The solve b -> A^{-1} b of a factorised symmetric positive definite matrix (dense or sparse).
+
+    A matrix that turns out not to be definite is factorised by SuperLU with pivoting (as ``direct`` does)."""
+    if not scipy.sparse.issparse(matrix):
+        dense = np.asarray(matrix, dtype=float)
+        try:
+            factor = scipy.linalg.cho_factor(dense, check_finite=False)
+        except np.linalg.LinAlgError:
+            lu = scipy.linalg.lu_factor(dense, check_finite=False)
+            return lambda rhs: scipy.linalg.lu_solve(lu, rhs, check_finite=False)
+        return lambda rhs: scipy.linalg.cho_solve(factor, rhs, check_finite=False)
+    matrix = matrix.tocsc()
+    if CholeskySolver.missing() is None:
+        cholmod = cholmod_module()
+        try:
+            return cholmod.cholesky(matrix).solve_A
+        except cholmod.CholmodNotPositiveDefiniteError:
+            return scipy.sparse.linalg.splu(matrix, permc_spec=SPLU_ORDERING).solve
+    try:
+        return scipy.sparse.linalg.splu(matrix, permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS).solve
+    except RuntimeError:  # a zero pivot: not definite after all
+        return scipy.sparse.linalg.splu(matrix, permc_spec=SPLU_ORDERING).solve
+
+
+# ------------------------------------------------------------------------------------------------
+# Projective dynamics
+# ------------------------------------------------------------------------------------------------
+@dataclass(slots=True)
+class _ProjectiveState:
+    free: FreeDofs
+    rho: float  # the Chebyshev rho of this solve (estimated after the warm-up when auto)
+    previous: np.ndarray  # y_{k-1}
+    position: int  # place in the Chebyshev sequence: <= 1 plain iterations (the warm-up), then accelerated
+    weight: float = 1.0  # omega_k
+    norms: list[float] = field(default_factory=list)  # |p_k|_2 of the warm-up, for the auto estimate
+
+
+class ProjectiveDynamics(NonlinearSolver):
+    """Projective dynamics (the local-global iteration) for Hookean springs, with Chebyshev acceleration.
+
+    The incremental potential of Hookean springs (plus linear forces f and constant damping D) is
+        E(y) = 1/2 |y - y~|_M^2 + s [sum_e k_e/2 (|S_e y| - l_e)^2 - f^T y] + s/(2b) |y - a|_D^2,
+    with S_e y = x_i - x_j the spring vector. Liu et al. ("Fast simulation of mass-spring systems", ACM
+    TOG 32(6), 2013) write each spring term as min over |p_e| = l_e of k_e/2 |S_e y - p_e|^2 and alternate
+    the local step p_e = l_e S_e y_k / |S_e y_k| (the projection onto the rest length) with the global step
+        A y_{k+1} = M y~ + s sum_e k_e S_e^T p_e + s f + (s/b) D a,    A = M + s K_r + (s/b) D,
+    K_r = sum_e k_e S_e^T S_e = sum_e k_e (L_e kron I_d) (Bouaziz et al., "Projective dynamics", ACM TOG
+    33(4), 2014). Since grad E(y) = A y - M y~ - s sum_e k_e S_e^T p_e(y) - s f - (s/b) D a (the spring
+    term's gradient is k_e S_e^T (S_e y - p_e(y))), the global step is exactly
+        y_{k+1} = y_k - A^{-1} grad E(y_k),
+    a descent method with the constant matrix A (Liu, Bouaziz & Kavan, "Quasi-Newton methods for real-time
+    simulation of hyperelastic materials", ACM TOG 36(3), 2017, sec. 3), which is how it is computed here:
+    A is the problem's ``rest_hessian()``, factorised once per run (``RestFactor``). Each local-global
+    pair minimises the augmented energy over p, then over y, so E never increases along plain iterations
+    (also under-relaxed ones, y_k + gamma (y^_{k+1} - y_k) with 0 < gamma <= 1: a convex combination).
+
+    Chebyshev acceleration (H. Wang, "A Chebyshev semi-iterative approach for accelerating projective and
+    position-based dynamics", ACM TOG 34(6), 2015, eq. 12 and sec. 4):
+        y_{k+1} = omega_{k+1} (gamma (y^_{k+1} - y_k) + y_k - y_{k-1}) + y_{k-1},
+        omega = 1 for the first ``chebyshev_warmup`` iterations (Wang's S), then 2 / (2 - rho^2), then
+        omega_{k+1} = 4 / (4 - rho^2 omega_k);
+    rho (``chebyshev_rho``) estimates the spectral radius of the PD iteration (0: plain PD), gamma
+    (``relaxation``) under-relaxes each global step. ``chebyshev_rho: auto`` estimates rho from the
+    warm-up: PD behaves like a linear iteration, whose update norms |y_{k+1} - y_k| = gamma |p_k| shrink by
+    its spectral radius per iteration, so rho is the mean ratio |p_{k+1}| / |p_k| over the last AUTO_WINDOW
+    warm-up iterations (capped at AUTO_RHO_MAX). An accelerated update that raises the energy is rejected
+    and the sequence restarts with a plain step from y_k (as ``JacobiChebyshev``; Wang & Yang, "Descent
+    methods for elastic body simulation on the GPU", ACM TOG 35(6), 2016); each rejection counts as a
+    line-search step. Each global solve (a back-substitution) counts as one linear iteration.
+
+    Refused (ValueError, one line: ``refusal``): problems that are not an incremental potential
+    (``problem.projective`` False), systems whose ``projective_form`` is not None (squared-length springs,
+    penalty contact, spring damping) and systems without a rest stiffness.
+    """
+
+    name = "projective_dynamics"
+    requires: ClassVar[tuple[str, ...]] = ("projective",)
+
+    def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
+                 chebyshev_rho: float | str = 0.0, chebyshev_warmup: int = 10, relaxation: float = 1.0, **options):
+        super().__init__(tolerance, max_iterations, linear_solver, **options)
+        if chebyshev_rho != CHEBYSHEV_RHO_AUTO and not (isinstance(chebyshev_rho, (int, float)) and 0.0 <= chebyshev_rho < 1.0):
+            raise ValueError(f"chebyshev_rho must be in [0, 1) or {CHEBYSHEV_RHO_AUTO!r}, got {chebyshev_rho!r}")
+        if chebyshev_warmup < 1:
+            raise ValueError(f"chebyshev_warmup must be >= 1 (the first iteration has no previous one), got {chebyshev_warmup}")
+        if not 0.0 < relaxation <= 1.0:
+            raise ValueError(f"relaxation must be in (0, 1], got {relaxation}")
+        self.chebyshev_rho = chebyshev_rho
+        self.chebyshev_warmup = chebyshev_warmup
+        self.relaxation = relaxation
+        self.rest_factor = RestFactor()
+
+    def refusal(self, system, problem_kind: str) -> str | None:
+        """Why projective dynamics cannot solve this system's steps (one line), or None; ``problem_kind``:
+        the integrator's (``Integrator.problem_kind``: only an incremental potential is PD's form)."""
+        return refusal(self.name, self.requires, system, problem_kind == "incremental_potential")
+
+    def _begin(self, problem, current, free):
+        reason = problem_refusal(self.name, self.requires, problem)
+        if reason is not None:
+            raise ValueError(reason)
+        self.rest_factor.prepare(problem, free, self.name)
+        auto = self.chebyshev_rho == CHEBYSHEV_RHO_AUTO
+        return _ProjectiveState(free, 0.0 if auto else float(self.chebyshev_rho), current.y, 1 - self.chebyshev_warmup)
+
+    def _direction(self, problem, current, state):
+        return -self.rest_factor.solve(state.free, current.gradient), 1
+
+    def _advance(self, problem, current, direction, state):
+        gamma = self.relaxation
+        state.position += 1
+        if state.position <= 1:  # the warm-up: plain (under-relaxed) global steps
+            if self.chebyshev_rho == CHEBYSHEV_RHO_AUTO:
+                state.norms.append(float(np.linalg.norm(direction)))
+            state.previous = current.y
+            return Advance(current.y + gamma * direction)
+        if state.position == 2 and self.chebyshev_rho == CHEBYSHEV_RHO_AUTO:
+            state.norms.append(float(np.linalg.norm(direction)))
+            state.rho = estimated_rho(state.norms)
+        state.weight = chebyshev_weight(state.position, state.weight, state.rho)
+        candidate = state.weight * (gamma * direction + current.y - state.previous) + state.previous
+        if state.weight == 1.0 or not has_value(problem):  # rho = 0: plain PD; no energy: no check
+            state.previous = current.y
+            return Advance(candidate)
+        if current.energy is None:
+            current.energy = problem.value(current.y)
+        energy = problem.value(candidate)
+        ok, gradient = accept(problem, state.free, current, "backtracking", candidate, energy)
+        state.previous = current.y
+        if ok:
+            return Advance(candidate, gradient, energy)
+        # restart the Chebyshev sequence: a plain step, which never raises E
+        state.position, state.weight = 1, 1.0
+        return Advance(current.y + gamma * direction, line_search_steps=1)
+
+
+def chebyshev_weight(position: int, previous_weight: float, rho: float) -> float:
+    """omega at ``position`` of the Chebyshev sequence (Wang 2015, eq. 12): 1, 2 / (2 - rho^2), 4 / (4 - rho^2 omega)."""
+    if position <= 1:
+        return 1.0
+    if position == 2:
+        return 2.0 / (2.0 - rho * rho)
+    return 4.0 / (4.0 - rho * rho * previous_weight)
+
+
+def estimated_rho(norms: list[float]) -> float:
+    """The mean contraction (|p_last| / |p_first|)^(1/m) over the last m <= AUTO_WINDOW ratios of the update
+    norms, in [0, AUTO_RHO_MAX]; 0 (no acceleration) when there is no ratio to take."""
+    window = norms[-(AUTO_WINDOW + 1):]
+    if len(window) < 2 or not window[0] > 0.0:
+        return 0.0
+    ratio = (window[-1] / window[0]) ** (1.0 / (len(window) - 1))
+    return min(ratio, AUTO_RHO_MAX) if math.isfinite(ratio) else 0.0

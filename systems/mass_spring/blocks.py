@@ -1,0 +1,154 @@
+"""Per-vertex blocks of the mass-spring potential, for vertex block descent (solvers/vbd.py).
+
+Vertex block descent updates one colour of vertices at a time, each vertex i by a Newton step on P as a
+function of x_i alone (Chen et al., "Vertex block descent", ACM TOG 43(4), 2024, sec. 3.2). What it needs
+of P is, per vertex i,
+
+    g_i = sum_{e at i} c_e (x_i - x_j) - m_i g + contact,      H_i = sum_{e at i} B_e + contact block,
+
+with c_e the law's gradient factor and B_e its Hessian block (``SPRING_LAWS``; vertex i at either end of
+spring e sees the same B_e), and the change of P when x_i alone moves, for the solver's backtracking. Only
+the springs that touch the vertices are evaluated: their incidences are found once per vertex set and kept
+(the solver asks for the same few sets, its colours, at every iteration of every step).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import scipy.sparse
+
+from ..base import colour_vertices
+from .system import SpringGeometry, filter_eigenvalues
+
+if TYPE_CHECKING:
+    from .system import MassSpring
+
+# Vertex sets whose incidences are kept: a solver asks for its colours (a few dozen at most); a bound keeps a
+# caller that asks for ever new sets from growing the memory without end.
+MAX_KEPT_SETS = 256
+
+
+@dataclass(frozen=True, eq=False)
+class IncidentSprings:
+    """The p (vertex, spring) incidences of a set of k vertices: a spring with both ends in the set counts twice.
+
+    owner: (p,) the vertex's index in the set; other_dofs: (p, d) the dofs of the spring's other end;
+    summing: (k, p) CSR of ones that adds the incidences of each vertex; stiffness, rest_length,
+    rest_length_squared: (p,) and identity (d, d), what the spring laws read; gravity_force: (k, d) m_i g (N)."""
+
+    vertices: np.ndarray
+    owner: np.ndarray
+    other_dofs: np.ndarray
+    summing: scipy.sparse.csr_matrix
+    stiffness: np.ndarray
+    rest_length: np.ndarray
+    rest_length_squared: np.ndarray
+    identity: np.ndarray
+    gravity_force: np.ndarray
+
+
+class VertexBlocks:
+    """Gradient and Hessian blocks and local energies of a MassSpring, vertex by vertex (see the module docstring)."""
+
+    def __init__(self, system: "MassSpring"):
+        self.system = system
+        self._kept: dict[bytes, IncidentSprings] = {}
+        self._colouring: list[np.ndarray] | None = None
+
+    def colouring(self) -> list[np.ndarray]:
+        """A greedy colouring of the spring graph: the vertices of a colour share no spring (every term of P that
+        couples two vertices, damping included, lies along a spring; contact and gravity act on one vertex)."""
+        if self._colouring is None:
+            system = self.system
+            self._colouring = colour_vertices(system.vertex_count, np.stack([system.first, system.second], axis=1))
+        return self._colouring
+
+    def incident(self, vertices: np.ndarray) -> IncidentSprings:
+        """The incidences of ``vertices`` (found once per set)."""
+        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
+        key = vertices.tobytes()
+        part = self._kept.get(key)
+        if part is not None:
+            return part
+        system, d = self.system, self.system.dim
+        local = np.full(system.vertex_count, -1, dtype=np.intp)
+        local[vertices] = np.arange(vertices.size)
+        at_first, at_second = np.flatnonzero(local[system.first] >= 0), np.flatnonzero(local[system.second] >= 0)
+        springs = np.concatenate([at_first, at_second])
+        owner = np.concatenate([local[system.first[at_first]], local[system.second[at_second]]])
+        other = np.concatenate([system.second[at_first], system.first[at_second]])
+        count = springs.size
+        part = IncidentSprings(
+            vertices=vertices, owner=owner, other_dofs=d * other[:, None] + np.arange(d),
+            summing=scipy.sparse.csr_matrix((np.ones(count), (owner, np.arange(count))), shape=(vertices.size, count)),
+            stiffness=system.stiffness[springs], rest_length=system.rest_length[springs],
+            rest_length_squared=system.rest_length_squared[springs], identity=system.identity,
+            gravity_force=system.vertex_masses[vertices][:, None] * system.gravity)
+        if len(self._kept) >= MAX_KEPT_SETS:
+            self._kept.clear()
+        self._kept[key] = part
+        return part
+
+    @staticmethod
+    def _geometry(part: IncidentSprings, x: np.ndarray, positions: np.ndarray) -> SpringGeometry:
+        """The incident springs with their vertex at ``positions`` and the other end at x: x_i - x_j seen from
+        the vertex (the laws' blocks and factors do not depend on the sign of x_i - x_j)."""
+        delta = positions[part.owner] - x[part.other_dofs]
+        length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+        stretch = length - part.rest_length
+        return SpringGeometry(positions, delta, length, stretch, part.stiffness * stretch)
+
+    def blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd=False) -> tuple[np.ndarray, np.ndarray]:
+        """(dP/dx_i (k, d) N, d^2P/dx_i^2 (k, d, d) N/m) at x, the same numbers as ``System.vertex_blocks`` to round-off."""
+        system, d = self.system, self.system.dim
+        part = self.incident(vertices)
+        positions = x.reshape(-1, d)[part.vertices]
+        geometry = self._geometry(part, x, positions)
+        law = system.law
+        gradient = part.summing @ (law.gradient_factor(part, geometry)[:, None] * geometry.delta)
+        gradient -= part.gravity_force
+        spring_blocks = law.blocks(part, geometry, project_spd).reshape(-1, d * d)
+        hessian = (part.summing @ spring_blocks).reshape(-1, d, d)
+        for depth, normal, stiffness, distance in system._penetration(positions):
+            gradient -= stiffness * depth[:, None] * normal
+            touching = depth > 0
+            if touching.any():
+                hessian[touching] += contact_blocks(depth[touching], normal[touching], stiffness,
+                                                    None if distance is None else distance[touching], project_spd, system.identity)
+        return gradient, hessian
+
+    def energy_changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """The change of P (J), shape (k,), when vertex i moves by steps[i] ((k, d), m) and the others stay at x;
+        the vertices must share no spring (one colour). Formed without cancellation, so that it resolves the
+        changes of the last iterations, ~|g|^2/H, far below the round-off of P itself:
+        sum_{e at i} [W_e(L') - W_e(L)] with L'^2 - L^2 = s . (2 (x_i - x_j) + s), - m_i g . s, and the contact's."""
+        system, d = self.system, self.system.dim
+        part = self.incident(vertices)
+        positions = x.reshape(-1, d)[part.vertices]
+        delta = positions[part.owner] - x[part.other_dofs]
+        step = steps[part.owner]
+        moved = delta + step
+        squared_change = np.einsum("ij,ij->i", step, delta + delta + step)
+        length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+        moved_length = np.sqrt(np.einsum("ij,ij->i", moved, moved))
+        changes = part.summing @ system.law.energy_changes(part, length, moved_length, squared_change)
+        changes -= np.einsum("ij,ij->i", part.gravity_force, steps)
+        for (depth, _, stiffness, _), (moved_depth, _, _, _) in zip(system._penetration(positions),
+                                                                  system._penetration(positions + steps)):
+            changes += 0.5 * stiffness * (moved_depth - depth) * (moved_depth + depth)
+        return changes
+
+
+def contact_blocks(depth: np.ndarray, normal: np.ndarray, stiffness: float, distance: np.ndarray | None,
+                   project_spd, identity: np.ndarray) -> np.ndarray:
+    """Hessian blocks (N/m) of the penalty k/2 depth^2 at touching vertices, as ``MassSpring.hessian_data`` builds
+    them: k n n^T for the ground; k n n^T - k (r - d)/d (I - n n^T) for the sphere, whose negative second term a
+    clamp drops and ``abs`` mirrors."""
+    outer = normal[:, :, None] * normal[:, None, :]
+    if distance is None:
+        return stiffness * outer
+    curvature = filter_eigenvalues(-depth / distance, project_spd)[:, None, None]
+    return stiffness * (outer + curvature * (identity - outer))

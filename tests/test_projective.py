@@ -1,0 +1,351 @@
+"""Projective dynamics, its Chebyshev acceleration and L-BFGS with the rest-shape initial Hessian (issue 16).
+
+For Hookean springs, projective dynamics (PD) is y_{k+1} = y_k - A^{-1} grad E(y_k) with the constant
+A = M + s K_r (+ (s/b) D) (Liu, Bouaziz & Kavan 2017, sec. 3), so the tests check it against theory:
+its fixed point is the minimiser of the incremental potential (the step Newton finds, to the bound
+|y - y*|_2 <= |g(y)|_2 / mu of a strongly convex problem); E never increases along plain iterations
+(each local-global pair minimises an upper bound of E that touches it at y_k, Liu et al. 2013); on a linear
+system A is the Hessian, so one iteration is exact; Chebyshev acceleration (Wang 2015) shortens the
+iteration; and the problems PD cannot express are refused in one line.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse
+
+from conftest import run_one
+import simrun.solvers.projective as projective
+from simrun.config import load_experiment
+from simrun.integrators import INTEGRATORS, State
+from simrun.solvers import (LBFGS, Newton, ProjectiveDynamics, SolveStats, SolverOptionError, refusal, solver_params,
+                            solver_refusal)
+from simrun.solvers.line_search import ENERGY_ROUNDOFF
+from simrun.systems import CircularMotionParams, ClothParams, SpringMassParams
+from simrun.systems.mass_spring.params import MassSpringParams
+
+CLOTH_HANG = Path(__file__).parent.parent / "configs" / "cloth_hang.yaml"
+REFERENCE_TOLERANCE = 1e-12  # Newton's, for the reference step y*
+
+
+class Capture:
+    """A stand-in solver that keeps the problem an integrator hands over (and solves nothing)."""
+
+    def minimize(self, problem, start):
+        self.problem, self.start = problem, start.copy()
+        return start, SolveStats()
+
+
+def step_problem(system, x=None, v=None, dt=0.01, integrator="backward_euler"):
+    """The problem (and start) of one step of ``integrator`` from (x, v) (default: the system's start)."""
+    capture = Capture()
+    x = system.x0 if x is None else x
+    v = system.v0 if v is None else v
+    INTEGRATORS[integrator]().step(system, State(0.0, x, v), dt, capture)
+    return capture.problem, capture.start
+
+
+def cloth_hang(**overrides):
+    """The system of configs/cloth_hang.yaml (12x12, stretch 1e4, shear 1e3, bend 10, pinned top corners)."""
+    params = load_experiment(CLOTH_HANG)[0].system
+    return ClothParams(**{**params.model_dump(), **overrides}).build()
+
+
+def assert_reaches_the_newton_step(system, problem, start, y, stats):
+    """|y - y*|_2 <= |g(y)|_2 / mu (mu: smallest eigenvalue of the free block of the Hessian at y*, with 2x
+    room for its change between y and y*), and y keeps the fixed dofs where they started."""
+    reference, reference_stats = Newton(tolerance=REFERENCE_TOLERANCE, max_iterations=50).minimize(problem, start)
+    assert reference_stats.converged
+    free = np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
+    hessian = problem.hessian(reference)
+    dense = hessian.toarray() if scipy.sparse.issparse(hessian) else np.asarray(hessian)
+    gradient = problem.gradient(y)
+    if system.sliding is None:
+        mu = np.linalg.eigvalsh(dense[np.ix_(free, free)]).min()
+    else:  # on the allowed directions only: Z^T H Z, Z an orthonormal basis of the range of the filter S
+        basis = allowed_basis(system)
+        mu = np.linalg.eigvalsh(basis.T @ dense @ basis).min()
+    assert mu > 0, "the step must be strictly convex, so that y* is unique"
+    assert stats.converged, stats
+    assert np.linalg.norm(y - reference) <= 2.0 * np.linalg.norm(gradient) / mu + 1e-13
+    assert np.array_equal(y[system.fixed_dofs], start[system.fixed_dofs])
+    return reference
+
+
+def allowed_basis(system) -> np.ndarray:
+    """An orthonormal basis of the directions the fixed dofs and sliding filters allow: the range of S."""
+    filter_matrix = np.empty((system.dof_count, system.dof_count))
+    for column in range(system.dof_count):
+        unit = np.zeros(system.dof_count)
+        unit[column] = 1.0
+        unit[system.fixed_dofs] = 0.0
+        filter_matrix[:, column] = system.sliding.apply(unit)
+    values, vectors = np.linalg.eigh(0.5 * (filter_matrix + filter_matrix.T))
+    return vectors[:, values > 0.5]
+
+
+# ------------------------------------------------------------------------------------------------
+# PD reaches the backward Euler step
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("dt", [0.01, 0.02])
+@pytest.mark.parametrize("options, tolerance", [({}, 1e-5), ({"chebyshev_rho": 0.999, "relaxation": 0.9}, 1e-9)],
+                         ids=["plain", "chebyshev"])
+def test_pd_reaches_the_newton_step_of_the_hanging_cloth(dt, options, tolerance):
+    """One backward Euler step of cloth_hang from a swinging state (after 3 steps): PD's fixed point is the
+    minimiser of the incremental potential, which Newton finds to 1e-12."""
+    system = cloth_hang()
+    x, v = system.x0, system.v0
+    for _ in range(3):
+        problem, start = step_problem(system, x, v, dt)
+        y, _ = Newton(tolerance=1e-10).minimize(problem, start)
+        x, v = y, (y - x) / dt
+    problem, start = step_problem(system, x, v, dt)
+    y, stats = ProjectiveDynamics(tolerance=tolerance, max_iterations=40000, **options).minimize(problem, start)
+    assert stats.residual <= tolerance * np.abs(problem.gradient(start)).max()
+    assert stats.linear_iterations == stats.iterations  # one back-substitution per iteration
+    assert_reaches_the_newton_step(system, problem, start, y, stats)
+
+
+PLANE_NORMAL = [0.3, -0.5, 0.8]
+LINE_DIRECTION = [1.0, 0.4, -0.7]
+# a 5x4 grid with a pin, oblique and axis-aligned sliders, and damping that does not depend on x (relative:
+# -k_d (v_i - v_j) per spring), which A = M + s K_r + (s/b) D then holds exactly
+CONSTRAINED = {"model": {"grid": {"resolution": [5, 4], "size": [0.4, 0.3]}},
+               "stiffness": {"stretch": 200.0, "shear": 50.0, "bend": 2.0}, "mass": {"total": 0.1},
+               "damping": [{"model": "relative", "coefficient": 0.05}], "pinned": [15],
+               "constraints": [{"vertices": [19], "normal": PLANE_NORMAL}, {"vertices": [0, 1], "direction": LINE_DIRECTION},
+                               {"vertices": [10], "normal": [1.0, 0.0, 0.0]}],
+               "initial": {"velocity": [0.1, 0.2, -0.3], "spin": [0.3, 0.2, 1.0]}}
+
+
+@pytest.mark.parametrize("solver", [ProjectiveDynamics(tolerance=1e-9, max_iterations=5000),
+                                    ProjectiveDynamics(tolerance=1e-9, max_iterations=5000, chebyshev_rho="auto"),
+                                    LBFGS(tolerance=1e-9, max_iterations=500, initial_hessian="rest")],
+                         ids=["pd", "pd-auto", "lbfgs-rest"])
+def test_pinned_and_sliding_vertices_reach_the_constrained_newton_step(solver):
+    """A backward Euler step of a damped cloth with a pin and vertices sliding on planes and lines: the
+    free block of A, filtered as S A S + (I - S), gives the minimiser on the allowed directions, the one
+    Newton finds; sliding vertices move along their planes and lines only."""
+    system = MassSpringParams(type="mass_spring", **CONSTRAINED).build()
+    assert system.sliding is not None and system.fixed_dofs.size > 0 and system.projective_form is None
+    problem, start = step_problem(system, dt=0.01)
+    start = problem.start_point(start)
+    y, stats = solver.minimize(problem, start)
+    assert_reaches_the_newton_step(system, problem, start, y, stats)
+    moved = (y - start).reshape(-1, 3)
+    normal = np.array(PLANE_NORMAL) / np.linalg.norm(PLANE_NORMAL)
+    direction = np.array(LINE_DIRECTION) / np.linalg.norm(LINE_DIRECTION)
+    assert abs(moved[19] @ normal) <= 1e-14 and moved[10, 0] == 0.0
+    assert np.abs(moved[[0, 1]] - np.outer(moved[[0, 1]] @ direction, direction)).max() <= 1e-14
+    assert np.abs(moved[[0, 1, 10, 19]]).max() > 1e-5, "the sliding vertices must move"
+
+
+def test_the_constrained_pd_step_is_the_global_solve_on_the_allowed_directions():
+    """PD's first step with pins and sliders is the global step restricted to the allowed directions Z:
+    p = -Z (Z^T A Z)^{-1} Z^T g, what the filtered matrix S A S + (I - S) on the free dofs solves."""
+    system = MassSpringParams(type="mass_spring", **CONSTRAINED).build()
+    problem, start = step_problem(system, dt=0.01)
+    start = problem.start_point(start)
+    iterates = []
+    ProjectiveDynamics(max_iterations=1, callback=lambda y, g: iterates.append(y.copy())).minimize(problem, start)
+    basis = allowed_basis(system)
+    matrix = problem.rest_hessian().toarray()
+    exact = -basis @ np.linalg.solve(basis.T @ matrix @ basis, basis.T @ problem.gradient(start))
+    step = iterates[1] - start
+    assert np.abs(step - exact).max() <= 1e-12 * np.abs(exact).max()
+
+
+# ------------------------------------------------------------------------------------------------
+# Properties of the iteration
+# ------------------------------------------------------------------------------------------------
+def compressed_and_stretched_cloth_step():
+    """A cloth squeezed to 0.6 of its width and stretched to 1.3 of its height, with noise out of its plane and
+    random velocities: springs far from their rest lengths both ways."""
+    system = ClothParams(resolution=(8, 8), mass=0.2, stretch_stiffness=500.0, shear_stiffness=100.0, bend_stiffness=5.0,
+                         pinned=["top_left", "top_right"]).build()
+    rng = np.random.default_rng(4)
+    positions = system.x0.reshape(-1, 3).copy()
+    centre = positions.mean(axis=0)
+    positions[:, :2] = centre[:2] + np.array([0.6, 1.3]) * (positions[:, :2] - centre[:2])
+    positions[:, 2] = 0.02 * rng.standard_normal(len(positions))
+    v = rng.standard_normal(system.dof_count)
+    v[system.fixed_dofs] = 0.0
+    problem, start = step_problem(system, positions.ravel(), v, dt=0.02)
+    return problem, start
+
+
+@pytest.mark.parametrize("options", [{}, {"relaxation": 0.5}, {"chebyshev_rho": 0.99, "chebyshev_warmup": 3}],
+                         ids=["plain", "relaxed", "chebyshev-checked"])
+def test_pd_never_increases_the_incremental_potential(options):
+    """E(y_{k+1}) <= E(y_k) (to the round-off of E) at every iteration: a plain local-global pair minimises an
+    upper bound of E that touches it at y_k, an under-relaxed one moves to a convex combination, and an
+    accelerated update that would raise E is replaced by a plain step."""
+    problem, start = compressed_and_stretched_cloth_step()
+    energies = []
+    solver = ProjectiveDynamics(tolerance=1e-10, max_iterations=300, callback=lambda y, g: energies.append(problem.value(y)),
+                                **options)
+    solver.minimize(problem, start)
+    energies = np.array(energies)
+    assert energies.size > 100
+    assert np.all(np.diff(energies) <= ENERGY_ROUNDOFF * np.abs(energies[:-1]))
+    assert energies[-1] < energies[0] - 0.5 * abs(energies[0])
+
+
+@pytest.mark.parametrize("solver", [ProjectiveDynamics(), LBFGS(initial_hessian="rest"), LBFGS(initial_hessian="scaled_rest")],
+                         ids=["pd", "lbfgs-rest", "lbfgs-scaled-rest"])
+@pytest.mark.parametrize("damping", [0.0, 0.7])
+def test_a_linear_system_is_solved_in_one_iteration(solver, damping):
+    """spring_mass: A = m + s k + (s/b) d is the Hessian of the (quadratic) incremental potential, so
+    y_1 = y_0 - A^{-1} g(y_0) is its minimiser: one iteration, the step Newton takes."""
+    system = SpringMassParams(stiffness=400.0, damping=damping, x0=0.3, v0=-2.0).build()
+    problem, start = step_problem(system, dt=0.05)
+    y, stats = solver.minimize(problem, start)
+    reference, _ = Newton(tolerance=REFERENCE_TOLERANCE).minimize(problem, start)
+    assert stats.converged and stats.iterations == 1
+    assert y == pytest.approx(reference, rel=1e-13)
+
+
+def test_lbfgs_rest_takes_the_pd_step_first():
+    """With H_0 = A^{-1} and no secant pair yet, L-BFGS's first direction is PD's step -A^{-1} g; on the
+    compressed cloth the line search accepts it whole (a PD step never raises E), so both first iterates agree."""
+    problem, start = compressed_and_stretched_cloth_step()
+    iterates = {}
+    for name, solver in (("pd", ProjectiveDynamics(max_iterations=1)), ("lbfgs", LBFGS(max_iterations=1, initial_hessian="rest"))):
+        solver.callback = lambda y, g, name=name: iterates.setdefault(name, []).append(y.copy())
+        solver.minimize(problem, start)
+    assert np.array_equal(iterates["pd"][0], start) and len(iterates["pd"]) == 2
+    np.testing.assert_allclose(iterates["lbfgs"][1], iterates["pd"][1], rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("initial_hessian", ["rest", "scaled_rest"])
+def test_lbfgs_with_the_rest_matrix_converges_on_every_step_of_a_hanging_cloth(initial_hessian, record_property):
+    """cloth_hang at 10x10, backward Euler, dt = 0.02 s for 0.2 s, tolerance 1e-9: every step converges. The
+    iterations per step are recorded (printed): ~500-850 for rest, ~400-490 for scaled_rest, Newton 5-6. The
+    rest matrix gives the stretch springs k_e across them, where the Hessian of this nearly unstretched cloth
+    has ~0 (its out-of-plane modes): A^{-1} H has eigenvalues down to 3e-4, which limited memory cannot
+    model in a few iterations."""
+    system = {**load_experiment(CLOTH_HANG)[0].system.model_dump(), "resolution": [10, 10]}
+    result = run_one(system, "backward_euler", 0.02, 0.2,
+                     solver={"type": "lbfgs", "initial_hessian": initial_hessian, "tolerance": 1e-9, "max_iterations": 2000})
+    assert result.status == "ok" and result.steps == 10
+    iterations = result.per_step["newton_iterations"]
+    assert np.all(result.per_step["linear_iterations"] >= iterations)  # a back-substitution per direction at least
+    message = f"lbfgs {initial_hessian}: iterations per step {iterations.tolist()}"
+    record_property("lbfgs_iterations", message)
+    print(message)
+
+
+def test_the_rest_matrix_is_factorised_once_per_run_and_again_when_it_changes(monkeypatch):
+    """Steps with the same rest_key (system, s, s/b) share one factorisation; another dt changes s and
+    needs a new one."""
+    calls = []
+    factorise = projective.factorise_spd
+    monkeypatch.setattr(projective, "factorise_spd", lambda matrix: calls.append(matrix.shape) or factorise(matrix))
+    system = cloth_hang(resolution=(6, 6))
+    solver = ProjectiveDynamics(tolerance=1e-6, max_iterations=5000, chebyshev_rho=0.99)
+    state = State(0.0, system.x0, system.v0)
+    for _ in range(4):
+        state, stats = INTEGRATORS["backward_euler"]().step(system, state, 0.01, solver)
+        assert stats.converged
+    assert calls == [(system.dof_count - system.fixed_dofs.size,) * 2]
+    INTEGRATORS["backward_euler"]().step(system, state, 0.02, solver)
+    assert len(calls) == 2
+
+
+# ------------------------------------------------------------------------------------------------
+# Chebyshev acceleration
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("dt", [0.01, 0.02])
+def test_chebyshev_needs_at_most_half_the_iterations_of_plain_pd(dt):
+    """cloth_hang's first backward Euler step to the same relative residual 1e-4: Wang's acceleration with
+    rho = 0.99 after 10 plain iterations (measured: ~7x fewer iterations; rho = 0.999 with gamma = 0.9 ~20x)."""
+    system = cloth_hang()
+    problem, start = step_problem(system, dt=dt)
+    counts = {}
+    for label, options in (("plain", {}), ("chebyshev", {"chebyshev_rho": 0.99})):
+        y, stats = ProjectiveDynamics(tolerance=1e-4, max_iterations=30000, **options).minimize(problem, start)
+        assert stats.converged
+        counts[label] = stats.iterations
+    assert counts["chebyshev"] <= 0.5 * counts["plain"], counts
+
+
+def test_the_auto_estimate_of_rho_comes_from_the_warmup_update_norms():
+    """After S plain steps the update norms |p_k| shrink like rho^k: the estimate is their mean ratio over
+    the last AUTO_WINDOW of them, within [0, AUTO_RHO_MAX]."""
+    norms = [1.0 * 0.8 ** k for k in range(12)]
+    assert projective.estimated_rho(norms) == pytest.approx(0.8, rel=1e-12)
+    assert projective.estimated_rho([1.0, 2.0, 4.0]) == projective.AUTO_RHO_MAX  # not contracting: capped
+    assert projective.estimated_rho([1.0]) == 0.0  # no ratio: plain PD
+
+
+# ------------------------------------------------------------------------------------------------
+# Refusals: one line each
+# ------------------------------------------------------------------------------------------------
+def hookean_cloth(**overrides):
+    return ClothParams(resolution=(4, 4), stretch_stiffness=100.0, shear_stiffness=10.0, bend_stiffness=1.0,
+                       pinned=["top_left"], **overrides).build()
+
+
+REFUSED = {
+    "squared_length springs": (lambda: MassSpringParams(type="mass_spring", model={"grid": {"resolution": [3, 3]}},
+                                                       spring_law="squared_length").build(), "backward_euler", "not Hookean"),
+    "contact": (lambda: hookean_cloth(contact={"ground": {"height": -0.5}}), "backward_euler", "contact"),
+    "spring damping": (lambda: hookean_cloth(damping=0.3), "backward_euler", "spring damping"),
+    "segment problem": (hookean_cloth, "average_vector_field", "samples the force along the step"),
+    "no rest stiffness": (lambda: CircularMotionParams(force="gravity").build(), "backward_euler", "gravitational law"),
+}
+
+
+@pytest.mark.parametrize("case", list(REFUSED))
+def test_pd_refuses_what_it_cannot_express_in_one_line(case):
+    build, integrator, words = REFUSED[case]
+    system = build()
+    problem, start = step_problem(system, dt=0.01, integrator=integrator)
+    with pytest.raises(ValueError) as error:
+        ProjectiveDynamics().minimize(problem, start)
+    message = str(error.value)
+    assert "\n" not in message and words in message and message.startswith("projective_dynamics")
+    assert message == ProjectiveDynamics().refusal(system, "incremental_potential" if problem.projective else "segment_potential")
+    assert message == solver_refusal(ProjectiveDynamics(), system, problem.projective)
+
+
+def test_lbfgs_rest_refuses_a_system_without_rest_stiffness_in_one_line():
+    """circular_motion with the gravity law has no rest stiffness; the scalar H_0 needs none."""
+    system = CircularMotionParams(force="gravity").build()
+    problem, start = step_problem(system, dt=0.1)
+    for initial_hessian in ("rest", "scaled_rest"):
+        with pytest.raises(ValueError) as error:
+            LBFGS(initial_hessian=initial_hessian).minimize(problem, start)
+        message = str(error.value)
+        assert "\n" not in message and "rest stiffness" in message and message.endswith("has none")
+        assert message.startswith(f"lbfgs with initial_hessian {initial_hessian}")
+        assert solver_refusal(LBFGS(initial_hessian=initial_hessian), system, True).startswith(f"lbfgs with initial_hessian {initial_hessian}")
+    assert solver_refusal(LBFGS(), system, True) is None and LBFGS().minimize(problem, start)[1].converged
+
+
+def test_what_pd_accepts_is_not_refused():
+    for system in (hookean_cloth(), SpringMassParams(damping=0.2).build(), CircularMotionParams(force="linear").build()):
+        assert ProjectiveDynamics().refusal(system, "incremental_potential") is None
+        assert refusal("lbfgs with initial_hessian rest", ("rest_stiffness",), system, False) is None
+
+
+# ------------------------------------------------------------------------------------------------
+# The config
+# ------------------------------------------------------------------------------------------------
+def test_the_config_builds_pd_and_refuses_what_it_does_not_take():
+    solver = solver_params(type="projective_dynamics", chebyshev_rho=0.9).build()
+    assert type(solver) is ProjectiveDynamics and (solver.chebyshev_rho, solver.chebyshev_warmup, solver.relaxation) == (0.9, 10, 1.0)
+    assert solver_params(type="projective_dynamics", chebyshev_rho="auto").build().chebyshev_rho == "auto"
+    assert solver_params(type="projective_dynamics").model_dump()["chebyshev_rho"] == 0.0  # plain PD by default
+    for options, field in (({"history": 4}, "history"), ({"chebyshev_rho": 1.0}, "chebyshev_rho"),
+                           ({"chebyshev_rho": "fast"}, "chebyshev_rho"), ({"chebyshev_warmup": 0}, "chebyshev_warmup"),
+                           ({"relaxation": 1.5}, "relaxation")):
+        with pytest.raises(SolverOptionError) as error:
+            solver_params(type="projective_dynamics", **options)
+        assert str(error.value).startswith(f"{field}: ") and "\n" not in str(error.value)
+    assert ProjectiveDynamics.requires == ("projective",)
+    assert solver_params(type="lbfgs", initial_hessian="rest").build().requires == ("rest_stiffness",)
+    assert solver_params(type="lbfgs").build().requires == ()

@@ -1,0 +1,291 @@
+"""XPBD with small steps (integrators/xpbd.py) and the springs systems declare as compliant constraints
+(systems/compliant.py): the one-step map against the hand-derived one, the predicted artificial damping
+against the damping measured from runs, stability, momentum, constraints and refusals.
+
+Notation: the spring m q'' + beta q' + k q = 0, w = sqrt(k/m), a step h = dt, s substeps of h_s = h/s.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import run_one
+from simrun import analysis
+from simrun.config import load_experiment, validate_system
+from simrun.integrators import INTEGRATORS, State
+from simrun.solvers import EXPLICIT_STEP
+from simrun.sweep import expand_runs
+from simrun.systems import CircularMotionParams, SpringMassParams, System
+from simrun.systems.compliant import ANCHORED, CompliantSprings
+from simrun.systems.constraints import SlidingFilter
+
+XPBD = INTEGRATORS["xpbd"]
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+ULP = np.finfo(float).eps
+UNIT_SPRING = {"type": "spring_mass", "mass": 1.0, "stiffness": 1.0, "damping": 0.0, "x0": 1.0, "v0": 0.0}
+
+
+# ------------------------------------------------------------------------------------------------
+# The one-step map on the spring
+# ------------------------------------------------------------------------------------------------
+def hand_derived_map(m: float, k: float, beta: float, h: float) -> np.ndarray:
+    """One substep of one iteration on the spring C = q, compliance 1/k, damper beta, by hand:
+    x_p = q + h v, Delta lambda = (-k h^2 x_p - beta h (x_p - q)) / ((k h^2 + beta h)/m + 1) (lambda = 0 before),
+    q' = x_p + Delta lambda / m, v' = (q' - q)/h. With c = (k h^2 + beta h)/m + 1:
+    q' = (1 - k h^2/(m c)) q + (h/c) v,  v' = -(k h/(m c)) q + (1/c) v
+    (undamped: q' = (q + h v)/(1 + h^2 w^2), backward Euler's map)."""
+    c = (k * h * h + beta * h) / m + 1.0
+    return np.array([[1.0 - k * h * h / (m * c), h / c], [-k * h / (m * c), 1.0 / c]])
+
+
+@pytest.mark.parametrize("m, k, beta, dt", [(1.0, 1.0, 0.0, 0.7), (1.0, 1.0, 0.0, 30.0), (2.0, 8.0, 0.0, 0.3),
+                                            (2.0, 8.0, 0.5, 0.3), (0.5, 100.0, 3.0, 0.05)])
+def test_the_probe_of_one_substep_is_the_hand_derived_map(m, k, beta, dt):
+    """analysis.amplification_matrix of xpbd (1 substep, 1 iteration) equals hand_derived_map to round-off: the
+    correction cancels most of the prediction x_p = q + h v (|x_p| <= 1 + h for the unit states), 4 eps (1 + h)."""
+    system = SpringMassParams(mass=m, stiffness=k, damping=beta).build()
+    probed = analysis.amplification_matrix(XPBD(substeps=1), dt, system)
+    assert np.max(np.abs(probed - hand_derived_map(m, k, beta, dt))) <= 4 * ULP * (1.0 + dt)
+
+
+@pytest.mark.parametrize("substeps", [1, 5, 20])
+@pytest.mark.parametrize("iterations", [1, 3])
+@pytest.mark.parametrize("beta", [0.0, 0.4])
+def test_a_step_is_substeps_of_backward_euler(substeps, iterations, beta):
+    """On the linear constraint one projection is exact (more iterations change nothing: the residual
+    -C - lambda/(k h^2) is already 0), so a step is the s-th power of the one-substep map at h/s (to 1e-13), and
+    that map is backward Euler's, damper included (to backward Euler's own round-off, 16 eps / h_s in v: its
+    velocity is (x_{n+1} - x_n)/h_s)."""
+    system = SpringMassParams(mass=2.0, stiffness=8.0, damping=beta).build()
+    for dt in (0.05, 0.7, 4.0):
+        h = dt / substeps
+        probed = analysis.amplification_matrix(XPBD(substeps=substeps, iterations=iterations), dt, system)
+        assert np.max(np.abs(probed - np.linalg.matrix_power(hand_derived_map(2.0, 8.0, beta, h), substeps))) < 1e-13
+        backward = analysis.amplification_matrix(INTEGRATORS["backward_euler"](), h, system)
+        assert np.max(np.abs(backward - hand_derived_map(2.0, 8.0, beta, h))) <= 16 * ULP * (1.0 + 1.0 / h)
+
+
+def test_xpbd_never_calls_the_solver():
+    """Explicit in the runner's sense: no nonlinear solve, EXPLICIT_STEP reported."""
+    system = SpringMassParams().build()
+    state, stats = XPBD().step(system, State(0.0, system.x0.copy(), system.v0.copy()), 0.01, solver=None)
+    assert stats is EXPLICIT_STEP and XPBD.explicit
+    assert state.t == 0.01 and np.isfinite(state.x).all()
+
+
+# ------------------------------------------------------------------------------------------------
+# Predicted against measured artificial damping
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("substeps", [1, 5, 20])
+@pytest.mark.parametrize("hw", [0.1, 0.5, 1.0, 2.0])
+def test_measured_damping_agrees_with_the_probed_prediction(substeps, hw):
+    """The decay rate of ln E(t) of a run on the unit spring (w = 1, 40 s, every step sampled), fitted by
+    analysis.measure_damping as the artificial_damping figure does, within 2 % of the probed
+    d/w = -2 ln(rho)/(h w); the closed form (1 + (h w/s)^2)^(-s/2) pins the probe."""
+    result = run_one(UNIT_SPRING, {"type": "xpbd", "substeps": substeps}, hw, 40.0, record={"every": 1})
+    assert result.status == "ok"
+    fit = analysis.measure_damping(result.samples["t"], result.samples["energy"], result.samples["positions"][:, 0], 1.0)
+    rho, predicted = analysis.predict(XPBD(substeps=substeps)).at(hw)
+    assert rho == pytest.approx((1.0 + (hw / substeps) ** 2) ** (-substeps / 2), rel=1e-13)
+    assert fit.resolved
+    assert abs(fit.rate - predicted) <= 0.02 * predicted, (fit.rate, predicted)
+
+
+@pytest.mark.parametrize("substeps, iterations", [(1, 1), (3, 1), (10, 2)])
+def test_the_energy_of_the_undamped_spring_never_grows(substeps, iterations):
+    """The step scales the energy by exactly (1 + (h w / s)^2)^(-s) <= 1 at every h (the map is rho times a
+    rotation in the energy norm): stable for all h, h w from 1e-2 to 1e3; also the linear circular orbit. To
+    round-off: the correction cancels all but 1/(1 + (h w/s)^2) of the prediction, so the new state is good to
+    eps (1 + (h w/s)^2) relative."""
+    for system in (SpringMassParams(stiffness=4.0, x0=1.0, v0=0.3).build(),
+                   CircularMotionParams(dimension=3, angular_velocity=2.0).build()):
+        w = 2.0
+        for hw in np.logspace(-2, 3, 11):
+            integrator, dt = XPBD(substeps=substeps, iterations=iterations), hw / w
+            state = State(0.0, system.x0.copy(), system.v0.copy())
+            energies = [system.total_energy(state.x, state.v)]
+            for _ in range(5):  # 5 steps: (1 + 1e4)^-50 at h w = 1e3 with 10 substeps, still above underflow
+                state, _ = integrator.step(system, state, dt, None)
+                energies.append(system.total_energy(state.x, state.v))
+            factors = np.array(energies[1:]) / np.array(energies[:-1])
+            expected = (1.0 + (hw / substeps) ** 2) ** (-substeps)
+            tolerance = 16 * ULP * substeps * (1.0 + (hw / substeps) ** 2)
+            assert np.all(factors <= 1.0) and np.allclose(factors, expected, rtol=tolerance, atol=0.0), (hw, factors, expected)
+
+
+# ------------------------------------------------------------------------------------------------
+# Mass-spring models: the cloth, momentum, constraints
+# ------------------------------------------------------------------------------------------------
+def test_the_hanging_cloth_runs_with_ten_substeps():
+    """configs/cloth_hang.yaml's 12x12 cloth (k = 1e4 N/m on 1/144 kg vertices: w ~ 2400 rad/s, so h_s w ~ 2.4 at
+    dt = 0.01 s) hangs for 0.5 s under XPBD with 10 substeps: the run passes the runner's divergence check, the
+    pinned corners never move, and the cloth falls and swings (its lowest vertex below -0.8 m)."""
+    system = yaml.safe_load((CONFIGS / "cloth_hang.yaml").read_text())["system"]
+    assert system["resolution"] == [12, 12]
+    result = run_one(system, {"type": "xpbd", "substeps": 10}, 0.01, 0.5, record={"frames_every": 1})
+    assert result.status == "ok", result.message
+    frames = result.samples["frames"]
+    assert np.isfinite(frames).all()
+    pinned = validate_system(system).build().pinned_vertices
+    assert pinned.size == 2
+    assert np.array_equal(frames[:, pinned], np.broadcast_to(frames[0, pinned], frames[:, pinned].shape))
+    assert frames[-1, :, 2].min() < -0.8
+
+
+FREE_MODELS = {
+    # spring damping only: the springs and a zero external field are all the forces
+    "cloth": {"type": "cloth", "resolution": [12, 12], "size": [1.0, 1.0], "mass": 1.0, "stretch_stiffness": 1.0e4,
+              "shear_stiffness": 1.0e3, "bend_stiffness": 10.0, "damping": 0.05, "pinned": [], "gravity": [0.0, 0.0, 0.0],
+              "initial_spin": [0.4, -0.2, 1.5], "initial_velocity": [0.1, 0.0, 0.3]},
+    # relative damping too: applied explicitly as f - f_springs at each substep's start
+    "relative_damping": {"type": "mass_spring", "model": {"grid": {"resolution": [6, 5], "size": [0.3, 0.2]}},
+                         "stiffness": {"stretch": 500.0, "shear": 100.0, "bend": 1.0}, "mass": {"total": 0.12},
+                         "gravity": [0.0, 0.0, 0.0], "damping": [{"model": "spring", "coefficient": 0.02},
+                                                                 {"model": "relative", "coefficient": 0.01}],
+                         "initial": {"scale": [1.2, 0.9, 1.0], "velocity": [0.3, -0.2, 0.5], "spin": [0.5, 1.0, 2.0]}},
+}
+
+
+@pytest.mark.parametrize("model", sorted(FREE_MODELS))
+def test_a_free_model_keeps_its_momentum_to_round_off_every_step(model):
+    """No pins, no gravity: each correction moves the two ends of a spring by m-weighted opposite amounts
+    (W_i grad_i C Delta lambda and -W_j grad_i C Delta lambda), and the explicit remainder (relative damping) acts in
+    pairs, so sum m v changes per step by round-off only: at most 64 eps sum_i m_i |v_i| <= 64 eps sqrt(2 M KE)
+    (Cauchy-Schwarz), M the total mass."""
+    result = run_one(FREE_MODELS[model], {"type": "xpbd", "substeps": 10}, 0.01, 0.5, record={"every": 1})
+    assert result.status == "ok"
+    momentum = result.samples["momentum"]
+    total_mass = float(np.sum(validate_system(FREE_MODELS[model]).build().mass)) / 3.0
+    bound = 64 * ULP * math.sqrt(2.0 * total_mass * result.samples["kinetic_energy"].max())
+    assert np.linalg.norm(momentum[0]) > 0.01
+    assert np.max(np.abs(np.diff(momentum, axis=0))) <= bound
+    assert result.samples["spring_energy"].max() > 1e-5  # J: the springs work
+
+
+class SlidingAnchoredParticle(System):
+    """A particle in the plane that slides along the unit direction u, on a zero-length spring to an anchor a off
+    its line (P = k/2 |x - a|^2, damper beta along the spring): the vector constraint with a full inverse-mass
+    block S/m = u u^T / m. Along the line, q = u . (x - a) obeys m q'' + beta q' + k q = 0 (test-local)."""
+
+    dim = dof_count = 2
+
+    def __init__(self, mass, stiffness, beta, anchor, direction, x0, v0):
+        self.mass, self.stiffness, self.beta, self.anchor = np.full(2, mass), stiffness, beta, np.asarray(anchor, float)
+        self.direction = np.asarray(direction, float) / np.linalg.norm(direction)
+        self.x0, self.v0 = np.asarray(x0, float), (np.asarray(v0, float) @ self.direction) * self.direction
+        self.sliding = SlidingFilter(np.array([0]), np.outer(self.direction, self.direction)[None], 2)
+
+    def potential_energy(self, x):
+        return 0.5 * self.stiffness * float((x - self.anchor) @ (x - self.anchor))
+
+    def gradient(self, x):
+        return self.stiffness * (x - self.anchor)
+
+    def hessian(self, x, project_spd=False):
+        return self.stiffness * np.eye(2)
+
+    def damping_matrix(self, x):
+        return self.beta * np.eye(2) if self.beta > 0 else None
+
+    compliant_form = None
+
+    def compliant_springs(self):
+        return CompliantSprings(first=np.zeros(1, np.intp), second=np.full(1, ANCHORED, np.intp), anchor=self.anchor[None],
+                                rest_length=np.zeros(1), stiffness=np.array([self.stiffness]), damping=np.array([self.beta]),
+                                vertex_count=1, other_forces=False)
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.3])
+def test_a_sliding_vertex_on_a_zero_length_spring_moves_like_the_spring_along_its_line(beta):
+    """The projection through S/m (a d x d solve per spring) keeps the particle on its line, and q = u . (x - a)
+    follows xpbd on the 1-D spring with q0 = u . (x0 - a), v0 = u . v0, step for step (to 1e-12)."""
+    particle = SlidingAnchoredParticle(0.5, 8.0, beta, anchor=[0.3, -0.2], direction=[1.0, 2.0], x0=[1.0, 0.4], v0=[0.2, 0.5])
+    u, a = particle.direction, particle.anchor
+    spring = SpringMassParams(mass=0.5, stiffness=8.0, damping=beta, x0=float(u @ (particle.x0 - a)),
+                              v0=float(u @ particle.v0)).build()
+    integrator = XPBD(substeps=4, iterations=2)
+    state, reference = State(0.0, particle.x0.copy(), particle.v0.copy()), State(0.0, spring.x0.copy(), spring.v0.copy())
+    normal = np.array([-u[1], u[0]])
+    for _ in range(100):
+        state, _ = integrator.step(particle, state, 0.05, None)
+        reference, _ = integrator.step(spring, reference, 0.05, None)
+        assert abs(normal @ (state.x - particle.x0)) < 1e-14 and abs(normal @ state.v) < 1e-14
+        assert u @ (state.x - a) == pytest.approx(reference.x[0], abs=1e-12)
+        assert u @ state.v == pytest.approx(reference.v[0], abs=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------
+# What systems declare
+# ------------------------------------------------------------------------------------------------
+DECLARING = {
+    "spring_mass": {"type": "spring_mass", "mass": 2.0, "stiffness": 8.0, "damping": 0.5},
+    "circular_motion": {"type": "circular_motion", "dimension": 3, "angular_velocity": 2.0, "mass": 1.5},
+    "cloth": {**FREE_MODELS["cloth"], "resolution": [4, 3]},
+    "mass_spring": {"type": "mass_spring", "model": {"rope": {"count": 5, "length": 1.0}}, "stiffness": 300.0,
+                    "gravity": [0.0, 0.0, 0.0], "damping": [{"model": "spring", "coefficient": 0.1}]},
+}
+
+
+@pytest.mark.parametrize("name", sorted(DECLARING))
+def test_declared_springs_are_the_whole_force_and_energy(name):
+    """Where a system's springs (and dampers) are all its forces, f_springs(x, v) = f(x, v) and the springs'
+    energy = P(x), at a random state (no gravity, no pins: nothing else acts)."""
+    system = validate_system(DECLARING[name]).build()
+    springs = system.compliant_springs()
+    assert system.compliant_form is None and not springs.other_forces
+    rng = np.random.default_rng(7)
+    x = system.x0 + 0.05 * rng.standard_normal(system.dof_count)
+    v = rng.standard_normal(system.dof_count)
+    assert np.allclose(springs.force(x, v), system.force(x, v), rtol=1e-12, atol=1e-12 * np.abs(system.force(x, v)).max())
+    assert springs.energy(x) == pytest.approx(system.potential_energy(x), rel=1e-12)
+
+
+def test_forces_that_are_not_springs_are_flagged():
+    """Relative damping, drag and penalty contact are not along-the-spring dampers or Hookean springs: the
+    springs say other forces exist, and their force is f minus those."""
+    base = {"type": "mass_spring", "model": {"rope": {"count": 4, "length": 1.0}}, "stiffness": 300.0, "gravity": [0.0, 0.0, 0.0]}
+    for extra in ({"damping": [{"model": "relative", "coefficient": 0.1}]}, {"damping": [{"model": "drag", "coefficient": 0.1}]},
+                  {"contact": {"ground": {"height": -5.0, "stiffness": 1e3}}}):
+        assert validate_system({**base, **extra}).build().compliant_springs().other_forces, extra
+
+
+@pytest.mark.parametrize("system, reason", [
+    ({"type": "mass_spring", "model": {"rope": {"count": 3, "length": 1.0}}, "spring_law": "squared_length"},
+     "spring_law squared_length is not a Hookean spring (XPBD needs k/2 (L - l0)^2)"),
+    ({"type": "circular_motion", "force": "gravity"}, "the gravitational law -GMm/|x| is not a Hookean spring"),
+])
+def test_a_system_without_compliant_springs_is_refused_in_one_line(system, reason):
+    result = run_one(system, "xpbd", 0.01, 0.05)
+    assert result.status == "failed"
+    assert "\n" not in result.message
+    assert result.message == f"ValueError: xpbd needs the system's springs as compliant constraints: {reason}"
+
+
+def test_the_colouring_separates_springs_that_share_a_vertex():
+    """Every spring in exactly one colour, no vertex twice in a colour, at most 2 Delta - 1 colours (greedy)."""
+    system = yaml.safe_load((CONFIGS / "cloth_hang.yaml").read_text())["system"]
+    springs = validate_system(system).build().compliant_springs()
+    colours = springs.colours
+    assert np.array_equal(np.sort(np.concatenate(colours)), np.arange(springs.spring_count))
+    for colour in colours:
+        ends = np.concatenate([springs.first[colour], springs.second[colour]])
+        assert np.unique(ends).size == ends.size
+    degree = np.bincount(np.concatenate([springs.first, springs.second])).max()
+    assert len(colours) <= 2 * degree - 1
+
+
+def test_the_damping_config_sweeps_xpbd_beside_backward_euler():
+    """configs/xpbd_damping.yaml: the unit spring, xpbd at 1, 5 and 20 substeps labelled with them, h w from 0.05 to 3."""
+    experiment, _ = load_experiment(CONFIGS / "xpbd_damping.yaml")
+    runs = expand_runs(experiment)
+    labels = list(dict.fromkeys(run.integrator_label for run in runs))
+    assert labels == ["xpbd[substeps=1]", "xpbd[substeps=5]", "xpbd[substeps=20]", "backward_euler", "implicit_midpoint"]
+    frequency = math.sqrt(experiment.system.stiffness / experiment.system.mass)
+    hw = sorted({run.dt * frequency for run in runs})
+    assert hw[0] == pytest.approx(0.05) and hw[-1] == pytest.approx(3.0)
+    assert {0.1, 0.5, 1.0, 2.0} <= set(hw)
