@@ -177,6 +177,16 @@ class ConvergenceTest:
         return direction_norm <= ROUNDOFF_STEP * max_norm(y)
 
 
+def chebyshev_weight(position: int, previous_weight: float, rho: float) -> float:
+    """omega at ``position`` of the Chebyshev semi-iterative sequence (Wang 2015, eq. 12):
+    omega_1 = 1, omega_2 = 2 / (2 - rho^2), omega_k = 4 / (4 - rho^2 omega_{k-1})."""
+    if position <= 1:
+        return 1.0
+    if position == 2:
+        return 2.0 / (2.0 - rho * rho)
+    return 4.0 / (4.0 - rho * rho * previous_weight)
+
+
 # ------------------------------------------------------------------------------------------------
 # The shared iteration
 # ------------------------------------------------------------------------------------------------

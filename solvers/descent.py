@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse
 from scipy.linalg.blas import daxpy, ddot
 
-from .base import Advance, Iterate, NonlinearSolver
+from .base import Advance, Iterate, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
 from .line_search import MAX_LINE_SEARCH, accept, has_value, line_search
 from .projective import RestFactor
@@ -251,11 +251,7 @@ class JacobiChebyshev(NonlinearSolver):
         return -state.inverse_diagonal * current.gradient, 0
 
     def _weight(self, position: int, previous_weight: float) -> float:
-        if position <= 1:
-            return 1.0
-        if position == 2:
-            return 2.0 / (2.0 - self.rho ** 2)
-        return 4.0 / (4.0 - self.rho ** 2 * previous_weight)
+        return chebyshev_weight(position, previous_weight, self.rho)
 
     def _advance(self, problem, current, direction, state):
         state.position += 1

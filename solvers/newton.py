@@ -22,7 +22,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse
 
-from .base import LINEAR_FAILURES, Advance, NonlinearSolver
+from .base import LINEAR_FAILURES, NonlinearSolver
 from .dofs import FreeDofs
 from .line_search import has_value, line_search
 

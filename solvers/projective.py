@@ -19,7 +19,7 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
-from .base import Advance, NonlinearSolver
+from .base import Advance, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
 from .line_search import accept, has_value
 from .linear import SPLU_ORDERING, SPLU_SPD_OPTIONS, CholeskySolver, cholmod_module
@@ -275,15 +275,6 @@ class ProjectiveDynamics(NonlinearSolver):
         # restart the Chebyshev sequence: a plain step, which never raises E
         state.position, state.weight = 1, 1.0
         return Advance(current.y + gamma * direction, line_search_steps=1)
-
-
-def chebyshev_weight(position: int, previous_weight: float, rho: float) -> float:
-    """omega at ``position`` of the Chebyshev sequence (Wang 2015, eq. 12): 1, 2 / (2 - rho^2), 4 / (4 - rho^2 omega)."""
-    if position <= 1:
-        return 1.0
-    if position == 2:
-        return 2.0 / (2.0 - rho * rho)
-    return 4.0 / (4.0 - rho * rho * previous_weight)
 
 
 def estimated_rho(norms: list[float]) -> float:

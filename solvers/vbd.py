@@ -19,7 +19,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import Advance, NonlinearSolver
+from .base import Advance, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
 
 VBD_SPD_PROJECTIONS = ("clamp", "abs")
@@ -62,15 +62,6 @@ def colour_plans(colouring: list[np.ndarray], free: FreeDofs, dim: int) -> list[
             filtered = np.flatnonzero(constrained[vertices])
             plans.append(ColourPlan(vertices, filtered, projectors[vertices[filtered]]))
     return plans
-
-
-def chebyshev_weight(position: int, previous_weight: float, rho: float) -> float:
-    """omega_1 = 1, omega_2 = 2 / (2 - rho^2), omega_k = 4 / (4 - rho^2 omega_{k-1}) (Wang 2015, eq. 12)."""
-    if position <= 1:
-        return 1.0
-    if position == 2:
-        return 2.0 / (2.0 - rho * rho)
-    return 4.0 / (4.0 - rho * rho * previous_weight)
 
 
 @dataclass
