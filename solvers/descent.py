@@ -21,12 +21,12 @@ from scipy.linalg.blas import daxpy, ddot
 from .base import Advance, Iterate, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
 from .line_search import MAX_LINE_SEARCH, accept, has_value, line_search
-from .projective import RestFactor
+from .projective import RestFactor, factorise_spd
 
 # A curvature pair (s, dg) of L-BFGS is kept only when s^T dg > this times dg^T dg, so that the
 # inverse-Hessian model stays positive definite and well scaled (Byrd, Lu, Nocedal & Zhu 1995, sec. 6).
 CURVATURE_EPS = np.finfo(float).eps
-INITIAL_HESSIANS = ("scalar", "rest", "scaled_rest")
+INITIAL_HESSIANS = ("scalar", "rest", "scaled_rest", "step")
 
 
 def cauchy_step(problem, current: Iterate) -> float:
@@ -57,6 +57,7 @@ class _DescentState:
     step_length: float  # gradient descent: the trial step; L-BFGS: the scale of H_0 (scalar and scaled_rest)
     pairs: deque = field(default_factory=deque)
     scaled_by: tuple | None = None  # scaled_rest: the pair that gave step_length its value
+    step_solve: object = None  # initial_hessian step: b -> H+(y_0)^-1 b on the free dofs, factorised for this solve
 
 
 def _secant_pair(problem, state, current, advance) -> tuple[np.ndarray, np.ndarray, float]:
@@ -111,7 +112,10 @@ class LBFGS(NonlinearSolver):
     A gives each spring its stiffness k_e across it as well as along it, while the Hessian of a cloth near
     its rest lengths has ~0 across (k_e (1 - l_e/L)): on cloth_hang's out-of-plane modes the eigenvalues
     of A^{-1} H spread over 3e-4..0.1, and gamma fits the model to them (~40 % fewer iterations there).
-    Both need a system with a rest stiffness (``requires``; refused in one line otherwise).
+    Both need a system with a rest stiffness (``requires``; refused in one line otherwise). ``step``:
+    H_0 = H+(y_0)^{-1}, the SPD-projected Hessian at the solve's start, factorised once per step (not per
+    run): the quasi-Newton method with a lagged Hessian, whose BFGS pairs correct what changed within
+    the step; it needs no rest stiffness and follows the cloth's rotation, which the rest shape cannot.
     """
 
     name = "lbfgs"
@@ -127,7 +131,7 @@ class LBFGS(NonlinearSolver):
         self.history = history
         self.initial_hessian = initial_hessian
         # what this solver needs of the system (solvers/projective.py: refusal), per instance: it depends on H_0
-        uses_rest = initial_hessian != "scalar"  # see refusal
+        uses_rest = initial_hessian in ("rest", "scaled_rest")  # see refusal
         self.requires: tuple[str, ...] = ("rest_stiffness",) if uses_rest else ()
         self.rest_factor = RestFactor() if uses_rest else None
 
@@ -139,6 +143,12 @@ class LBFGS(NonlinearSolver):
                        problem_kind == "incremental_potential")
 
     def _begin(self, problem, current, free):
+        if self.initial_hessian == "step":
+            _prepare_energy(problem, current, self.line_search)
+            factor = factorise_spd(free.restrict_matrix(free.filter_matrix(problem.hessian(current.y, project_spd="abs"))))
+            state = _DescentState(free, 1.0, deque(maxlen=self.history))
+            state.step_solve = lambda rhs: free.extend(factor(free.restrict(rhs)))
+            return state  # the first step is the projected Newton step: no Cauchy length
         if self.rest_factor is not None:
             self.rest_factor.prepare(problem, free, f"lbfgs with initial_hessian {self.initial_hessian}")
             _prepare_energy(problem, current, self.line_search)
@@ -149,6 +159,8 @@ class LBFGS(NonlinearSolver):
     def _direction(self, problem, current, state):
         rest = self.rest_factor
         if not state.pairs:
+            if state.step_solve is not None:
+                return -state.step_solve(current.gradient), 1
             if rest is not None:
                 return -rest.solve(state.free, current.gradient), 1
             return -state.step_length * current.gradient, 0
@@ -169,7 +181,10 @@ class LBFGS(NonlinearSolver):
             alpha = rho * ddot(s, q)
             q = daxpy(dg, q, a=-alpha)
             alphas.append(alpha)
-        if rest is not None:
+        if state.step_solve is not None:
+            q = state.step_solve(q)
+            solves += 1
+        elif rest is not None:
             q = rest.solve(state.free, q)  # H_0 q = gamma A^{-1} q (gamma = 1 for rest)
             if state.step_length != 1.0:
                 q *= state.step_length
