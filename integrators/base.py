@@ -63,6 +63,11 @@ class Integrator(BaseModel):
     def step(self, system: System, state: State, dt: float, solver) -> tuple[State, SolveStats]:
         """Advance ``state`` by dt (s); implicit methods solve with ``solver``."""
 
+    def refusal(self, system: System) -> str | None:
+        """Why this method cannot step ``system``, in one line, or None: the config refuses such a run before any
+        starts (XPBD needs the system's springs as compliant constraints). Most methods step every system."""
+        return None
+
     @property
     def order_of_accuracy(self) -> int:
         """The order with these parameter values; ``order`` is the order at the defaults (Newmark: 1 unless gamma = 1/2)."""

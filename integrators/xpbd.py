@@ -57,6 +57,10 @@ class XPBD(Integrator):
     substeps: int = Field(10, ge=1, le=10_000, description="substeps per step, each h/substeps long (small steps)")
     iterations: int = Field(1, ge=1, le=1_000, description="constraint projection sweeps per substep (small steps: 1)")
 
+    def refusal(self, system):
+        reason = system.compliant_form
+        return None if reason is None else f"xpbd needs the system's springs as compliant constraints: {reason}"
+
     def step(self, system, state, dt, solver):
         projection = spring_projection(system)
         h = dt / self.substeps

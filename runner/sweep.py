@@ -53,7 +53,7 @@ def expand_runs(experiment: Experiment) -> list[Run]:
             if identity in seen:
                 continue
             seen.add(identity)
-            _check_solver_fits(resolved, integrator, systems)
+            _check_method_fits(resolved, integrator, systems)
             for dt in experiment.sweep["dt"]:
                 if dt > resolved.duration:
                     raise ConfigError(f"sweep.dt: {dt:g} is longer than duration {resolved.duration:g}; a step must fit in the run")
@@ -135,19 +135,23 @@ def resolved_config(experiment: Experiment) -> str:
     return yaml.safe_dump(resolved_document(experiment), sort_keys=False)
 
 
-def _check_solver_fits(resolved: Experiment, integrator: Integrator, systems: dict[str, Any]) -> None:
-    """A solver that cannot solve this integrator's problems on this system (projective dynamics on squared-length
-    springs, VBD on forces sampled along the step, ...) is refused in one line before any run starts."""
+def _check_method_fits(resolved: Experiment, integrator: Integrator, systems: dict[str, Any]) -> None:
+    """An integrator that cannot step this system (XPBD without compliant springs), or a solver that cannot solve
+    the integrator's problems on it (projective dynamics on squared-length springs, VBD on forces sampled along
+    the step, ...), is refused in one line before any run starts."""
     kind = integrator.problem_kind
-    if kind is None:
-        return
-    solver = resolved.solver.build()
-    members = getattr(solver, "solvers", (solver,))
-    if all(type(member).refusal is NonlinearSolver.refusal for member in members):
-        return  # none of them refuses anything: no system to build
+    members = ()
+    if kind is not None:
+        solver = resolved.solver.build()
+        members = [member for member in getattr(solver, "solvers", (solver,)) if type(member).refusal is not NonlinearSolver.refusal]
+    if not members and type(integrator).refusal is Integrator.refusal:
+        return  # nothing here refuses anything: no system to build
     key = json.dumps(resolved.system.model_dump(mode="json"), sort_keys=True)
     if key not in systems:
         systems[key] = resolved.system.build()
+    reason = integrator.refusal(systems[key])
+    if reason is not None:
+        raise ConfigError(f"integrators: {integrator.label}: {reason}")
     for member in members:
         reason = member.refusal(systems[key], kind)
         if reason is not None:

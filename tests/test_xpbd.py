@@ -17,6 +17,7 @@ import yaml
 from conftest import run_one
 from simrun import analysis
 from simrun.config import load_experiment, validate_system
+from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS, State
 from simrun.solvers import EXPLICIT_STEP
 from simrun.sweep import expand_runs
@@ -260,10 +261,13 @@ def test_forces_that_are_not_springs_are_flagged():
     ({"type": "circular_motion", "force": "gravity"}, "the gravitational law -GMm/|x| is not a Hookean spring"),
 ])
 def test_a_system_without_compliant_springs_is_refused_in_one_line(system, reason):
-    result = run_one(system, "xpbd", 0.01, 0.05)
-    assert result.status == "failed"
-    assert "\n" not in result.message
-    assert result.message == f"ValueError: xpbd needs the system's springs as compliant constraints: {reason}"
+    """At config time (exit status 2, one line, before any run), and by the step itself if built past that."""
+    with pytest.raises(ConfigError) as refused:
+        run_one(system, "xpbd", 0.01, 0.05)
+    assert str(refused.value) == f"integrators: xpbd: xpbd needs the system's springs as compliant constraints: {reason}"
+    built = validate_system(system).build()
+    with pytest.raises(ValueError, match="^xpbd needs the system's springs as compliant constraints: "):
+        INTEGRATORS["xpbd"]().step(built, State(0.0, built.x0, built.v0), 0.01, None)
 
 
 def test_the_colouring_separates_springs_that_share_a_vertex():
