@@ -53,7 +53,8 @@ class Integrator(BaseModel):
     explicit: ClassVar[bool]
     summary: ClassVar[str]
     # the problem its steps hand the solver: "incremental_potential" (IncrementalPotential), "segment_potential"
-    # (SegmentPotential), or None (no solver); solvers that need one kind refuse the others at config time
+    # (SegmentPotential), "newton_step" (one Newton step on an IncrementalPotential, solver.newton_step), or None
+    # (no solver); solvers that need one kind refuse the others at config time
     problem_kind: ClassVar[str | None] = None
 
     def start(self, system: System, state: State) -> State:
@@ -214,7 +215,7 @@ class IncrementalPotential:
         return energy
 
     def value_magnitude(self, y: np.ndarray) -> float:
-        """The size of the terms ``value`` sums (J s^2... in E's units), which bounds E's round-off."""
+        """The size of the terms ``value`` sums (kg m^2, E's units), which bounds E's round-off."""
         # the inertia term from y - y~, each difference with an error of about eps |y|
         offset = y - self.y_tilde
         momentum = np.abs(self.system.mass * offset)

@@ -168,7 +168,7 @@ class SemiImplicitBackwardEuler(Integrator):
     name: ClassVar[str] = "semi_implicit_backward_euler"
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = False
-    problem_kind: ClassVar[str | None] = "incremental_potential"
+    problem_kind: ClassVar[str | None] = "newton_step"  # one Newton step on the incremental potential, no iteration
     summary: ClassVar[str] = ("Baraff-Witkin: backward Euler with one Newton iteration from x_n "
                               "(not symplectic Euler, also called semi-implicit)")
 

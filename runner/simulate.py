@@ -187,6 +187,9 @@ def simulate(run: Run) -> RunResult:
                 framed = with_frames and (steps % frame_stride == 0 or last)
                 if framed:
                     record_frame(t, state.x)
+                if not stats.converged:  # counted first: a step can fail to converge and diverge at once
+                    not_converged_steps += 1
+                    first_not_converged = first_not_converged or steps
                 # a step that stops the run for not converging is checked for divergence first: a run
                 # whose energy left the bound is diverged, whatever else went wrong in the step
                 if steps % check_every == 0 or last or (stop_on_not_converged and not stats.converged):
@@ -199,13 +202,10 @@ def simulate(run: Run) -> RunResult:
                         message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {t:.6g} s"
                         record_stop(t, state, sampled, framed)
                         break
-                if not stats.converged:
-                    not_converged_steps += 1
-                    first_not_converged = first_not_converged or steps
-                    if stop_on_not_converged:
-                        message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
-                        record_stop(t, state, sampled, framed)
-                        break
+                if stop_on_not_converged and not stats.converged:
+                    message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
+                    record_stop(t, state, sampled, framed)
+                    break
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = Status.FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start

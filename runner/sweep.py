@@ -45,10 +45,11 @@ def expand_runs(experiment: Experiment) -> list[Run]:
     runs = []
     systems: dict[str, Any] = {}  # built systems by their config, for the solvers' refusals
     seen = set()  # (integrator's position, the swept keys it uses) already expanded
+    swept_solvers = tuple(swept.get("solver.type", ()))
     for assignment in combinations:
-        resolved = _resolve(base, assignment)
+        resolved = _resolve(base, assignment, swept_solvers)
         for number, integrator in enumerate(resolved.integrators):
-            used = {key: value for key, value in assignment.items() if uses_swept_key(key, integrator, resolved.solver)}
+            used = {key: value for key, value in assignment.items() if uses_swept_key(key, integrator, resolved.solver, swept_solvers)}
             identity = (number, json.dumps(used, sort_keys=True, default=str))
             if identity in seen:
                 continue
@@ -72,7 +73,7 @@ LINEAR_SOLVER_KEYS = ("solver.linear_solver", "solver.linear_tolerance", "solver
 NEWTON_STEP_INTEGRATORS = ("semi_implicit_backward_euler",)
 
 
-def uses_swept_key(key: str, integrator: Integrator, solver) -> bool:
+def uses_swept_key(key: str, integrator: Integrator, solver, swept_solvers: tuple = ()) -> bool:
     """Whether a run of ``integrator`` with ``solver`` reads the swept config key ``key``.
 
     An explicit method reads no solver key; a linear-solver key is read by the solvers whose
@@ -82,7 +83,7 @@ def uses_swept_key(key: str, integrator: Integrator, solver) -> bool:
         return True
     if integrator.explicit:
         return False
-    if _foreign_solver_key(key, solver.type):
+    if _foreign_solver_key(key, solver.type, swept_solvers):
         return False
     if key not in LINEAR_SOLVER_KEYS:
         return True
@@ -140,11 +141,15 @@ def _check_method_fits(resolved: Experiment, integrator: Integrator, systems: di
     the integrator's problems on it (projective dynamics on squared-length springs, VBD on forces sampled along
     the step, ...), is refused in one line before any run starts."""
     kind = integrator.problem_kind
-    members = ()
+    chain = []
     if kind is not None:
         solver = resolved.solver.build()
-        members = [member for member in getattr(solver, "solvers", (solver,)) if type(member).refusal is not NonlinearSolver.refusal]
-    if not members and type(integrator).refusal is Integrator.refusal:
+        chain = list(getattr(solver, "solvers", (solver,)))
+    if kind == "newton_step" and not type(chain[0]).takes_newton_step:  # the chain's first solver takes the step
+        raise ConfigError(f"solver.type: {chain[0].name} iterates on the incremental potential, and {integrator.label} "
+                          "takes exactly one Newton step (with the linear solver): use newton or projected_newton")
+    refusing = [member for member in chain if type(member).refusal is not NonlinearSolver.refusal] if kind != "newton_step" else []
+    if not refusing and type(integrator).refusal is Integrator.refusal:
         return  # nothing here refuses anything: no system to build
     key = json.dumps(resolved.system.model_dump(mode="json"), sort_keys=True)
     if key not in systems:
@@ -152,29 +157,30 @@ def _check_method_fits(resolved: Experiment, integrator: Integrator, systems: di
     reason = integrator.refusal(systems[key])
     if reason is not None:
         raise ConfigError(f"integrators: {integrator.label}: {reason}")
-    for member in members:
+    for member in refusing:
         reason = member.refusal(systems[key], kind)
         if reason is not None:
             raise ConfigError(f"solver.type: {reason} (integrator {integrator.label})")
 
 
-def _foreign_solver_key(key: str, solver_type: Any) -> bool:
-    """Is ``key`` (solver.<option>) another solver's own option, not one that ``solver_type`` takes? Sweeping
-    solver.type with solver.chebyshev_rho then gives the solvers with that option each value, and the
-    others one run without it; an option that no solver takes is still refused as a misspelling."""
+def _foreign_solver_key(key: str, solver_type: Any, swept_solvers: tuple) -> bool:
+    """Is ``key`` (solver.<option>) the own option of another of the swept solver types (``swept_solvers``, the
+    values of sweep's solver.type), not one that ``solver_type`` takes? Sweeping solver.type with
+    solver.chebyshev_rho then gives the solvers with that option each value, and the others one run without it.
+    Otherwise the key is set and validated as any: an option that no swept solver takes is refused."""
     option = key.split(".", 1)[1] if key.startswith("solver.") else ""
     if not option or "." in option or option in SolverParams.model_fields or solver_type not in SOLVER_PARAMS:
         return False
     return option not in SOLVER_PARAMS[solver_type].model_fields and any(
-        option in model.model_fields for model in SOLVER_PARAMS.values())
+        option in SOLVER_PARAMS[name].model_fields for name in swept_solvers if name in SOLVER_PARAMS)
 
 
-def _resolve(base: dict, assignment: dict[str, Any]) -> Experiment:
+def _resolve(base: dict, assignment: dict[str, Any], swept_solvers: tuple = ()) -> Experiment:
     raw = copy.deepcopy({key: value for key, value in base.items() if key != "integrators"})
     raw["integrators"] = base["integrators"]
     solver_type = assignment.get("solver.type", (raw.get("solver") or {}).get("type", "newton"))
     for key, value in assignment.items():
-        if _foreign_solver_key(key, solver_type):
+        if _foreign_solver_key(key, solver_type, swept_solvers):
             continue  # an option of the other swept solvers: this one does not take it
         parts = key.split(".")
         if parts[0] not in Experiment.model_fields or parts[0] in ("sweep", "name", "output", "integrators"):

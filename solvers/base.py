@@ -43,10 +43,13 @@ ROUNDOFF_STEP = 16 * np.finfo(float).eps
 SMALL_VECTOR = 8
 # A failing linear solve (exactly singular factor, non-finite matrix) ends the nonlinear solve as not converged.
 LINEAR_FAILURES = (np.linalg.LinAlgError, RuntimeError, ValueError, FloatingPointError)
+# A factorisation at a solve's start that fails ends it as not converged; a ValueError there is a refusal
+# (one line: the problem is not one the solver takes), which propagates.
+FACTORISATION_FAILURES = (np.linalg.LinAlgError, RuntimeError, FloatingPointError)
 TOLERANCE_MODES = ("residual", "absolute", "step", "velocity")
-STEP_MODES = ("step", "velocity")
+STEP_MODES = ("step", "velocity")  # the modes that test the Newton direction (Newton-type solvers only)
 # where a solve starts: the kinds of a problem's initial_guess (integrators/base.py: initial_guess)
-INITIAL_GUESSES = ("start", "inertial", "predictor", "adaptive")  # the modes that test the Newton direction (Newton-type solvers only)
+INITIAL_GUESSES = ("start", "inertial", "predictor", "adaptive")
 
 
 class NonlinearProblem(Protocol):
@@ -98,6 +101,11 @@ def _own_copy(array) -> np.ndarray:
     if type(array) is np.ndarray and array.dtype is FLOAT64:
         return array.copy()  # the same values, without np.array's argument parsing
     return np.array(array, dtype=float)
+
+
+def free_dofs_of(problem, size: int) -> FreeDofs:
+    """The FreeDofs of ``problem`` (its fixed dofs and sliding filters)."""
+    return _free_dofs(size, problem.fixed_dofs, getattr(problem, "sliding", None))
 
 
 _ALL_FREE: dict[int, FreeDofs] = {}  # size -> FreeDofs without fixed dofs (most problems of the small systems)
@@ -235,6 +243,9 @@ class NonlinearSolver(ABC):
 
     name: ClassVar[str]
     supports_step_test: ClassVar[bool] = False  # does |p_k| estimate the error (Newton-type directions)?
+    # is the one Newton step of ``newton_step`` (semi_implicit_backward_euler) a step of this solver? Not for the
+    # solvers whose iteration is not Newton's (projective dynamics, VBD): a run would carry a solver it never uses
+    takes_newton_step: ClassVar[bool] = True
     uses_linear_solver: ClassVar[bool] = False  # are its directions linear solves (else only newton_step uses one)?
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver: str | LinearSolver = "direct",
@@ -254,8 +265,18 @@ class NonlinearSolver(ABC):
     def minimize(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
         """Minimise (or zero the residual of) ``problem`` from ``start`` (or from the configured initial
         guess); returns (y, SolveStats)."""
-        y, stats, _, _ = self._run(problem, self.starting_point(problem, start), None)
+        first = self.starting_point(problem, start)
+        y, stats, _, _ = self._run(problem, first, self.test_from(problem, start, first))
         return y, stats
+
+    def test_from(self, problem, start: np.ndarray, first: np.ndarray) -> ConvergenceTest | None:
+        """The convergence test of a solve that begins at ``first`` instead of the integrator's ``start``
+        (x_n): relative to the residual at x_n, so that every initial guess is held to the same threshold
+        (None where they are the same point: the solve takes its own)."""
+        if first is start:
+            return None
+        gradient = free_dofs_of(problem, start.size).zero_fixed(np.array(problem.gradient(start), dtype=float))
+        return ConvergenceTest.at_start(self.tolerance, self.tolerance_mode, problem, max_norm(gradient))
 
     def starting_point(self, problem, start: np.ndarray) -> np.ndarray:
         """``start``, or the problem's initial guess of the configured kind (with its filtered components
@@ -290,9 +311,13 @@ class NonlinearSolver(ABC):
             callback(current.y, current.gradient)
         state = None
         if not converged and math.isfinite(current.residual):
-            state = self._begin(problem, current, free)
+            began = True
+            try:
+                state = self._begin(problem, current, free)
+            except FACTORISATION_FAILURES:  # a factorisation at the start (PD's, L-BFGS's H_0) failed: not converged
+                began = False
             step_mode = test.tests_steps
-            while iterations < self.max_iterations:
+            while began and iterations < self.max_iterations:
                 try:
                     direction, cost = self._direction(problem, current, state)
                 except LINEAR_FAILURES:

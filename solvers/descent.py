@@ -21,7 +21,7 @@ from scipy.linalg.blas import daxpy, ddot
 from .base import Advance, Iterate, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
 from .line_search import MAX_LINE_SEARCH, accept, has_value, line_search
-from .projective import RestFactor, factorise_spd
+from .projective import RestFactor, factorise_spd, refusal
 
 # A curvature pair (s, dg) of L-BFGS is kept only when s^T dg > this times dg^T dg, so that the
 # inverse-Hessian model stays positive definite and well scaled (Byrd, Lu, Nocedal & Zhu 1995, sec. 6).
@@ -138,7 +138,6 @@ class LBFGS(NonlinearSolver):
     def refusal(self, system, problem_kind: str) -> str | None:
         if not self.requires:
             return None
-        from .projective import refusal  # the rest-shape machinery lives with projective dynamics
         return refusal(f"lbfgs with initial_hessian {self.initial_hessian}", self.requires, system,
                        problem_kind == "incremental_potential")
 

@@ -35,7 +35,8 @@ class FallbackChain:
         return self.solvers[0]
 
     def minimize(self, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
-        outcome = self.main.solve(problem, self.main.starting_point(problem, start))
+        first = self.main.starting_point(problem, start)
+        outcome = self.main.solve(problem, first, self.main.test_from(problem, start, first))
         iterations, linear, line_search = (outcome.stats.iterations, outcome.stats.linear_iterations,
                                            outcome.stats.line_search_steps)
         safeguards = outcome.stats.safeguards

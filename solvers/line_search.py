@@ -24,17 +24,20 @@ MAX_LINE_SEARCH = 40
 ENERGY_ROUNDOFF = 1024 * np.finfo(float).eps
 
 
-def judge(rule: str, energy: float, candidate_energy: float, predicted: float, magnitude: float | None = None) -> bool | None:
+def judge(rule: str, energy: float, candidate_energy: float, predicted: float, magnitude=None) -> bool | None:
     """True: acceptable; False: not; None: the change is below the round-off of E (judge by the gradient).
 
     ``predicted`` is g^T (y_candidate - y), the first-order change; a non-negative prediction never
     licenses an increase. ``magnitude``: the size of the terms E sums (its round-off is relative to it,
-    not to |E|, where they cancel); max(|E|, |E_candidate|) when the problem does not say."""
+    not to |E|, where they cancel), or a callable giving it (asked only when E did not clearly fall);
+    max(|E|, |E_candidate|) when the problem does not say."""
     if not np.isfinite(candidate_energy):
         return False
     limit = energy + (ARMIJO_C * min(predicted, 0.0) if rule == "armijo" else 0.0)
     if candidate_energy <= limit:
         return True
+    if callable(magnitude):
+        magnitude = magnitude()
     scale = max(abs(energy), abs(candidate_energy), magnitude or 0.0)
     if abs(candidate_energy - energy) <= ENERGY_ROUNDOFF * scale:
         return None
@@ -48,7 +51,7 @@ def accept(problem, free: FreeDofs, current: Iterate, rule: str, candidate: np.n
     ``within_roundoff``: a change of E below its round-off is accepted as it is (Newton's full step near
     the solution, where E cannot tell and the residual is at its own noise), not judged by the gradient."""
     verdict = judge(rule, current.energy, candidate_energy, float(current.gradient @ (candidate - current.y)),
-                    value_magnitude(problem, candidate))
+                    lambda: value_magnitude(problem, candidate))
     if verdict is None and within_roundoff:
         return True, None
     if verdict is None:
@@ -67,11 +70,6 @@ def line_search(problem, free: FreeDofs, current: Iterate, direction: np.ndarray
     slope = float(current.gradient @ direction)
     if not slope < 0.0:
         return Advance(current.y, ok=False)
-    if within_roundoff and -slope <= ENERGY_ROUNDOFF * max(abs(current.energy), value_magnitude(problem, current.y) or 0.0):
-        # the decrease the step promises (-g^T p, twice the quadratic model's for a Newton step) is below
-        # what E resolves: E cannot judge the step, which is Newton's converging one; it is taken whole
-        candidate = current.y + direction
-        return Advance(candidate, None, problem.value(candidate), 0)
     step = 1.0
     for reductions in range(MAX_LINE_SEARCH + 1):
         candidate = current.y + step * direction

@@ -140,7 +140,7 @@ class Newton(NonlinearSolver):
         try:
             direction, cost = self._solve(matrix, -current.gradient, state, spd, problem, current.y)
         except LINEAR_FAILURES:
-            if spd and self.spd_projection != "adaptive":
+            if spd:
                 raise  # an SPD matrix that cannot be solved: the safeguards would repeat the same solve
             direction, cost = None, 0
         if direction is not None and np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:

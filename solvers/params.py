@@ -256,7 +256,7 @@ class JacobiChebyshevParams(SolverParams):
     line_search: LineSearch = "backtracking"
     chebyshev_rho: float = Field(0.99, ge=0, lt=1, allow_inf_nan=False, description="estimated spectral radius rho of the Jacobi iteration")
     relaxation: float = Field(0.9, gt=0, le=1, allow_inf_nan=False, description="under-relaxation gamma of each Jacobi step (halved when a plain step raises the energy)")
-    spd_projection: SpdProjection = Field("clamp", description="the Hessian whose diagonal is D: none (raw) | clamp (the system's own projection) | eigen (as clamp: a diagonal has no whole-matrix clamp)")
+    spd_projection: Literal["none", "clamp", "eigen"] = Field("clamp", description="the Hessian whose diagonal is D: none (raw) | clamp (the system's own projection) | eigen (as clamp: a diagonal has no whole-matrix clamp)")
 
 
 # chebyshev_rho of projective dynamics: a number, or "auto" (estimated from the warm-up). A named alias, so

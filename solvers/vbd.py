@@ -104,6 +104,7 @@ class VertexBlockDescent(NonlinearSolver):
     """
 
     name = "vbd"
+    takes_newton_step = False  # its iteration is not Newton's: semi_implicit_backward_euler refuses it
     requires: ClassVar[tuple[str, ...]] = ("vertex_blocks",)
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
