@@ -167,6 +167,21 @@ def initial_guess(problem, kind: str, scale: float) -> np.ndarray:
     return problem.y_tilde + displacement
 
 
+class _Identity:
+    """Hashable by the identity of the object it holds (a scipy matrix is not hashable); keeps it alive."""
+
+    __slots__ = ("held",)
+
+    def __init__(self, held):
+        self.held = held
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, _Identity) and other.held is self.held
+
+    def __hash__(self) -> int:
+        return id(self.held)
+
+
 class IncrementalPotential:
     """E(y) = 1/2 (y - y~)^T M (y - y~) + s [P(y) + 1/(2 b) (y - a)^T D (y - a)],  s = c h^2.
 
@@ -252,21 +267,28 @@ class IncrementalPotential:
         return initial_guess(self, kind, self.scale)
 
     def rest_hessian(self):
-        """M + s K_r (+ (s/b) D when D does not depend on x), K_r the system's ``rest_stiffness``: the constant
-        matrix of projective dynamics' global step and of L-BFGS's rest-shape initial Hessian; None where the
-        system has no rest stiffness. ``rest_key`` names it (equal keys, equal matrices) so that a solver may
-        keep one factorisation for every step of a run."""
+        """M + s K_r + (s/b) D, K_r the system's ``rest_stiffness`` and D this step's damping matrix (taken at
+        ``damping_at``, so constant within the step): the matrix of projective dynamics' global step and of
+        L-BFGS's rest-shape initial Hessian; None where the system has no rest stiffness. ``rest_key`` names it
+        (equal keys, equal matrices) so that a solver keeps one factorisation for every step of a run, or, where
+        D depends on x (spring damping), one per step."""
         stiffness = self.system.rest_stiffness()
         if stiffness is None:
             return None
         matrix = self.scale * stiffness
-        if self.damping is not None and self.system.damping_is_constant:
+        if self.damping is not None:
             matrix = matrix + self.damping_weight * self.damping
         return add_diagonal(matrix, self.system.mass)
 
     @property
     def rest_key(self) -> tuple:
-        return (id(self.system), self.scale, self.damping_weight if self.damping is not None else None)
+        if self.damping is None:
+            return (id(self.system), self.scale, None)
+        if self.system.damping_is_constant:
+            return (id(self.system), self.scale, self.damping_weight)
+        # D(x) of this step: the key holds the matrix itself (compared by identity, and kept alive by whoever
+        # keeps the key, so that its id cannot be reused by another step's matrix)
+        return (id(self.system), self.scale, self.damping_weight, _Identity(self.damping))
 
     def hessian(self, y: np.ndarray, project_spd: bool = False):
         if self._in_pattern:

@@ -43,7 +43,7 @@ def refusal(solver_name: str, requires: tuple[str, ...], system, projective: boo
     ``projective``: is the integrator's problem an incremental potential (``IncrementalPotential.projective``;
     False for the methods that sample the force along the step, whose ``SegmentPotential`` is not the
     energy projective dynamics minimises). Requirements: ``projective`` (the problem is an incremental
-    potential, the system's potential Hookean springs plus linear terms with constant damping:
+    potential, the system's potential Hookean springs plus linear terms:
     ``System.projective_form`` None, and it has a rest stiffness) and ``rest_stiffness`` (the system has a
     K_r: ``System.rest_stiffness()`` not None)."""
     reason = _projective_refusal(solver_name, system, projective) if "projective" in requires else None
@@ -181,7 +181,8 @@ class _ProjectiveState:
 class ProjectiveDynamics(NonlinearSolver):
     """Projective dynamics (the local-global iteration) for Hookean springs, with Chebyshev acceleration.
 
-    The incremental potential of Hookean springs (plus linear forces f and constant damping D) is
+    The incremental potential of Hookean springs (plus linear forces f and the step's damping matrix D, taken
+    once per step at ``damping_at`` and so constant within it) is
         E(y) = 1/2 |y - y~|_M^2 + s [sum_e k_e/2 (|S_e y| - l_e)^2 - f^T y] + s/(2b) |y - a|_D^2,
     with S_e y = x_i - x_j the spring vector. Liu et al. ("Fast simulation of mass-spring systems", ACM
     TOG 32(6), 2013) write each spring term as min over |p_e| = l_e of k_e/2 |S_e y - p_e|^2 and alternate
@@ -213,7 +214,8 @@ class ProjectiveDynamics(NonlinearSolver):
 
     Refused (ValueError, one line: ``refusal``): problems that are not an incremental potential
     (``problem.projective`` False), systems whose ``projective_form`` is not None (squared-length springs,
-    penalty contact, spring damping) and systems without a rest stiffness.
+    penalty contact) and systems without a rest stiffness. Where D depends on x (spring damping) A changes
+    from step to step, and ``rest_key`` says so: one factorisation per step instead of per run.
     """
 
     name = "projective_dynamics"

@@ -147,7 +147,7 @@ class System(ABC):
     @property
     def projective_form(self) -> str | None:
         """None when P is a sum of Hookean springs (k/2 (|x_i - x_j| - l0)^2, or k/2 |x - a|^2 to an anchor)
-        plus terms linear in x, and D does not depend on x: projective dynamics then minimises the
+        plus terms linear in x (any damping: D is taken once per step): projective dynamics then minimises the
         incremental potential exactly. Otherwise the reason, in a few words, for the one-line refusal."""
         return f"{type(self).__name__} does not declare its potential as Hookean springs"
 

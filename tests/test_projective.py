@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.sparse
 
 from conftest import run_one
@@ -220,13 +221,16 @@ def test_lbfgs_rest_takes_the_pd_step_first():
     np.testing.assert_allclose(iterates["lbfgs"][1], iterates["pd"][1], rtol=0, atol=1e-14)
 
 
+ISSUE_BAR = 100  # iterations per step the issue asks of a quasi-Newton solver on the hanging cloth
+
+
 @pytest.mark.parametrize("initial_hessian", ["rest", "scaled_rest"])
-def test_lbfgs_with_the_rest_matrix_converges_on_every_step_of_a_hanging_cloth(initial_hessian, record_property):
-    """cloth_hang at 10x10, backward Euler, dt = 0.02 s for 0.2 s, tolerance 1e-9: every step converges. The
-    iterations per step are recorded (printed): ~500-850 for rest, ~400-490 for scaled_rest, Newton 5-6. The
-    rest matrix gives the stretch springs k_e across them, where the Hessian of this nearly unstretched cloth
-    has ~0 (its out-of-plane modes): A^{-1} H has eigenvalues down to 3e-4, which limited memory cannot
-    model in a few iterations."""
+def test_lbfgs_with_the_rest_matrix_converges_on_every_step_of_a_hanging_cloth_but_misses_the_bar(initial_hessian,
+                                                                                                  record_property):
+    """cloth_hang at 10x10, backward Euler, dt = 0.02 s for 0.2 s, tolerance 1e-9: every step converges, and every
+    step needs more than the issue's bar of 100 iterations (measured 593-837 for rest, 385-488 for scaled_rest,
+    Newton 5-6): what docs/solvers.md quotes, so that a change that meets the bar has to say so here. The cause is
+    the spectrum (test_the_rest_matrix_is_far_stiffer_than_the_hessian_across_the_hanging_cloth)."""
     system = {**load_experiment(CLOTH_HANG)[0].system.model_dump(), "resolution": [10, 10]}
     result = run_one(system, "backward_euler", 0.02, 0.2,
                      solver={"type": "lbfgs", "initial_hessian": initial_hessian, "tolerance": 1e-9, "max_iterations": 2000})
@@ -236,6 +240,31 @@ def test_lbfgs_with_the_rest_matrix_converges_on_every_step_of_a_hanging_cloth(i
     message = f"lbfgs {initial_hessian}: iterations per step {iterations.tolist()}"
     record_property("lbfgs_iterations", message)
     print(message)
+    assert iterations.min() > ISSUE_BAR, message
+
+
+def test_the_rest_matrix_is_far_stiffer_than_the_hessian_across_the_hanging_cloth():
+    """The eigenvalues of A^{-1} H on the free dofs (A = M + s K_r the rest matrix, H the Hessian at the minimiser
+    of cloth_hang's first backward Euler step at 10x10, dt = 0.02 s; dense generalized eigenproblem H u = lambda A u):
+    all <= 1, since per spring H_e = k_e (n n^T + (1 - l0/l) (I - n n^T)) <= k_e I (the same M in both); and many
+    below 0.01 (95 of 294, 121 below 0.1, the smallest 3.2e-4), the out-of-plane modes of a nearly unstretched cloth,
+    where the Hessian has ~0 across its springs and A has k_e: condition ~3e3, which L-BFGS's few pairs cannot
+    correct, hence its hundreds of iterations per step with H_0 = A^{-1}."""
+    system = ClothParams(**{**load_experiment(CLOTH_HANG)[0].system.model_dump(), "resolution": (10, 10)}).build()
+    problem, start = step_problem(system, dt=0.02)
+    y, stats = Newton(tolerance=REFERENCE_TOLERANCE, max_iterations=50).minimize(problem, start)
+    assert stats.converged
+    free = np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
+    rest = problem.rest_hessian().toarray()[np.ix_(free, free)]
+    hessian = problem.hessian(y)
+    hessian = (hessian.toarray() if scipy.sparse.issparse(hessian) else np.asarray(hessian))[np.ix_(free, free)]
+    values = scipy.linalg.eigh(hessian, rest, eigvals_only=True)
+    assert values.max() <= 1.0 + 1e-12
+    assert values.min() > 0.0  # the step is strictly convex
+    assert values.min() < 1e-3
+    assert free.size == 294
+    # docs/solvers.md quotes 121 of 294 below 0.1; no eigenvalue lies within 1e-3 of 0.1 or 0.01: exact counts
+    assert (np.count_nonzero(values < 0.1), np.count_nonzero(values < 0.01)) == (121, 95)
 
 
 @pytest.mark.parametrize("dt", [0.01, 0.02])
@@ -248,7 +277,7 @@ def test_lbfgs_with_the_step_hessian_meets_the_issues_bar_on_the_hanging_cloth(d
                      solver={"type": "lbfgs", "initial_hessian": "step", "initial_guess": "inertial",
                              "tolerance": 1e-9, "max_iterations": 100})
     assert result.status == "ok", result.message
-    assert result.per_step["newton_iterations"].max() <= 100
+    assert result.per_step["newton_iterations"].max() <= ISSUE_BAR
 
 
 def test_the_rest_matrix_is_factorised_once_per_run_and_again_when_it_changes(monkeypatch):
@@ -306,7 +335,6 @@ REFUSED = {
     "squared_length springs": (lambda: MassSpringParams(type="mass_spring", model={"grid": {"resolution": [3, 3]}},
                                                        spring_law="squared_length").build(), "backward_euler", "not Hookean"),
     "contact": (lambda: hookean_cloth(contact={"ground": {"height": -0.5}}), "backward_euler", "contact"),
-    "spring damping": (lambda: hookean_cloth(damping=0.3), "backward_euler", "spring damping"),
     "segment problem": (hookean_cloth, "average_vector_field", "samples the force along the step"),
     "no rest stiffness": (lambda: CircularMotionParams(force="gravity").build(), "backward_euler", "gravitational law"),
 }
@@ -362,3 +390,24 @@ def test_the_config_builds_pd_and_refuses_what_it_does_not_take():
     assert ProjectiveDynamics.requires == ("projective",)
     assert solver_params(type="lbfgs", initial_hessian="rest").build().requires == ("rest_stiffness",)
     assert solver_params(type="lbfgs").build().requires == ()
+
+
+def test_pd_with_spring_damping_is_exact_and_refactorises_per_step(monkeypatch):
+    """Spring damping's D(x) is taken once per step (at damping_at), so the step's incremental potential still has
+    PD's form with A = M + s K_r + (s/b) D(x_n): PD reaches Newton's step, with one factorisation per step (the
+    rest_key changes with D), where undamped or constant damping needs one per run."""
+    calls = []
+    factorise = projective.factorise_spd
+    monkeypatch.setattr(projective, "factorise_spd", lambda matrix: calls.append(matrix.shape) or factorise(matrix))
+    system = hookean_cloth(damping=0.3)
+    assert system.projective_form is None
+    solver = ProjectiveDynamics(tolerance=1e-10, max_iterations=20000, chebyshev_rho=0.99)
+    state = State(0.0, system.x0, system.v0)
+    for step in range(3):
+        problem, start = step_problem(system, state.x, state.v, dt=0.01)
+        reference, _ = Newton(tolerance=1e-14).minimize(problem, start)
+        y, stats = solver.minimize(problem, start)
+        assert stats.converged
+        assert np.abs(y - reference).max() < 1e-8
+        state, _ = INTEGRATORS["backward_euler"]().step(system, state, 0.01, Newton(tolerance=1e-14))
+    assert len(calls) == 3

@@ -121,7 +121,7 @@ def test_every_solver_reaches_the_minimiser_of_a_cloth_step(cloth_step, name, op
     system, problem, start, reference, mu, free = cloth_step
     params = solver_params(type=name, tolerance=TOLERANCE, max_iterations=500, linear_max_iterations=5000, **options)
     solver = params.build()
-    if solver.refusal(system, "incremental_potential"):  # this cloth has spring damping (tests/test_projective.py has PD's own)
+    if solver.refusal(system, "incremental_potential"):  # a solver that cannot take this cloth (none today) is refused
         pytest.skip(solver.refusal(system, "incremental_potential"))
     if name in ("projective_dynamics", "vbd") and not options.get("chebyshev_rho"):
         solver.max_iterations = 20000  # plain PD and VBD converge linearly, slowly at this tolerance

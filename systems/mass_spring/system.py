@@ -418,9 +418,7 @@ class MassSpring(System):
             return f"spring_law {self.law.name} is not Hookean"
         if self.contact.ground is not None or self.contact.sphere is not None:
             return "penalty contact is not a spring of fixed rest length"
-        if not self.damping_is_constant:
-            return "spring damping depends on the spring directions (use relative, drag or rayleigh damping)"
-        return None
+        return None  # spring damping too: D(x) is taken once per step, so A is refactorised per step
 
     @property
     def damping_is_constant(self) -> bool:
