@@ -80,6 +80,82 @@ def test_xpbd_never_calls_the_solver():
 
 
 # ------------------------------------------------------------------------------------------------
+# The distance constraint (l0 > 0) with its damper
+# ------------------------------------------------------------------------------------------------
+class TwoParticlesOnASpring(System):
+    """Two particles (masses m1, m2) in 3-D joined by one spring of rest length l0 > 0, stiffness k and damper
+    beta along it, no other force: the distance constraint C = |x_1 - x_2| - l0 (test-local)."""
+
+    dim, dof_count, compliant_form = 3, 6, None
+
+    def __init__(self, m1, m2, stiffness, beta, rest_length):
+        self.mass = np.repeat([m1, m2], 3).astype(float)
+        self.springs = CompliantSprings(first=np.array([0]), second=np.array([1]), anchor=np.zeros((1, 3)),
+                                        rest_length=np.array([rest_length]), stiffness=np.array([stiffness]),
+                                        damping=np.array([beta]), vertex_count=2, other_forces=False)
+
+    def compliant_springs(self):
+        return self.springs
+
+    def potential_energy(self, x):
+        return self.springs.energy(x)
+
+    def gradient(self, x):
+        return -self.springs.force(x, np.zeros_like(x))
+
+    def hessian(self, x, project_spd=False):
+        raise NotImplementedError("xpbd needs no Hessian")
+
+
+def macklin_eq26_substep(x, v, masses, k, beta, rest_length, h, iterations):
+    """One substep of ``iterations`` projections by MMC 2016 eqs. 18 and 26, unscaled: x_n = x, x = x_n + h v,
+    lambda = 0; then C = |x_1 - x_2| - l0, grad_1 C = n = (x_1 - x_2)/|x_1 - x_2| = -grad_2 C, a = 1/(k h^2),
+    g = a b / h with b = h^2 beta (so g = beta / (k h)),
+    Delta lambda = (-C - a lambda - g grad C (x - x_n)) / ((1 + g) sum_i w_i |grad_i C|^2 + a),
+    x_i += w_i grad_i C Delta lambda, lambda += Delta lambda; v = (x - x_n) / h. Returns (x, v, x_n + h v)."""
+    start = x.reshape(2, 3)
+    predicted = start + h * v.reshape(2, 3)
+    positions, multiplier = predicted.copy(), 0.0
+    weights = 1.0 / np.asarray(masses, float)
+    compliance = 1.0 / (k * h * h)
+    gamma = compliance * (h * h * beta) / h
+    for _ in range(iterations):
+        delta = positions[0] - positions[1]
+        normal = delta / np.linalg.norm(delta)
+        gradient = np.array([normal, -normal])
+        constraint = np.linalg.norm(delta) - rest_length
+        change = ((-constraint - compliance * multiplier - gamma * np.sum(gradient * (positions - start)))
+                  / ((1.0 + gamma) * np.sum(weights * np.sum(gradient * gradient, axis=1)) + compliance))
+        positions += weights[:, None] * gradient * change
+        multiplier += change
+    return positions.ravel(), ((positions - start) / h).ravel(), predicted.ravel()
+
+
+@pytest.mark.parametrize("iterations", [1, 2])
+def test_a_damped_distance_constraint_is_macklins_eq_26(iterations):
+    """Two particles (0.3 and 0.7 kg) on a spring l0 = 0.5 m, k = 50 N/m, beta = 0.8 N s/m (g = 0.32), stretched
+    to 0.61 m and moving across and along it; one substep of h = 0.05 s: positions and velocities are those of
+    macklin_eq26_substep to round-off (one iteration: lambda = 0; two: one projection along n solves a single
+    distance constraint, so the second Delta lambda is 0, but only with the -a lambda term, ~1e-2 m without), the damper
+    matters (it moves the result by > 1e-3 m), and the correction keeps sum m_i x_i of the prediction and
+    sum m_i v_i (momentum) to round-off: w_1 m_1 n Delta lambda - w_2 m_2 n Delta lambda = 0."""
+    m1, m2, k, beta, rest_length, h = 0.3, 0.7, 50.0, 0.8, 0.5, 0.05
+    x = np.array([0.0, 0.0, 0.0, 0.6, 0.1, -0.05])
+    v = np.array([0.3, -0.2, 0.5, -0.4, 0.6, 0.1])
+    system = TwoParticlesOnASpring(m1, m2, k, beta, rest_length)
+    new, _ = XPBD(substeps=1, iterations=iterations).step(system, State(0.0, x.copy(), v.copy()), h, None)
+    x_expected, v_expected, predicted = macklin_eq26_substep(x, v, [m1, m2], k, beta, rest_length, h, iterations)
+    assert np.abs(new.x - x_expected).max() <= 4 * ULP * np.abs(x_expected).max()
+    assert np.abs(new.v - v_expected).max() <= 16 * ULP * np.abs(v_expected).max()
+    undamped, _, _ = macklin_eq26_substep(x, v, [m1, m2], k, 0.0, rest_length, h, iterations)
+    assert np.abs(undamped - x_expected).max() > 1e-3
+    masses = np.array([m1, m2])[:, None]
+    weighted = lambda values: (masses * values.reshape(2, 3)).sum(axis=0)  # sum_i m_i (.)_i, (3,)
+    assert np.abs(weighted(new.x) - weighted(predicted)).max() <= 4 * ULP * weighted(np.abs(predicted)).max()
+    assert np.abs(weighted(new.v) - weighted(v)).max() <= 4 * ULP * weighted(np.abs(v)).max()
+
+
+# ------------------------------------------------------------------------------------------------
 # Predicted against measured artificial damping
 # ------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("substeps", [1, 5, 20])
