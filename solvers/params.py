@@ -217,8 +217,9 @@ SpdProjection = Literal[SPD_PROJECTIONS]  # type: ignore[valid-type]
 
 
 class NewtonParams(SolverParams):
-    """Newton with the raw Hessian, a line search and safeguards (the projected Hessian, then M added, where
-    the raw direction does not descend)."""
+    """Newton with the raw Hessian, a line search, and safeguards where the raw direction does not descend.
+
+    The safeguards: the abs-projected Hessian's direction, then M added until the solve descends."""
 
     type: Literal["newton"] = "newton"
     line_search: LineSearch = "backtracking"
@@ -283,7 +284,7 @@ class ProjectiveDynamicsParams(SolverParams):
 
 
 class VBDParams(SolverParams):
-    """Vertex block descent: Gauss-Seidel over vertex colours, a d x d Newton step per vertex (Chen et al. 2024)."""
+    """Vertex block descent: Gauss-Seidel over vertex colours, a d x d Newton step per vertex; initial_guess: adaptive."""
 
     type: Literal["vbd"] = "vbd"
     initial_guess: Literal[INITIAL_GUESSES] = Field("adaptive", description="where each step's solve starts; vbd's default is the paper's adaptive initialisation (sec. 3.7): start | inertial | predictor | adaptive")  # type: ignore[valid-type]
