@@ -13,9 +13,10 @@ sentence against known values rather than its wording. No finding claims more th
   1 - rho^(4 pi / (h w)) = 1 - exp(-2 pi d_method / w); and how the measured damping agrees with it;
 - accuracy and cost: rankings only among runs that reached their end with a known error (exact
   solution, or a reference), by the wall time of the cheapest run within an error budget;
-- solvers at equal dt (sweeps of solver.type): each solver's wall time per 1/60 s frame and real-time
-  factor beside the error (or energy change) of its run and its distance from the fastest solver whose
-  every step converged (what a real-time budget costs against a converged Newton solve);
+- cost at equal dt (sweeps of solver.type; ``simrun.findings_cost``): every method's wall time per 1/60 s
+  frame and real-time factor beside its error (or energy change) and its distance from the fastest
+  implicit run whose every step converged, Newton's when there is one (what a real-time method, an
+  iterative solver on a budget or XPBD, costs against a converged Newton solve);
 - what could not be measured, and why, said once.
 
 The numbers come from ``simrun.tables`` (which reads the file through ``simrun.figures.figure_data``)
@@ -24,7 +25,6 @@ and ``simrun.analysis``; this module only selects, compares and words them.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 
@@ -33,11 +33,9 @@ import numpy as np
 from simrun import analysis
 from simrun.figures import FigureData
 from simrun.figures.theory import predictions_for, test_equation_runs
-from simrun.results import FRAME_TIME, Status
-from simrun.sweep import LINEAR_SOLVER_KEYS
-from simrun.table_text import real_time_text
+from simrun.results import Status
 from simrun.tables import (DAMPING_TOLERANCE, ORDER_TOLERANCE, ROUND_OFF_DAMPING, OrderRow, SummaryRow,
-                           energy_reference_text, error_runs, error_time_text, order_rows, solver_text, summary_rows)
+                           energy_reference_text, error_runs, order_rows, summary_rows)
 
 DAMPING_BUDGET = 0.01  # the damping budget of the ranking: at most this fraction of the energy gained or lost per period
 # Error budgets are decades of the length scale, from this fraction down to the smallest error that
@@ -62,6 +60,8 @@ class Finding:
 def findings(data: FigureData, rows: list[SummaryRow] | None = None, orders: list[OrderRow] | None = None
              ) -> list[Finding]:
     """The findings of a file's runs, in reading order (stability, damping, accuracy, cost, energy, not measured)."""
+    from simrun.findings_cost import solver_cost  # here, not above: findings_cost builds on Finding and the wording here
+
     rows = summary_rows(data) if rows is None else rows
     orders = order_rows(data) if orders is None else orders
     predictions = predictions_for(data) if test_equation_runs(data) else {}
@@ -73,7 +73,7 @@ def findings(data: FigureData, rows: list[SummaryRow] | None = None, orders: lis
     result += _damping_budget(data, predictions)
     result += _accuracy(data, several)
     result += _orders(orders, several)
-    result += _solver_cost(data, rows)
+    result += solver_cost(data, rows)
     if not predictions:
         result += _energy(data, rows, several)
     result += _not_measured(data, orders, several)
@@ -432,130 +432,6 @@ def _orders(orders: list[OrderRow], several: bool) -> list[Finding]:
         result.append(Finding(f"{names} {'is' if len(exact) == 1 else 'are'} exact on this problem (every error at "
                               "round-off).", "#orders", {"exact": [row.integrator for row in exact]}, "accuracy"))
     return result
-
-
-# -- solvers at equal dt -----------------------------------------------------------------------------
-def _solver_cost(data, rows) -> list[Finding]:
-    """Where the sweep varies solver.type: at the largest and the smallest dt that two solvers share (per integrator
-    and setting of the other swept keys), each solver's wall time per frame and real-time factor beside the error
-    (or, without errors, the energy change) of its run, fastest first, and its distance from a converged solve.
-
-    A solver is its type (with fallbacks) and the other swept solver keys but the linear solver's: of the runs
-    that differ only in those (solver.linear_solver, ...), the fastest stands for the solver, named with them."""
-    solving = [run for run in data.runs if "solver.type" in run.stored.params]
-    if len({run.stored.params["solver.type"] for run in solving}) < 2:
-        return []
-    by_id = {row.run_id: row for row in rows}
-    problems: dict[tuple[str, str], list] = {}
-    for run in solving:
-        setting = {key: value for key, value in run.stored.swept.items() if not key.startswith("solver.")}
-        problems.setdefault((run.label, json.dumps(setting, sort_keys=True, default=str)), []).append(run)
-    several = len(problems) > 1
-    result = []
-    for (label, setting), runs in problems.items():
-        shared = sorted((dt for dt in {run.dt for run in runs}
-                         if len({run.stored.params["solver.type"] for run in runs if run.dt == dt}) >= 2), reverse=True)
-        for dt in dict.fromkeys(shared[:1] + shared[-1:]):
-            finding = _solvers_at(label, json.loads(setting), dt, [by_id[run.run_id] for run in runs if run.dt == dt],
-                                  {run.run_id: run for run in runs}, several)
-            if finding is not None:
-                result.append(finding)
-    return result
-
-
-def _solver_name(run) -> tuple[str, list[str]]:
-    """(the solver as the finding names it, e.g. "vbd (max_iterations = 5)", the linear-solver settings of the run)."""
-    params = run.stored.params
-    others = [f"{key.removeprefix('solver.')} = {params[key]}" for key in params
-              if key.startswith("solver.") and key != "solver.type" and key not in LINEAR_SOLVER_KEYS]
-    linear = [str(params[key]) for key in params if key in LINEAR_SOLVER_KEYS]
-    name = solver_text(run.stored.solver) or str(params["solver.type"])
-    return name + (f" ({', '.join(others)})" if others else ""), linear
-
-
-def _solvers_at(label, setting: dict, dt: float, at: list[SummaryRow], runs: dict, several: bool) -> Finding | None:
-    """The finding of one integrator at one dt: None when fewer than two solvers ran it to its end.
-
-    The baseline is the fastest solver whose every step converged: what the others' positions at the error
-    time are compared with (max |x - x_baseline|), so that the solver's own error is told apart from the
-    integrator's, which every converged solve at this dt shares."""
-    variants: dict[str, list[SummaryRow]] = {}
-    stopped: dict[str, list[str]] = {}
-    for row in at:
-        name, _ = _solver_name(runs[row.run_id])
-        if Status(row.status).stopped or not np.isfinite(row.wall_time_per_frame):
-            stopped.setdefault(str(row.status), []).append(name)
-        else:
-            variants.setdefault(name, []).append(row)
-    if len(variants) < 2:
-        return None
-
-    def trust(row: SummaryRow) -> int:  # 0: every step converged, 1: ok with accepted steps, 2: not converged
-        return 0 if row.status == Status.OK and not row.not_converged_steps else 1 if row.status == Status.OK else 2
-
-    # of the runs that differ in the linear solver only, the fastest of those that converged best stands for the solver
-    chosen = {name: min(members, key=lambda row: (trust(row), row.wall_time_per_frame)) for name, members in variants.items()}
-    order = sorted(chosen, key=lambda name: chosen[name].wall_time_per_frame)
-    by_error = all(np.isfinite(row.error) for row in chosen.values())
-    measure = {name: (row.error if by_error else row.max_rel_energy_drift) for name, row in chosen.items()}
-    baseline = next((name for name in order if trust(chosen[name]) == 0), None)
-    deviation = {name: _deviation(runs[chosen[name].run_id], runs[chosen[baseline].run_id]) if baseline else math.nan
-                 for name in order}
-
-    def bought(name: str) -> str:
-        return f"error {measure[name]:.3g} m" if by_error else f"max drift {drift_text(measure[name])}"
-
-    items = []
-    for name in order:
-        row = chosen[name]
-        notes = []
-        if len(variants[name]) > 1:
-            _, linear = _solver_name(runs[row.run_id])
-            notes.append(f"with {', '.join(linear)}, the fastest of {len(variants[name])}"
-                         + (" that converged" if trust(row) == 0 and any(trust(other) for other in variants[name]) else ""))
-        if row.not_converged_steps:
-            notes.append(f"{row.not_converged_steps}/{row.steps} steps at max_iterations"
-                         + (", accepted" if row.status == Status.OK else ""))
-        apart = f", {deviation[name]:.2g} m from {baseline}" if name != baseline and np.isfinite(deviation[name]) else ""
-        items.append(f"{name} {1e3 * row.wall_time_per_frame:.3g} ms ({real_time_text(row.real_time_factor)} real time), "
-                     f"{bought(name)}{apart}" + (f" ({'; '.join(notes)})" if notes else ""))
-    where = f"dt = {dt:g} s, {label}" + ("".join(f", {key} = {value}" for key, value in setting.items()) if several else "")
-    against = "a reference" if any(row.error_from_reference for row in chosen.values()) else "the exact solution"
-    what = (f"the error at {error_time_text(list(chosen.values()))} against {against}" if by_error else
-            f"the energy change max |E − E0| / E_ref, {energy_reference_text(list(chosen.values()))}")
-    if baseline:
-        when = runs[chosen[baseline].run_id].stored.error_time
-        what += (f"; and the distance max |x − x_ref| at {f't = {when:.4g} s' if np.isfinite(when) else 'the error time'} "
-                 "from the fastest solver whose every step converged")
-    sentence = (f"Solvers at {where}, fastest first (measured: wall time per frame of 1/{1 / FRAME_TIME:g} s, the "
-                f"real-time factor, {what}): " + "; ".join(items))
-    fastest = order[0]
-    evidence = {"integrator": label, "setting": setting, "dt": dt, "measure": "error" if by_error else "max_rel_energy_drift",
-                "solvers": {name: {"run_id": chosen[name].run_id, "wall_time_per_frame": chosen[name].wall_time_per_frame,
-                                   "real_time_factor": chosen[name].real_time_factor, "measure": measure[name],
-                                   "deviation": deviation[name]} for name in order},
-                "fastest": fastest, "baseline": baseline, "stopped": stopped}
-    if baseline and fastest != baseline:
-        speed = chosen[baseline].wall_time_per_frame / chosen[fastest].wall_time_per_frame
-        pace = (f"as fast as (within {100 * WALL_TIME_NOISE:g} %)" if speed <= 1 + WALL_TIME_NOISE
-                else f"{speed:.2g}x faster than")
-        sentence += f". The fastest, {fastest}, is {pace} {baseline}"
-        if np.isfinite(deviation[fastest]):
-            scale = runs[chosen[baseline].run_id].length_scale
-            sentence += (f", at {deviation[fastest]:.2g} m from its positions "
-                         f"({100 * deviation[fastest] / scale:.2g} % of the length scale {scale:g} m)")
-        evidence["speedup"] = speed
-    for status, names in stopped.items():
-        sentence += f"; {_and(names)} {status.replace('_', ' ')}"
-    return Finding(sentence + ".", "#summary", evidence, "cost")
-
-
-def _deviation(run, baseline) -> float:
-    """m: max |x - x_baseline| over the dofs at the error time (dataset ``error_positions``); NaN without it."""
-    mine, theirs = run.stored.get("error_positions"), baseline.stored.get("error_positions")
-    if mine is None or theirs is None or np.shape(mine) != np.shape(theirs):
-        return math.nan
-    return float(np.max(np.abs(np.asarray(mine, dtype=float) - np.asarray(theirs, dtype=float)), initial=0.0))
 
 
 # -- energy (systems without the test equation) ----------------------------------------------------

@@ -17,6 +17,8 @@ from simrun.tables import (ROUND_OFF_DAMPING, SummaryRow, any_not_converged, any
 
 # `simrun show` fits a terminal this wide by default (--wide: every column).
 TERMINAL_WIDTH = 100
+# The heading of the runs that read none of the swept keys (an explicit method reads no solver.* key).
+NO_SWEPT_KEY = "none of the swept keys applies"
 # Longer integrator labels are cut (with an ellipsis) in the terminal table unless --wide.
 MAX_LABEL_WIDTH = 32
 
@@ -129,8 +131,8 @@ def format_table(rows: list[SummaryRow], name: str = "", wide: bool = False, wid
     lines += [header[0], header[1], rule] if header[0].strip() else [header[1], rule]
     group = None
     for row in rows:
-        if row.group != group and any(other.group for other in rows):
-            lines.append(f"[{row.group}]")
+        if row.group != group and any(other.group for other in rows):  # "": runs that read none of the swept keys
+            lines.append(f"[{row.group or NO_SWEPT_KEY}]")
             group = row.group
         lines.append(line([cells(column, row) for column in columns]))
     lines.append(rule)

@@ -9,6 +9,8 @@ report and its findings (issue 16), on tiny sweeps that the real pipeline (simru
   does not converge from step 1 on, and every step ends in the fallback (safeguard bit 8).
 - spring: backward Euler with Newton on the linear spring q'' + 4 q = 0: one full Newton step solves each step
   (the incremental potential is quadratic), so no safeguard fires.
+- versus: the 4 x 4 cloth at dt = 0.01 s, backward Euler with solver.type newton and projective_dynamics, and
+  XPBD (an explicit method: it reads no solver key, so its runs share no swept key with the others).
 
 Wall times are whatever the machine took; the tests check the definitions (simulated time steps dt over wall
 time; wall time per 1/60 s of simulated time) and where the numbers appear, never how fast anything ran.
@@ -27,10 +29,11 @@ import pytest
 
 import simrun
 from simrun.figures import figure_data
-from simrun.findings import findings
+from simrun.findings import drift_text, findings
 from simrun.report import write_report
+from simrun.cli import main
 from simrun.results import Status, load
-from simrun.table_text import format_table, frame_time_text, real_time_text, write_csv
+from simrun.table_text import NO_SWEPT_KEY, format_table, frame_time_text, real_time_text, write_csv
 from simrun.tables import summary_rows
 
 CLOTH = {"type": "cloth", "resolution": [4, 4], "stretch_stiffness": 1000.0, "shear_stiffness": 100.0,
@@ -47,6 +50,12 @@ TROUBLED = {
     "duration": 0.2, "divergence": {"energy_factor": 100.0},
     "sweep": {"dt": [0.02]},
 }
+VERSUS = {
+    "name": "versus", "system": CLOTH, "integrators": ["backward_euler", {"type": "xpbd", "substeps": 5}],
+    "solver": {"tolerance": 1.0e-8, "max_iterations": 50, "on_not_converged": "accept"},
+    "duration": 0.05,
+    "sweep": {"dt": [0.01], "solver.type": ["newton", "projective_dynamics"]},
+}
 SPRING = {
     "name": "spring", "system": {"type": "spring_mass", "stiffness": 4.0, "mass": 1.0, "x0": 1.0},
     "integrators": ["backward_euler"], "solver": {"type": "newton"}, "duration": 0.5,
@@ -62,7 +71,7 @@ def simulated(folder: Path, experiment: dict) -> Path:
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("realtime")
-    return {experiment["name"]: simulated(folder, experiment) for experiment in (REALTIME, TROUBLED, SPRING)}
+    return {experiment["name"]: simulated(folder, experiment) for experiment in (REALTIME, TROUBLED, SPRING, VERSUS)}
 
 
 @pytest.fixture(scope="module")
@@ -236,46 +245,104 @@ def test_the_report_shows_the_real_time_columns(files, pages):
         assert pages[name].column("wall/frame (ms)") == [frame_time_text(value) for value in summary["wall_time_per_frame"]]
 
 
-# -- the finding ------------------------------------------------------------------------------------
+# -- the cost findings -----------------------------------------------------------------------------
+def cost_findings(path: Path):
+    """(the file's cost findings that lead, one per compared dt; each method's finding by (dt, method); the data)."""
+    data, rows = rows_of(path)
+    found = [finding for finding in findings(data, rows) if finding.topic == "cost"]
+    leads = [finding for finding in found if "methods" in finding.evidence]
+    each = {(finding.evidence["dt"], finding.evidence["method"]): finding for finding in found if "method" in finding.evidence}
+    assert len(leads) + len(each) == len(found)
+    return leads, each, data, rows
+
+
+def distance(results, run_id: str, baseline_id: str) -> float:
+    """m: max |x - x_baseline| at the error time, from the file's error_positions."""
+    return float(np.max(np.abs(results.runs[run_id]["error_positions"] - results.runs[baseline_id]["error_positions"])))
+
+
 def test_solvers_are_compared_at_equal_dt(files, pages):
-    """A sweep of solver.type gets one finding per shared dt: each solver's wall time per frame, real-time factor,
-    energy change and distance max |x - x_baseline| at the error time from the fastest solver whose every step
-    converged (at max_iterations 1 none of the runs converges, at 100 Newton does); sweeps of one solver get none."""
-    data, rows = rows_of(files["realtime"])
+    """A sweep of solver.type gets, per shared dt, a finding that names the baseline (the fastest converged Newton
+    run: at max_iterations 1 no run converges, at 100 Newton does) and one per other method with its wall time per
+    frame, real-time factor, energy change and distance max |x - x_baseline| at the error time; sweeps of one
+    solver get none."""
+    leads, each, data, rows = cost_findings(files["realtime"])
     by_id = {row.run_id: row for row in rows}
     results = data.results
-    found = [finding for finding in findings(data, rows) if finding.topic == "cost"]
-    assert sorted(finding.evidence["dt"] for finding in found) == [0.01, 0.02]
-    for finding in found:
-        solvers = finding.evidence["solvers"]
-        assert set(solvers) == {f"{kind} (max_iterations = {budget})" for kind in ("newton", "vbd") for budget in (1, 100)}
-        assert finding.evidence["measure"] == "max_rel_energy_drift"  # the cloth has no exact solution
-        for name, numbers in solvers.items():
+    assert sorted(lead.evidence["dt"] for lead in leads) == [0.01, 0.02]
+    for lead in leads:
+        dt, methods = lead.evidence["dt"], lead.evidence["methods"]
+        assert set(methods) == {f"{kind} (max_iterations = {budget})" for kind in ("newton", "vbd") for budget in (1, 100)}
+        assert lead.evidence["measure"] == "max_rel_energy_drift"  # the cloth has no exact solution
+        runs = {name: results.runs[numbers["run_id"]] for name, numbers in methods.items()}
+        converged_newton = [name for name, run in runs.items()
+                            if run.params["solver.type"] == "newton" and run.attrs["not_converged_steps"] == 0]
+        assert converged_newton == ["newton (max_iterations = 100)"]
+        baseline = lead.evidence["baseline"]
+        assert baseline == "newton (max_iterations = 100)"
+        assert lead.sentence.startswith(f"Cost at dt = {dt:g} s against {baseline}")
+        for name, numbers in methods.items():
             row = by_id[numbers["run_id"]]
-            assert row.dt == finding.evidence["dt"] and row.solver == name.split()[0]
+            assert row.dt == dt and row.solver == name.split()[0]
             assert numbers["wall_time_per_frame"] == row.wall_time_per_frame
             assert numbers["real_time_factor"] == row.real_time_factor
             assert numbers["measure"] == row.max_rel_energy_drift
-            assert f"{name} {1e3 * row.wall_time_per_frame:.3g} ms ({real_time_text(row.real_time_factor)} real time)" \
-                in finding.sentence
-        converged = [name for name, numbers in solvers.items()
-                     if results.runs[numbers["run_id"]].attrs["not_converged_steps"] == 0]
-        assert "newton (max_iterations = 100)" in converged
-        assert not [name for name in converged if name.endswith("(max_iterations = 1)")]
-        baseline = min(converged, key=lambda name: solvers[name]["wall_time_per_frame"])
-        assert finding.evidence["baseline"] == baseline
-        reference = results.runs[solvers[baseline]["run_id"]]["error_positions"]
-        for name, numbers in solvers.items():
-            positions = results.runs[numbers["run_id"]]["error_positions"]
-            assert numbers["deviation"] == pytest.approx(np.max(np.abs(positions - reference)), rel=1e-12, abs=0)
+            assert numbers["deviation"] == pytest.approx(distance(results, row.run_id, methods[baseline]["run_id"]),
+                                                         rel=1e-12, abs=0)
+            stated = f"{1e3 * row.wall_time_per_frame:.3g} ms per frame ({real_time_text(row.real_time_factor)} real time)"
+            if name == baseline:
+                assert f"{baseline} takes {stated}" in lead.sentence and (dt, name) not in each
+                continue
             if name.endswith("(max_iterations = 1)"):  # one iteration per step does not reach the converged solve
                 assert numbers["deviation"] > 1e-6
-        fastest = min(solvers, key=lambda name: solvers[name]["wall_time_per_frame"])
-        assert finding.evidence["fastest"] == fastest
+            sentence = each[(dt, name)].sentence
+            assert sentence.startswith(f"At dt = {dt:g} s, {name}: {stated}")  # two dts: each finding says where
+            assert f"{numbers['deviation']:.2g} m (" in sentence and sentence.count(f"from {baseline}") == 1
+            assert sentence in pages["realtime"].findings
+        fastest = min(methods, key=lambda name: methods[name]["wall_time_per_frame"])
+        assert lead.evidence["fastest"] == fastest
         if fastest != baseline:
-            assert finding.evidence["speedup"] == pytest.approx(
-                solvers[baseline]["wall_time_per_frame"] / solvers[fastest]["wall_time_per_frame"], rel=1e-12)
-        assert finding.sentence.split(" (")[0] in pages["realtime"].findings
+            assert lead.evidence["speedup"] == pytest.approx(
+                methods[baseline]["wall_time_per_frame"] / methods[fastest]["wall_time_per_frame"], rel=1e-12)
+        assert lead.sentence in pages["realtime"].findings
     for name in ("troubled", "spring"):
         data, rows = rows_of(files[name])
         assert not [finding for finding in findings(data, rows) if finding.topic == "cost"]
+
+
+def test_an_explicit_method_is_compared_with_the_converged_newton_run(files, pages):
+    """XPBD reads no solver key, yet it stands beside the implicit runs at its dt: its finding gives its wall time
+    per frame, real-time factor, energy change and max |x - x_newton| at the error time, recomputed here from the
+    file's error_positions."""
+    leads, each, data, rows = cost_findings(files["versus"])
+    results = data.results
+    (lead,) = leads
+    by_kind = {(row.integrator, row.solver): row for row in rows}
+    (xpbd,) = [row for row in rows if results.runs[row.run_id].explicit]
+    newton = by_kind[("backward_euler", "newton")]
+    assert results.runs[newton.run_id].attrs["not_converged_steps"] == 0 and newton.status == Status.OK
+    assert lead.evidence["baseline"] == "newton" and lead.evidence["methods"]["newton"]["run_id"] == newton.run_id
+    assert set(lead.evidence["methods"]) == {"newton", "projective_dynamics", xpbd.integrator}
+    assert lead.evidence["methods"][xpbd.integrator]["explicit"]
+    apart = distance(results, xpbd.run_id, newton.run_id)
+    assert apart > 0
+    assert lead.evidence["methods"][xpbd.integrator]["deviation"] == pytest.approx(apart, rel=1e-12, abs=0)
+    finding = each[(0.01, xpbd.integrator)]
+    assert finding.evidence["run_id"] == xpbd.run_id and finding.evidence["baseline"] == "newton"
+    scale = results.runs[newton.run_id].length_scale
+    assert finding.sentence == (
+        f"{xpbd.integrator}: {1e3 * xpbd.wall_time_per_frame:.3g} ms per frame ({real_time_text(xpbd.real_time_factor)} "
+        f"real time), max drift {drift_text(xpbd.max_rel_energy_drift)}, {apart:.2g} m ({100 * apart / scale:.2g} % of "
+        "the length scale) from newton.")  # one dt: no "At dt = ..."; XPBD solves nothing: no steps at max_iterations
+    assert "a solver's name stands for backward_euler solved by it" in lead.sentence
+    assert finding.sentence in pages["versus"].findings and lead.sentence in pages["versus"].findings
+
+
+def test_show_gives_the_runs_without_swept_keys_a_heading(files, capsys):
+    """The XPBD run shares no swept key (its title is ""): `simrun show` heads it with words, not with "[]"."""
+    assert main(["show", str(files["versus"])]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    headings = [number for number, line in enumerate(lines) if line.startswith("[")]
+    assert [lines[number] for number in headings] == [
+        "[solver.type = newton]", f"[{NO_SWEPT_KEY}]", "[solver.type = projective_dynamics]"]
+    assert lines[headings[1] + 1].split()[1].startswith("xpbd")
