@@ -7,9 +7,10 @@ import os
 import pytest
 
 from simrun.config import validate_experiment
+from simrun.integrators import INTEGRATORS, State
 from simrun.sweep import expand_runs
 from simrun.simulate import simulate
-from simrun.solvers import LINEAR_SOLVERS
+from simrun.solvers import LINEAR_SOLVERS, SolveStats
 
 # CI installs the optional CHOLMOD solver and sets this, so a broken install fails instead of skipping
 REQUIRE_OPTIONAL_SOLVERS = os.environ.get("SIMRUN_REQUIRE_CHOLMOD") == "1"
@@ -46,3 +47,21 @@ def run_one(system: dict, integrator, dt: float, duration: float, **extra):
 @pytest.fixture
 def run_simulation():
     return run_one
+
+
+class Capture:
+    """A stand-in solver that keeps the problem an integrator hands over (and solves nothing)."""
+
+    def minimize(self, problem, start):
+        self.problem, self.start = problem, start.copy()
+        return start, SolveStats()
+
+
+def step_problem(system, x=None, v=None, dt=0.01, integrator="backward_euler"):
+    """The problem (and start) that one step of ``integrator`` (a name) from (x, v) hands its solver (default:
+    the system's initial state)."""
+    capture = Capture()
+    x = system.x0 if x is None else x
+    v = system.v0 if v is None else v
+    INTEGRATORS[integrator]().step(system, State(0.0, x, v), dt, capture)
+    return capture.problem, capture.start

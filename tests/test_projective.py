@@ -18,11 +18,11 @@ import pytest
 import scipy.linalg
 import scipy.sparse
 
-from conftest import run_one
+from conftest import run_one, step_problem
 import simrun.solvers.projective as projective
 from simrun.config import load_experiment
 from simrun.integrators import INTEGRATORS, State
-from simrun.solvers import (LBFGS, Newton, ProjectiveDynamics, SolveStats, SolverOptionError, refusal, solver_params,
+from simrun.solvers import (LBFGS, Newton, ProjectiveDynamics, SolverOptionError, refusal, solver_params,
                             solver_refusal)
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.systems import CircularMotionParams, ClothParams, SpringMassParams
@@ -30,23 +30,6 @@ from simrun.systems.mass_spring.params import MassSpringParams
 
 CLOTH_HANG = Path(__file__).parent.parent / "configs" / "cloth_hang.yaml"
 REFERENCE_TOLERANCE = 1e-12  # Newton's, for the reference step y*
-
-
-class Capture:
-    """A stand-in solver that keeps the problem an integrator hands over (and solves nothing)."""
-
-    def minimize(self, problem, start):
-        self.problem, self.start = problem, start.copy()
-        return start, SolveStats()
-
-
-def step_problem(system, x=None, v=None, dt=0.01, integrator="backward_euler"):
-    """The problem (and start) of one step of ``integrator`` from (x, v) (default: the system's start)."""
-    capture = Capture()
-    x = system.x0 if x is None else x
-    v = system.v0 if v is None else v
-    INTEGRATORS[integrator]().step(system, State(0.0, x, v), dt, capture)
-    return capture.problem, capture.start
 
 
 def cloth_hang(**overrides):

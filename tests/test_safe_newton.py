@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from conftest import run_one
-from simrun.integrators import INTEGRATORS, State
-from simrun.solvers import SolveStats, solver_params
+from conftest import run_one, step_problem
+from simrun.solvers import solver_params
 from simrun.solvers.newton import SAFEGUARDS, project_eigen
 from simrun.systems import ClothParams, SpringMassParams
 
@@ -149,16 +148,8 @@ def test_the_dense_abs_projection_mirrors_the_eigenvalues():
     assert np.all(scipy.linalg.eigvalsh(clamped)[:2] <= 1e-6)
 
 
-class Capture:
-    def minimize(self, problem, start):
-        self.problem, self.start = problem, start
-        return start, SolveStats()
-
-
 def captured_problem(method, system, x, v, dt):
-    capture = Capture()
-    INTEGRATORS[method]().step(system, State(0.0, x, v), dt, capture)
-    return capture.problem, capture.start
+    return step_problem(system, x, v, dt, integrator=method)
 
 
 def test_velocity_mode_applies_the_step_that_meets_it():

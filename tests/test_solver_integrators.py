@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 import scipy.sparse
 
+from conftest import Capture
 from simrun.cli import main
 from simrun.integrators import INTEGRATORS, State
-from simrun.solvers import SolveStats, solver_params
+from simrun.solvers import solver_params
 from simrun.systems import ClothParams
 
 # no spring damping (the step of the review); h^2 k / m = 0.0004 * 200 * 36 = 2.9: nonlinear
@@ -34,14 +35,6 @@ SOLVER_OPTIONS = [("projective_dynamics", {"chebyshev_rho": 0.99}), ("vbd", {"ch
                   ("lbfgs", {"initial_hessian": "rest"}), ("lbfgs", {"initial_hessian": "step", "initial_guess": "inertial"}),
                   ("newton", {"spd_projection": "abs"}), ("newton", {"spd_projection": "adaptive"}),
                   ("newton", {"tolerance_mode": "velocity"})]
-
-
-class Capture:
-    """A stand-in solver that keeps the problem an integrator hands over (and solves nothing)."""
-
-    def minimize(self, problem, start):
-        self.problem, self.start = problem, start.copy()
-        return start, SolveStats()
 
 
 def test_the_integrators_under_test_are_the_five_of_the_review():

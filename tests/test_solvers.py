@@ -22,12 +22,11 @@ import pytest
 import scipy.sparse
 import yaml
 
-from conftest import always_available_linear_solvers, linear_solver_params, needs_linear_solver, run_one
+from conftest import always_available_linear_solvers, linear_solver_params, needs_linear_solver, run_one, step_problem
 from simrun.cli import main
 from simrun.config import ConfigError, _fields_at, load_experiment, validate_experiment
 from simrun.sweep import expand_runs
-from simrun.integrators import INTEGRATORS, State
-from simrun.solvers import (LINEAR_SOLVERS, SOLVER_PARAMS, SOLVERS, FallbackChain, Newton, NonlinearSolver, SolveStats,
+from simrun.solvers import (LINEAR_SOLVERS, SOLVER_PARAMS, SOLVERS, FallbackChain, Newton, NonlinearSolver,
                             SolverOptionError, SolverParams, solver_params)
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
@@ -43,18 +42,8 @@ DT = 0.02
 TOLERANCE = 1e-8
 
 
-class Capture:
-    """A stand-in solver that keeps the problem an integrator hands over (and solves nothing)."""
-
-    def minimize(self, problem, start):
-        self.problem, self.start = problem, start.copy()
-        return start, SolveStats()
-
-
 def backward_euler_problem(system, x, v, dt):
-    capture = Capture()
-    INTEGRATORS["backward_euler"]().step(system, State(0.0, x, v), dt, capture)
-    return capture.problem, capture.start
+    return step_problem(system, x, v, dt)
 
 
 def stretched_cloth_step(stretch=1.1, bulge=0.1, dt=DT, **overrides):

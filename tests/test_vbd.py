@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import step_problem
 from simrun.integrators import INTEGRATORS, IncrementalPotential, State
-from simrun.solvers import Newton, SolveStats, VertexBlockDescent, solver_params
+from simrun.solvers import Newton, VertexBlockDescent, solver_params
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.vbd import ColourPlan
 from simrun.systems import ClothParams, SpringMassParams, System
@@ -31,18 +32,8 @@ from simrun.systems.mass_spring.system import SPRING_LAWS
 CONFIGS = Path(__file__).parent.parent / "configs"
 
 
-class Capture:
-    """A stand-in solver that keeps the problem an integrator hands over (and solves nothing)."""
-
-    def minimize(self, problem, start):
-        self.problem, self.start = problem, start.copy()
-        return start, SolveStats()
-
-
 def backward_euler_problem(system, x, v, dt):
-    capture = Capture()
-    INTEGRATORS["backward_euler"]().step(system, State(0.0, x, v), dt, capture)
-    return capture.problem, capture.start
+    return step_problem(system, x, v, dt)
 
 
 def free_hessian_floor(problem, y, fixed) -> tuple[float, np.ndarray]:
