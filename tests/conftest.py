@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from simrun.config import validate_experiment
@@ -65,3 +66,15 @@ def step_problem(system, x=None, v=None, dt=0.01, integrator="backward_euler"):
     v = system.v0 if v is None else v
     INTEGRATORS[integrator]().step(system, State(0.0, x, v), dt, capture)
     return capture.problem, capture.start
+
+
+def stretched_cloth_state(system, stretch: float = 1.1, bulge: float = 0.1, speed: float = 0.3, seed: int = 3):
+    """(x, v) of a cloth stretched by ``stretch`` in its plane about its centre, bulged by ``bulge`` (m) as a sine
+    sheet, with random velocities of scale ``speed`` (m/s) (zero on pinned dofs): a nonlinear step's start."""
+    positions = system.x0.reshape(-1, 3).copy()
+    centre = positions.mean(axis=0)
+    positions[:, :2] = centre[:2] + stretch * (positions[:, :2] - centre[:2])
+    positions[:, 2] = bulge * np.sin(np.pi * positions[:, 0]) * np.sin(np.pi * positions[:, 1])
+    v = speed * np.random.default_rng(seed).standard_normal(system.dof_count)
+    v[system.fixed_dofs] = 0.0
+    return positions.ravel(), v

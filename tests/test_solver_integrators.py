@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import scipy.sparse
 
-from conftest import Capture
+from conftest import Capture, stretched_cloth_state
 from simrun.cli import main
 from simrun.integrators import INTEGRATORS, State
 from simrun.solvers import solver_params
@@ -58,14 +58,8 @@ def integrator_step(request):
     integrator (after WARMUP_STEPS), its problem captured; y* by Newton at 1e-14 and mu > 0 at y*."""
     name = request.param
     system = ClothParams(**CLOTH).build()
-    positions = system.x0.reshape(-1, 3).copy()
-    centre = positions.mean(axis=0)
-    positions[:, :2] = centre[:2] + 1.1 * (positions[:, :2] - centre[:2])
-    positions[:, 2] = 0.1 * np.sin(np.pi * positions[:, 0]) * np.sin(np.pi * positions[:, 1])
-    v = 0.3 * np.random.default_rng(3).standard_normal(system.dof_count)
-    v[system.fixed_dofs] = 0.0
     integrator = INTEGRATORS[name]()
-    state = integrator.start(system, State(0.0, positions.ravel(), v))
+    state = integrator.start(system, State(0.0, *stretched_cloth_state(system)))
     newton = solver_params(type="newton", tolerance=1e-12, max_iterations=50).build()
     for _ in range(WARMUP_STEPS.get(name, 0)):
         state, stats = integrator.step(system, state, DT, newton)

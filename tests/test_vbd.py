@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import step_problem
+from conftest import step_problem, stretched_cloth_state
 from simrun.integrators import INTEGRATORS, IncrementalPotential, State
 from simrun.solvers import Newton, VertexBlockDescent, solver_params
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
@@ -159,14 +159,7 @@ CLOTH = dict(resolution=(6, 6), mass=1.0, stretch_stiffness=200.0, shear_stiffne
 def stretched_cloth_step():
     """The cloth stretched by 10 % in its plane and bulged, with random velocities: one backward Euler step."""
     system = ClothParams(**CLOTH).build()
-    positions = system.x0.reshape(-1, 3).copy()
-    centre = positions.mean(axis=0)
-    positions[:, :2] = centre[:2] + 1.1 * (positions[:, :2] - centre[:2])
-    positions[:, 2] = 0.1 * np.sin(np.pi * positions[:, 0]) * np.sin(np.pi * positions[:, 1])
-    v = 0.3 * np.random.default_rng(3).standard_normal(system.dof_count)
-    v[system.fixed_dofs] = 0.0
-    problem, start = backward_euler_problem(system, positions.ravel(), v, 0.02)
-    return problem, start
+    return backward_euler_problem(system, *stretched_cloth_state(system), 0.02)
 
 
 def compressed_cloth_step():
