@@ -209,6 +209,8 @@ class IncrementalPotential:
         self.velocity_divisor = velocity_divisor
         self.step_start = step_start
         self.fraction = fraction
+        # a convex quadratic E (quadratic P, D constant): one full Newton step is its minimiser
+        self.quadratic = system.quadratic_potential and (damping_at is None or system.damping_is_constant)
         self.fixed_dofs = system.fixed_dofs
         self.sliding = system.sliding
         damping = None if damping_at is None else system.damping_matrix(damping_at)

@@ -128,7 +128,9 @@ class Newton(NonlinearSolver):
 
     # -- the contract of NonlinearSolver ---------------------------------------------------------
     def _begin(self, problem, current, free):
-        if self.line_search != "none" and has_value(problem):
+        # a convex quadratic problem (``problem.quadratic``: the spring, linear circular motion) needs neither the
+        # line search nor the safeguards: its Newton step is its minimiser, and the small systems' steps stay cheap
+        if self.line_search != "none" and has_value(problem) and not getattr(problem, "quadratic", False):
             current.energy = problem.value(current.y)
         return _NewtonState(free)
 

@@ -174,6 +174,10 @@ class System(ABC):
         a line search cannot judge changes of E below ENERGY_ROUNDOFF times this."""
         return abs(self.potential_energy(x)) + float(np.abs(self.gradient(x) * x).sum())
 
+    # P is quadratic in x with a constant positive definite Hessian (the spring, the linear central force): the
+    # incremental potential is then a convex quadratic, one full Newton step solves it, and Newton skips its line search
+    quadratic_potential: bool = False
+
     external_acceleration: np.ndarray | None = None  # (dof_count,) m/s^2 of the constant external field (gravity), or None
 
     @functools.cached_property

@@ -129,6 +129,10 @@ class CircularMotion(System):
     damping_is_constant = True  # undamped
 
     @property
+    def quadratic_potential(self) -> bool:
+        return self.linear  # k/2 |x|^2, k > 0; the gravitational law is not quadratic
+
+    @property
     def projective_form(self):
         # the linear law k/2 |x|^2 is a zero-length Hookean spring to the centre
         return None if self.linear else "the gravitational law -GMm/|x| is not a Hookean spring"

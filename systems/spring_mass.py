@@ -93,6 +93,7 @@ class SpringMass(System):
     # k q^2 / 2 is a zero-length Hookean spring to the origin; D = d is constant
     projective_form = None
     damping_is_constant = True
+    quadratic_potential = True  # k q^2 / 2 with k > 0
 
     def rest_stiffness(self):
         return self._hessian
