@@ -1,13 +1,15 @@
-"""The energy line search shared by projected Newton, L-BFGS, gradient descent and Jacobi-Chebyshev.
+"""The energy line search shared by Newton, projected Newton, L-BFGS, gradient descent and Jacobi-Chebyshev.
 
 Rules (``line_search``): ``none`` takes the full step; ``backtracking`` halves the step until
 E(y + a p) <= E(y); ``armijo`` halves it until E(y + a p) <= E(y) + c a g^T p (sufficient decrease,
 Nocedal & Wright, "Numerical Optimization", sec. 3.1). Near the solution the change of E drops
-below the round-off of E itself (|dE| ~ |g|^2 / H while E is resolved to ~eps |E|), so a change that
-E cannot resolve is judged by the gradient instead: the step is accepted when it lowers
-|g|_inf. E therefore never increases by more than its own round-off.
+below the round-off of E itself (|dE| ~ |g|^2 / H), and that round-off is relative to the size of the
+terms E sums (the problem's ``value_magnitude``: springs near their rest length have energies far
+below their round-off eps |dW/dL| L), not to |E|. A change that E cannot resolve is judged by the
+gradient instead (accepted when it lowers |g|_inf), or, for the Newton family (``within_roundoff``),
+accepted as it is: its full step near the solution is the best there is. E therefore never increases
+by more than its own round-off.
 """
-
 from __future__ import annotations
 
 import numpy as np
