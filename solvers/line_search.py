@@ -10,6 +10,7 @@ gradient instead (accepted when it lowers |g|_inf), or, for the Newton family (`
 accepted as it is: its full step near the solution is the best there is. E therefore never increases
 by more than its own round-off.
 """
+
 from __future__ import annotations
 
 import numpy as np
