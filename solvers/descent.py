@@ -51,6 +51,13 @@ def _gradient_at(problem, free: FreeDofs, advance: Advance) -> np.ndarray:
     return advance.gradient
 
 
+def _lagged_point(problem, start: np.ndarray) -> np.ndarray:
+    """Where L-BFGS's ``step`` H_0 is taken: the inertial guess x_n + theta h v_n (the step's y* is nearer to it
+    than to x_n, so the lagged Hessian is less stale), or the solve's start where the problem has no guesses."""
+    guess = getattr(problem, "initial_guess", None)
+    return problem.start_point(guess("inertial")) if guess is not None and getattr(problem, "step_start", None) else start
+
+
 @dataclass
 class _DescentState:
     free: FreeDofs
@@ -113,9 +120,10 @@ class LBFGS(NonlinearSolver):
     its rest lengths has ~0 across (k_e (1 - l_e/L)): on cloth_hang's out-of-plane modes the eigenvalues
     of A^{-1} H spread over 3e-4..0.1, and gamma fits the model to them (~40 % fewer iterations there).
     Both need a system with a rest stiffness (``requires``; refused in one line otherwise). ``step``:
-    H_0 = H+(y_0)^{-1}, the SPD-projected Hessian at the solve's start, factorised once per step (not per
-    run): the quasi-Newton method with a lagged Hessian, whose BFGS pairs correct what changed within
-    the step; it needs no rest stiffness and follows the cloth's rotation, which the rest shape cannot.
+    H_0 = H+^{-1}, the abs-projected Hessian at the step's inertial guess (``_lagged_point``), factorised once
+    per step (not per run): the quasi-Newton method with a lagged Hessian, whose BFGS pairs correct what
+    changed within the step; it needs no rest stiffness and follows the cloth's rotation, which the rest
+    shape cannot.
     """
 
     name = "lbfgs"
@@ -144,7 +152,7 @@ class LBFGS(NonlinearSolver):
     def _begin(self, problem, current, free):
         if self.initial_hessian == "step":
             _prepare_energy(problem, current, self.line_search)
-            factor = factorise_spd(free.restrict_matrix(free.filter_matrix(problem.hessian(current.y, project_spd="abs"))))
+            factor = factorise_spd(free.restrict_matrix(free.filter_matrix(problem.hessian(_lagged_point(problem, current.y), project_spd="abs"))))
             state = _DescentState(free, 1.0, deque(maxlen=self.history))
             state.step_solve = lambda rhs: free.extend(factor(free.restrict(rhs)))
             return state  # the first step is the projected Newton step: no Cauchy length
