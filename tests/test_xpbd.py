@@ -104,7 +104,26 @@ class TwoParticlesOnASpring(System):
         return -self.springs.force(x, np.zeros_like(x))
 
     def hessian(self, x, project_spd=False):
-        raise NotImplementedError("xpbd needs no Hessian")
+        """The Hookean block B = k [u u^T + (1 - l0/L)(I - u u^T)] in [[B, -B], [-B, B]] (the contract's primitive;
+        XPBD itself never asks for it). Its transverse factor is clamped at 0 when projected."""
+        delta = x[:3] - x[3:]
+        length = float(np.linalg.norm(delta))
+        u = delta / length
+        outer = np.outer(u, u)
+        transverse = 1.0 - float(self.springs.rest_length[0]) / length
+        if project_spd:
+            transverse = abs(transverse) if project_spd == "abs" else max(transverse, 0.0)
+        block = float(self.springs.stiffness[0]) * (outer + transverse * (np.eye(3) - outer))
+        return np.block([[block, -block], [-block, block]])
+
+
+def test_the_two_particle_springs_hessian_is_the_derivative_of_its_gradient():
+    """The test system's Hessian against central differences of its gradient (h = 1e-6 m)."""
+    system = TwoParticlesOnASpring(0.3, 0.7, 50.0, 0.8, 0.5)
+    x = np.array([0.1, -0.2, 0.05, 0.55, 0.1, -0.1])
+    step = 1e-6
+    numeric = np.column_stack([(system.gradient(x + step * e) - system.gradient(x - step * e)) / (2 * step) for e in np.eye(6)])
+    assert np.allclose(system.hessian(x), numeric, rtol=1e-7, atol=1e-6)
 
 
 def macklin_eq26_substep(x, v, masses, k, beta, rest_length, h, iterations):
