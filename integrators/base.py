@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict
 from simrun.solvers import SolveStats
 from simrun.solvers.base import FLOAT64, INITIAL_GUESSES, SMALL_VECTOR, max_norm
 from simrun.systems import System
-from simrun.systems.base import diagonal_blocks
+from simrun.systems.base import add_keeping_pattern, diagonal_blocks
 
 
 @dataclass(slots=True)  # not frozen: built once per step, and a frozen __init__ is slower (docs/performance.md)
@@ -66,8 +66,14 @@ class Integrator(BaseModel):
 
     def refusal(self, system: System) -> str | None:
         """Why this method cannot step ``system``, in one line, or None: the config refuses such a run before any
-        starts (XPBD needs the system's springs as compliant constraints). Most methods step every system."""
-        return None
+        starts (XPBD needs the system's springs as compliant constraints). Most methods step every system; contact
+        asks more of them (``contact_refusal``)."""
+        return contact_refusal(self, system)
+
+    @property
+    def unknown_fraction(self) -> float:
+        """theta: the unknown of the method's problem is the position at t_n + theta h (1: x_{n+1} itself)."""
+        return 1.0
 
     @property
     def order_of_accuracy(self) -> int:
@@ -83,6 +89,48 @@ class Integrator(BaseModel):
             if value != type(self).model_fields[key].default
         ]
         return f"{self.name}[{','.join(changed)}]" if changed else self.name
+
+
+def solve_step(solver, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
+    """``solver.minimize(problem, start)``, then, where friction asks it (``friction.lag_iterations`` k), k more
+    solves from the solution with the friction's normal forces and tangent bases lagged there instead of at the
+    step's start (IPC's re-lagging: each brings them closer to the solution's own); the statistics summed."""
+    y, stats = solver.minimize(problem, start)
+    for _ in range(getattr(problem, "relags", 0)):
+        if not stats.converged:
+            break
+        problem.relag(y)
+        y, more = solver.minimize(problem, y)
+        stats = SolveStats(stats.iterations + more.iterations, stats.linear_iterations + more.linear_iterations,
+                           stats.line_search_steps + more.line_search_steps, more.residual, more.converged,
+                           max(stats.solver_index, more.solver_index), stats.safeguards | more.safeguards)
+    return y, stats
+
+
+def contact_refusal(integrator: Integrator, system: System) -> str | None:
+    """Why ``integrator`` cannot step ``system``'s contact, in one line, or None. IPC needs every step filtered so
+    that no position crosses a surface: only the incremental-potential methods whose unknown is x_{n+1} itself
+    have such steps (a line search cuts them); friction is a dissipative potential of the step's velocity map, which
+    only the incremental-potential problems carry."""
+    if not system.has_contact:
+        return None
+    kind = integrator.problem_kind
+    if system.requires_step_filter:
+        if integrator.explicit or kind is None:
+            return ("takes explicit steps, which nothing cuts short of a collision: IPC contact needs an "
+                    "incremental-potential method (backward_euler, bdf2, newmark) whose line search CCD filters")
+        if kind != "incremental_potential":
+            why = ("takes one Newton step without a line search" if kind == "newton_step"
+                   else "samples forces at points of the step x_n -> x_{n+1}, which CCD on the solver's steps does not keep apart")
+            return f"{why}: IPC contact needs an incremental-potential method (backward_euler, bdf2, newmark)"
+        if integrator.unknown_fraction != 1.0:
+            return (f"solves for the position at t_n + {integrator.unknown_fraction:g} h and extrapolates x_{{n+1}} from it, "
+                    "which CCD cannot keep out of a collider: IPC contact needs a method whose unknown is x_{n+1} "
+                    "(backward_euler, bdf2, newmark; generalized_alpha only with rho_inf = 0)")
+    if getattr(system, "has_friction", False) and kind not in ("incremental_potential", "newton_step"):
+        return ("applies no friction: friction is a dissipative potential of the step's velocity map, which only the "
+                "incremental-potential methods carry")
+    return None
 
 
 def add_diagonal(matrix, diagonal: np.ndarray, in_place: bool = False):
@@ -222,6 +270,14 @@ class IncrementalPotential:
         self.damping_weight = scale / velocity_divisor
         # the residual M (y - y~) + ... cannot resolve differences below round-off of its largest term
         self.residual_floor = residual_floor(system.mass, y_tilde)
+        # friction: a dissipative potential of the velocity map v(y) = (y - a)/b, lagged at the step's start
+        self.friction = None
+        self.relags = 0
+        if system.has_contact and step_start is not None and velocity_origin is not None:
+            self.friction = system.friction_term(step_start[0], velocity_origin, velocity_divisor)
+            self.relags = system.contact.friction_relags if self.friction is not None else 0
+        self.quadratic = self.quadratic and self.friction is None and not system.has_contact
+        self.requires_step_filter = system.requires_step_filter
 
     def value(self, y: np.ndarray) -> float:
         offset = y - self.y_tilde
@@ -229,7 +285,17 @@ class IncrementalPotential:
         if self.damping is not None:
             rate = y - self.velocity_origin
             energy += 0.5 * self.damping_weight * float(rate @ (self.damping @ rate))
+        if self.friction is not None:
+            energy += self.scale * self.friction.value(y)
         return energy
+
+    def relag(self, y: np.ndarray) -> None:
+        """Friction's normal forces and tangent bases taken at y instead (``solve_step``)."""
+        self.friction = self.system.friction_term(y, self.velocity_origin, self.velocity_divisor)
+
+    def max_step(self, y: np.ndarray, direction: np.ndarray) -> float:
+        """The largest fraction in [0, 1] of the step y -> y + direction that no contact crosses (IPC's filter)."""
+        return self.system.max_step(y, direction)
 
     def value_magnitude(self, y: np.ndarray) -> float:
         """The size of the terms ``value`` sums (kg m^2, E's units), which bounds E's round-off."""
@@ -240,12 +306,16 @@ class IncrementalPotential:
         if self.damping is not None:
             rate = y - self.velocity_origin
             magnitude += 0.5 * self.damping_weight * abs(float(rate @ (self.damping @ rate)))
+        if self.friction is not None:
+            magnitude += self.scale * abs(self.friction.value(y))
         return magnitude
 
     def gradient(self, y: np.ndarray) -> np.ndarray:
         gradient = self.system.mass * (y - self.y_tilde) + self.scale * self.system.gradient(y)
         if self.damping is not None:
             gradient += self.damping_weight * (self.damping @ (y - self.velocity_origin))
+        if self.friction is not None:
+            gradient += self.scale * self.friction.gradient(y)
         if self.fixed_dofs.size:
             gradient[self.fixed_dofs] = 0.0
         if self.sliding is not None:
@@ -258,6 +328,8 @@ class IncrementalPotential:
         Solvers never move a filtered component, so it keeps its start value: y~ is the method's own
         value there, since no force acts on it (a pinned vertex: x_n; a vertex on a prescribed path at
         constant velocity: its exact position)."""
+        if self.requires_step_filter:  # IPC: begin where no moving collider has overtaken a vertex
+            start = self.system.contact_start(start)
         return _constrained_start(self.system, start, self.y_tilde)
 
     def direction_guess(self, y: np.ndarray) -> np.ndarray:
@@ -293,15 +365,33 @@ class IncrementalPotential:
         return (id(self.system), self.scale, self.damping_weight, _Identity(self.damping))
 
     def hessian(self, y: np.ndarray, project_spd: bool = False):
+        system = self.system
+        extra = []  # terms outside the fixed pattern: mesh contact and its friction (ipctk)
+        if self.friction is not None:  # PSD as it is: nothing to project but ipctk's mesh part
+            mesh_friction = self.friction.mesh_hessian(y, project_spd)
+            if mesh_friction is not None:
+                extra.append(self.scale * mesh_friction)
         if self._in_pattern:
-            return self._hessian_in_pattern(y, project_spd)
-        hessian = self.scale * self.system.hessian(y, project_spd=project_spd)  # a new array: ours to change
-        if self.damping is not None:
-            hessian = hessian + self.damping_weight * self.damping
-        return add_diagonal(hessian, self.system.mass, in_place=True)
+            data = self._hessian_data(y, project_spd)
+            if self.friction is not None:
+                vertices, blocks = self.friction.vertex_blocks(y)
+                if vertices.size:
+                    system.add_vertex_blocks(data, vertices, self.scale * blocks)
+            hessian = system.pattern_matrix(data)
+            coupling = system.off_pattern_hessian(y, project_spd)  # mesh contact (IPC)
+            if coupling is not None:
+                extra.append(self.scale * coupling)
+        else:
+            hessian = self.scale * system.hessian(y, project_spd=project_spd)  # a new array: ours to change
+            if self.damping is not None:
+                hessian = hessian + self.damping_weight * self.damping
+            hessian = add_diagonal(hessian, system.mass, in_place=True)
+            if self.friction is not None:
+                extra.append(self.scale * self.friction.point_matrix(y))
+        return add_keeping_pattern(hessian, *extra) if extra else hessian
 
-    def _hessian_in_pattern(self, y: np.ndarray, project_spd: bool):
-        """s K + (s/b) D + M written straight into the system's fixed CSR pattern (``System.hessian_data``):
+    def _hessian_data(self, y: np.ndarray, project_spd: bool) -> np.ndarray:
+        """s K + (s/b) D + M written straight into the system's fixed CSR pattern's data (``System.hessian_data``):
         the same sums as the sparse additions, without building and merging three matrices."""
         system = self.system
         data = system.hessian_data(y, project_spd)
@@ -309,7 +399,7 @@ class IncrementalPotential:
         if self.damping is not None:
             data += self.damping_weight * self.damping.data
         data[system.diagonal_positions] += system.mass
-        return system.pattern_matrix(data)
+        return data
 
     # -- vertex by vertex: what vertex block descent needs (solvers/vbd.py) ------------------------------
     def vertex_colouring(self) -> list[np.ndarray]:

@@ -6,7 +6,7 @@ from typing import ClassVar
 
 from simrun.solvers import EXPLICIT_STEP
 
-from .base import IncrementalPotential, Integrator, State
+from .base import IncrementalPotential, Integrator, State, solve_step
 
 
 class ForwardEuler(Integrator):
@@ -60,5 +60,5 @@ class BackwardEuler(Integrator):
         problem = IncrementalPotential(system, state.x + dt * state.v, dt * dt,
                                        velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x,
                                        step_start=(state.x, state.v, dt))
-        x, stats = solver.minimize(problem, problem.start_point(state.x))
+        x, stats = solve_step(solver, problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - state.x) / dt), stats

@@ -13,7 +13,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from .base import IncrementalPotential, Integrator, SegmentPotential, State
+from .base import IncrementalPotential, Integrator, SegmentPotential, State, solve_step
 
 
 class ImplicitMidpoint(Integrator):
@@ -33,13 +33,17 @@ class ImplicitMidpoint(Integrator):
     problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "symplectic, 2nd order, A-stable with no artificial damping"
 
+    @property
+    def unknown_fraction(self) -> float:
+        return 0.5
+
     def step(self, system, state, dt, solver):
         half = 0.5 * dt
         predictor = state.x + half * state.v  # x_{n+1/2} to O(h^2): D(x) there keeps the method second order
         problem = IncrementalPotential(system, predictor, 0.25 * dt * dt,
                                        velocity_origin=state.x, velocity_divisor=half, damping_at=predictor,
                                        step_start=(state.x, state.v, dt), fraction=0.5)
-        midpoint, stats = solver.minimize(problem, problem.start_point(state.x))
+        midpoint, stats = solve_step(solver, problem, problem.start_point(state.x))
         v_half = (midpoint - state.x) / half
         return State(state.t + dt, 2.0 * midpoint - state.x, 2.0 * v_half - state.v), stats
 
@@ -66,7 +70,7 @@ def _newmark_like_step(system, state, dt, solver, beta, gamma, alpha_m=0.0, alph
     problem = IncrementalPotential(system, y_tilde, scale * dt * dt, velocity_origin=origin,
                                    velocity_divisor=divisor, damping_at=y_start,
                                    step_start=(state.x, state.v, dt), fraction=1.0 - alpha_f)
-    y, stats = solver.minimize(problem, problem.start_point(state.x))
+    y, stats = solve_step(solver, problem, problem.start_point(state.x))
     x = state.x + (y - state.x) / (1.0 - alpha_f)
     new_acceleration = (x - x_hat) / (beta * dt * dt)
     v = state.v + dt * ((1.0 - gamma) * acceleration + gamma * new_acceleration)
@@ -143,6 +147,10 @@ class GeneralizedAlpha(Integrator):
         gamma = 0.5 - alpha_m + alpha_f
         beta = 0.25 * (1.0 - alpha_m + alpha_f) ** 2
         return alpha_m, alpha_f, beta, gamma
+
+    @property
+    def unknown_fraction(self) -> float:
+        return 1.0 - self.coefficients[1]
 
     def start(self, system, state):
         return State(state.t, state.x, state.v, (system.acceleration(state.x, state.v),))
@@ -221,5 +229,5 @@ class AverageVectorField(Integrator):
                                    nodes=nodes, weights=0.5 * weights, dt=dt,
                                    velocity_origin=state.x + half * state.v, velocity_divisor=half,
                                    damping_at=[state.x + (s * dt) * state.v for s in nodes])  # each node's point to O(h^2)
-        x, stats = solver.minimize(problem, problem.start_point(state.x))
+        x, stats = solve_step(solver, problem, problem.start_point(state.x))
         return State(state.t + dt, x, 2.0 * (x - state.x) / dt - state.v), stats

@@ -10,7 +10,7 @@ from typing import ClassVar
 
 from pydantic import Field
 
-from .base import IncrementalPotential, Integrator, SegmentPotential, State
+from .base import IncrementalPotential, Integrator, SegmentPotential, State, solve_step
 from .euler import BackwardEuler
 
 # BDF2 increment: u_{n+1} - u_n = HISTORY (u_n - u_{n-1}) + IMPLICIT_WEIGHT h F(u_{n+1})
@@ -47,7 +47,7 @@ class BDF2(Integrator):
         problem = IncrementalPotential(system, predictor, divisor * divisor,
                                        velocity_origin=x_hat, velocity_divisor=divisor, damping_at=predictor,
                                        step_start=(state.x, state.v, dt))
-        x, stats = solver.minimize(problem, problem.start_point(state.x))
+        x, stats = solve_step(solver, problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - x_hat) / divisor, (state.x, state.v)), stats
 
 
@@ -95,5 +95,5 @@ class BDF2MidpointMix(Integrator):
                                    weights=(theta * implicit_weight * kappa, (1.0 - theta) * kappa), dt=dt,
                                    velocity_origin=origin, velocity_divisor=divisor,
                                    damping_at=[state.x + dt * state.v, state.x + (0.5 * dt) * state.v])
-        x, stats = solver.minimize(problem, problem.start_point(state.x))
+        x, stats = solve_step(solver, problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - origin) / divisor, (state.x, state.v)), stats

@@ -59,7 +59,9 @@ class XPBD(Integrator):
 
     def refusal(self, system):
         reason = system.compliant_form
-        return None if reason is None else f"xpbd needs the system's springs as compliant constraints: {reason}"
+        if reason is not None:
+            return f"xpbd needs the system's springs as compliant constraints: {reason}"
+        return super().refusal(system)
 
     def step(self, system, state, dt, solver):
         projection = spring_projection(system)

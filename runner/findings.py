@@ -449,6 +449,7 @@ def _energy(data, rows, several) -> list[Finding]:
     # from the data, not the parameters (a number, a list of damping models, a plug-in's own names)
     damped = any(_recorded_any(run.stored, "dissipated_energy") for run in data.runs)
     driven = any(_recorded_any(run.stored, "prescribed_work") for run in data.runs)
+    rubbing = any(_recorded_any(run.stored, "friction_dissipated") for run in data.runs)
     for title, runs in data.groups:
         dts = sorted({run.dt for run in runs}, reverse=True)
         chosen = [dt for dt in dts if len({run.label for run in runs if run.dt == dt and not run.status.stopped}) >= 2]
@@ -462,6 +463,7 @@ def _energy(data, rows, several) -> list[Finding]:
             sentence = (f"Largest energy change over the run at dt = {dt:g} s{f' ({title})' if several and title else ''} "
                         f"(measured, max |E − E0| / E_ref, {energy_reference_text(at)}"
                         + ("; it includes the physical damping's loss" if damped else "")
+                        + ("; it includes friction's loss" if rubbing else "")
                         + ("; it includes the work of the prescribed vertices" if driven else "") + f"): {listed}.")
             result.append(Finding(sentence, "#figure-energy_drift_vs_dt",
                                   {"group": title, "dt": dt,

@@ -30,7 +30,7 @@ from simrun.figures import FIGURES, Figure, FigureData, figure_data
 from simrun.findings import Finding, drift_text, findings
 from simrun.reference import REFERENCE_RTOL, reference_errors
 from simrun.results import FRAME_TIME, Results, Status, load
-from simrun.table_text import damping_text, frame_time_text, number_text, real_time_text
+from simrun.table_text import damping_text, distance_text, frame_time_text, number_text, real_time_text
 from simrun.tables import (DAMPING_TOLERANCE, DETERMINANT_TOLERANCE, ORDER_TOLERANCE, DeterminantRow, OrderRow,
                            StabilityRow, SummaryRow, any_safeguards, determinant_rows,
                            energy_reference_differs, energy_reference_text, error_time_text, iteration_name,
@@ -297,6 +297,11 @@ def _summary_section(rows: list[SummaryRow]) -> str:
         ("wall/frame (ms)", False, lambda row: frame_time_text(row.wall_time_per_frame),
          any(finite(row.wall_time_per_frame) for row in rows)),
         ("safeguards", False, lambda row: steps_text(row.safeguard_steps, row) or "–", any_safeguards(rows)),
+        ("min contact distance", False, lambda row: distance_text(row.min_contact_distance),
+         any(finite(row.min_contact_distance) for row in rows)),
+        ("contacts", False, lambda row: str(row.max_active_contacts), any(finite(row.min_contact_distance) for row in rows)),
+        ("friction loss (J)", False, lambda row: number_text(row.friction_work),
+         any(finite(row.friction_work) and row.friction_work > 0 for row in rows)),
         ("d/w measured", False, _measured_cell, any(np.isfinite(row.measured_damping) for row in rows)),
         ("d/w predicted", False, lambda row: damping_text(row.predicted_damping),
          any(np.isfinite(row.predicted_damping) for row in rows)),

@@ -46,6 +46,9 @@ class Recorder:
         self.with_work = _moving_dofs(system).size > 0
         if self.with_work:
             columns.append(("prescribed_work", ()))
+        self.with_friction = getattr(system, "has_friction", False)
+        if self.with_friction:
+            columns.append(("friction_dissipated", ()))
         if self.with_state:
             columns += [("positions", (system.dof_count,)), ("velocities", (system.dof_count,))]
         self.columns: dict[str, tuple[slice, tuple[int, ...]]] = {}
@@ -61,18 +64,24 @@ class Recorder:
         self.count = 0
         self.frame_count = 0
         self.work_column = self.columns["prescribed_work"][0].start if self.with_work else None
+        self.friction_column = self.columns["friction_dissipated"][0].start if self.with_friction else None
         dim = system.vertex_dim
         self.frames = None if self.with_state else np.empty((frame_count, system.dof_count // dim, dim))
         self.frame_t = None if self.with_state else np.empty(frame_count)
 
-    def record(self, t: float, x: np.ndarray, v: np.ndarray, dissipated_energy: float, work: float = 0.0) -> float:
-        """One sample at time t (s) of (x, v); returns its total energy (J), for the divergence check."""
+    def record(self, t: float, x: np.ndarray, v: np.ndarray, dissipated_energy: float, work: float = 0.0,
+               friction: float = 0.0) -> float:
+        """One sample at time t (s) of (x, v); returns its total energy (J), for the divergence check.
+        dissipated_energy, work, friction: the physical damping's loss, the prescribed paths' work and the
+        friction's loss (J) up to t."""
         row = self.table[self.count]
         energy = self.write_observables(x, v, row)
         row[self.t_column] = t
         row[self.dissipated_column] = dissipated_energy
         if self.work_column is not None:
             row[self.work_column] = work
+        if self.friction_column is not None:
+            row[self.friction_column] = friction
         if self.with_state:
             row[self.positions] = x
             row[self.velocities] = v
@@ -117,15 +126,22 @@ def simulate(run: Run) -> RunResult:
         "solver_index": np.zeros(step_count, dtype=np.int8),
         "safeguards": np.zeros(step_count, dtype=np.uint8),
     }
+    with_contact = system.has_contact
+    if with_contact:  # per step: the smallest signed contact distance (m), active contacts, friction's loss (J)
+        per_step.update(contact_distance=np.zeros(step_count), active_contacts=np.zeros(step_count, dtype=np.int32),
+                        friction_work=np.zeros(step_count))
     stop_on_not_converged = run.solver.on_not_converged == "stop"
     # a real-time budget: a step that used up max_iterations is what the budget bought, not a failure
     accept_not_converged = run.solver.on_not_converged == "accept"
 
     state = State(0.0, system.x0.copy(), system.v0.copy())
+    if with_contact:  # IPC's barrier stiffness (auto) before anything evaluates the energy
+        system.begin_run(dt, state.x)
     energy0 = system.total_energy(state.x, state.v)
     energy_bound = run.divergence.energy_factor * system.energy_scale()
     dissipated = 0.0  # work of the physical damping forces so far (J), for the energy budget
     work = 0.0  # work done on the system by the vertices on prescribed paths so far (J), for the energy budget
+    friction = 0.0  # energy friction took out so far (J), for the energy budget
     moving = _moving_dofs(system)
     damped = system.is_damped
     newton_iterations, linear_iterations = per_step["newton_iterations"], per_step["linear_iterations"]
@@ -138,11 +154,11 @@ def simulate(run: Run) -> RunResult:
     def record_stop(t: float, state: State, sampled: bool, framed: bool) -> None:
         """The sample (and frame) of the step a run stops at, unless the regular cadence took them already."""
         if not sampled:
-            record_sample(t, state.x, state.v, dissipated, work)
+            record_sample(t, state.x, state.v, dissipated, work, friction)
         if with_frames and not framed:
             record_frame(t, state.x)
 
-    record_sample(0.0, state.x, state.v, dissipated, work)
+    record_sample(0.0, state.x, state.v, dissipated, work, friction)
     if with_frames:
         record_frame(0.0, state.x)
     path_power = _path_power(system, moving, state.x, state.v, 0.0) if moving.size else 0.0
@@ -155,9 +171,16 @@ def simulate(run: Run) -> RunResult:
             state = integrator.start(system, state)
             for n in range(step_count):
                 previous = state
+                if with_contact:  # colliders move to the step's end; IPC's stiffness is estimated and updated
+                    system.begin_step(dt * n, dt, state.x)
                 state, stats = step(system, state, dt, solver)
                 steps = n + 1
                 t = dt * steps  # the loop owns t: no accumulated round-off, whatever state.t says
+                if with_contact:
+                    distance, active, lost = system.contact_record(previous.x, state.x, state.v, dt)
+                    per_step["contact_distance"][n], per_step["active_contacts"][n] = distance, active
+                    per_step["friction_work"][n] = lost
+                    friction += lost
                 if moving.size:  # the prescribed vertices where their paths are at t, and the work they did
                     state = _on_paths(system.constraints, moving, state, t)
                     power = _path_power(system, moving, state.x, state.v, t)
@@ -183,7 +206,7 @@ def simulate(run: Run) -> RunResult:
                 last = steps == step_count
                 sampled = steps % stride == 0 or last
                 # a sample's row carries the energy, so the check below needs no second evaluation
-                energy = record_sample(t, state.x, state.v, dissipated, work) if sampled else None
+                energy = record_sample(t, state.x, state.v, dissipated, work, friction) if sampled else None
                 framed = with_frames and (steps % frame_stride == 0 or last)
                 if framed:
                     record_frame(t, state.x)
@@ -217,6 +240,7 @@ def simulate(run: Run) -> RunResult:
     attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps,
              "first_not_converged_step": first_not_converged, "diverged_step": diverged_step,
              "safeguard_steps": int(np.count_nonzero(safeguards[:steps])),
+             **(_contact_attrs(per_step, steps) if with_contact else {}),
              **system.capabilities.as_attrs()}
     if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
         attrs["error_time"], samples["error_positions"], _ = error_state
@@ -231,6 +255,15 @@ def simulate(run: Run) -> RunResult:
         per_step={key: value[:steps] for key, value in per_step.items()},
         t_diverged=t_diverged, message=message, attrs=attrs, model=model,
     )
+
+
+def _contact_attrs(per_step: dict[str, np.ndarray], steps: int) -> dict[str, float]:
+    """The run's contact in numbers: the smallest signed distance over its steps (m; negative: a penetration),
+    the most contacts acting at once, and friction's total loss (J)."""
+    distances = per_step["contact_distance"][:steps]
+    return {"min_contact_distance": float(np.min(distances)) if steps else float("inf"),
+            "max_active_contacts": int(np.max(per_step["active_contacts"][:steps])) if steps else 0,
+            "friction_work": float(np.sum(per_step["friction_work"][:steps]))}
 
 
 def _moving_dofs(system) -> np.ndarray:

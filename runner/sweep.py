@@ -149,7 +149,9 @@ def _check_method_fits(resolved: Experiment, integrator: Integrator, systems: di
         raise ConfigError(f"solver.type: {chain[0].name} iterates on the incremental potential, and {integrator.label} "
                           "takes exactly one Newton step (with the linear solver): use newton or projected_newton")
     refusing = [member for member in chain if type(member).refusal is not NonlinearSolver.refusal] if kind != "newton_step" else []
-    if not refusing and type(integrator).refusal is Integrator.refusal:
+    contact = getattr(resolved.system, "contact", None)
+    with_contact = contact is not None and contact.active
+    if not refusing and type(integrator).refusal is Integrator.refusal and not with_contact:
         return  # nothing here refuses anything: no system to build
     key = json.dumps(resolved.system.model_dump(mode="json"), sort_keys=True)
     if key not in systems:
@@ -157,6 +159,12 @@ def _check_method_fits(resolved: Experiment, integrator: Integrator, systems: di
     reason = integrator.refusal(systems[key])
     if reason is not None:
         raise ConfigError(f"integrators: {integrator.label}: {reason}")
+    if systems[key].requires_step_filter and kind != "newton_step":
+        for member in chain:
+            if not type(member).filters_steps:
+                raise ConfigError(f"solver.type: {member.name} takes steps without a line search, which IPC contact needs "
+                                  f"to cut each step short of a collision (integrator {integrator.label}): use newton, "
+                                  "projected_newton, lbfgs or gradient_descent")
     for member in refusing:
         reason = member.refusal(systems[key], kind)
         if reason is not None:

@@ -81,6 +81,8 @@ def terminal_columns(rows: list[SummaryRow]) -> list[Column]:
                shown=any_not_converged),
         Column("safeguards", ("", "safeguards"), lambda row: steps_text(row.safeguard_steps, row), 5,
                shown=any_safeguards),
+        Column("contact", ("min contact", "dist."), lambda row: distance_text(row.min_contact_distance), 5,
+               shown=_any(lambda row: row.min_contact_distance)),
         Column("measured", ("d/w", "meas."), _measured_text, 6, shown=_any(lambda row: row.measured_damping)),
         Column("predicted", ("d/w", "pred."), lambda row: damping_text(row.predicted_damping).replace("–", ""), 5,
                shown=_any(lambda row: row.predicted_damping)),
@@ -194,6 +196,9 @@ CSV_COLUMNS = (  # header (with its unit), value
     ("first_not_converged_step", lambda row: row.first_not_converged_step),  # 1-based; 0: none
     ("diverged_step", lambda row: row.diverged_step),  # 1-based; 0: none
     ("safeguard_steps", lambda row: row.safeguard_steps),
+    ("min_contact_distance_m", lambda row: row.min_contact_distance),  # < 0: a penetration
+    ("max_active_contacts", lambda row: row.max_active_contacts),
+    ("friction_work_J", lambda row: row.friction_work),
     ("measured_damping_over_w", lambda row: row.measured_damping),  # dimensionless: d_method / w
     ("measured_damping_resolved", lambda row: row.measured_resolved),
     ("predicted_damping_over_w", lambda row: row.predicted_damping),
@@ -228,6 +233,15 @@ def real_time_text(value: float) -> str:
 def frame_time_text(value: float) -> str:
     """Wall time per 1/60 s frame (given in s) in ms: "16.7", "0.42"; "–" when unknown."""
     return "–" if value is None or not np.isfinite(value) else f"{1e3 * value:.3g}"
+
+
+def distance_text(value: float) -> str:
+    """A contact distance (given in m) in mm, "−0.19 mm" for a penetration; "none" when nothing came near (inf)."""
+    if value is None or np.isnan(value):
+        return "–"
+    if not np.isfinite(value):
+        return "none"
+    return f"{1e3 * value:.3g} mm".replace("-", "−")
 
 
 def damping_text(value: float) -> str:

@@ -72,6 +72,9 @@ class SummaryRow:
     diverged_step: int = 0  # 1-based step at which the energy left the bound; 0: none (or not recorded)
     t_diverged: float = math.nan  # s, when the energy left the bound
     safeguard_steps: int = 0  # steps where any of the solver's safeguards fired (solvers.newton.SAFEGUARDS)
+    min_contact_distance: float = math.nan  # m, the smallest signed contact distance over the steps (< 0: penetration)
+    max_active_contacts: int = 0  # the most contacts acting in one step
+    friction_work: float = math.nan  # J, the energy friction took out over the run (NaN: no contact)
     message: str = ""  # why the run is not ok (the run's attribute)
 
     @property
@@ -155,7 +158,10 @@ def summary_rows(data: FigureData) -> list[SummaryRow]:
             accepted=run.stored.solver.get("on_not_converged") == "accept" and not run.explicit,
             first_not_converged_step=int(attrs.get("first_not_converged_step", 0)),
             diverged_step=int(attrs.get("diverged_step", 0)), t_diverged=float(attrs.get("t_diverged", math.nan)),
-            safeguard_steps=int(attrs.get("safeguard_steps", 0)), message=run.stored.message,
+            safeguard_steps=int(attrs.get("safeguard_steps", 0)),
+            min_contact_distance=float(attrs.get("min_contact_distance", math.nan)),
+            max_active_contacts=int(attrs.get("max_active_contacts", 0)),
+            friction_work=float(attrs.get("friction_work", math.nan)), message=run.stored.message,
         ))
     return rows
 

@@ -247,6 +247,8 @@ class NonlinearSolver(ABC):
     # solvers whose iteration is not Newton's (projective dynamics, VBD): a run would carry a solver it never uses
     takes_newton_step: ClassVar[bool] = True
     uses_linear_solver: ClassVar[bool] = False  # are its directions linear solves (else only newton_step uses one)?
+    # does every step go through line_search (which cuts it to the collision-free fraction IPC contact asks for)?
+    filters_steps: ClassVar[bool] = False
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver: str | LinearSolver = "direct",
                  *, tolerance_mode: str = "residual", initial_guess: str = "start", callback: Callable | None = None):
@@ -287,7 +289,13 @@ class NonlinearSolver(ABC):
         if guess is None:
             raise ValueError(f"initial_guess {self.initial_guess!r}: this problem offers no initial guesses")
         point = guess(self.initial_guess)
-        return problem.start_point(point) if hasattr(problem, "start_point") else point
+        point = problem.start_point(point) if hasattr(problem, "start_point") else point
+        if getattr(problem, "requires_step_filter", False):  # IPC: no further along x_n -> guess than contact allows
+            step = point - start
+            fraction = problem.max_step(start, step)
+            if fraction < 1.0:
+                point = start + fraction * step
+        return point
 
     def solve(self, problem: NonlinearProblem, start: np.ndarray, test: ConvergenceTest | None = None) -> Outcome:
         """``minimize`` with everything a fallback chain needs; ``test`` carries the chain's first start."""

@@ -81,6 +81,7 @@ class GradientDescent(NonlinearSolver):
     convergence; the rate degrades with the condition number of the Hessian."""
 
     name = "gradient_descent"
+    filters_steps = True  # every step through line_search
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
                  line_search: str = "backtracking", **options):
@@ -127,6 +128,7 @@ class LBFGS(NonlinearSolver):
     """
 
     name = "lbfgs"
+    filters_steps = True  # every step through line_search
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
                  line_search: str = "backtracking", history: int = 8, initial_hessian: str = "scalar", **options):

@@ -1,6 +1,7 @@
 """The energy line search shared by Newton, projected Newton, L-BFGS, gradient descent and Jacobi-Chebyshev.
 
-Rules (``line_search``): ``none`` takes the full step; ``backtracking`` halves the step until
+Rules (``line_search``): ``none`` takes the full step (cut, as every rule's first trial, to the fraction that
+crosses no contact surface where the problem filters its steps: IPC); ``backtracking`` halves the step until
 E(y + a p) <= E(y); ``armijo`` halves it until E(y + a p) <= E(y) + c a g^T p (sufficient decrease,
 Nocedal & Wright, "Numerical Optimization", sec. 3.1). Near the solution the change of E drops
 below the round-off of E itself (|dE| ~ |g|^2 / H), and that round-off is relative to the size of the
@@ -65,15 +66,16 @@ def accept(problem, free: FreeDofs, current: Iterate, rule: str, candidate: np.n
 
 def line_search(problem, free: FreeDofs, current: Iterate, direction: np.ndarray, rule: str,
                 within_roundoff: bool = False) -> Advance:
-    """y + a p for the first a = 1, 1/2, 1/4, ... that ``rule`` accepts; a full step for ``none`` or
+    """y + a p for the first a = a0, a0/2, a0/4, ... that ``rule`` accepts; a0 = 1, or for a problem that filters
+    its steps (IPC contact) the collision-free fraction of p (``collision_free``); a step of a0 for ``none`` or
     for a problem without a value. A direction that is not a descent direction (g^T p >= 0) fails.
     ``within_roundoff``: see ``accept``."""
+    step = collision_free(problem, current.y, direction)
     if rule == "none" or current.energy is None:
-        return Advance(current.y + direction)
+        return Advance(current.y + step * direction if step < 1.0 else current.y + direction)
     slope = float(current.gradient @ direction)
-    if not slope < 0.0:
+    if not slope < 0.0 or not step > 0.0:
         return Advance(current.y, ok=False)
-    step = 1.0
     for reductions in range(MAX_LINE_SEARCH + 1):
         candidate = current.y + step * direction
         energy = problem.value(candidate)
@@ -82,6 +84,14 @@ def line_search(problem, free: FreeDofs, current: Iterate, direction: np.ndarray
             return Advance(candidate, gradient, energy, reductions)
         step *= 0.5
     return Advance(current.y, line_search_steps=MAX_LINE_SEARCH, ok=False)
+
+
+def collision_free(problem, y: np.ndarray, direction: np.ndarray) -> float:
+    """The fraction of the step y -> y + direction that crosses no contact surface (``problem.max_step``, IPC's
+    continuous collision detection), 1 for problems without contact filtering."""
+    if not getattr(problem, "requires_step_filter", False):
+        return 1.0
+    return min(1.0, problem.max_step(y, direction))
 
 
 def value_magnitude(problem, y: np.ndarray) -> float | None:

@@ -90,6 +90,7 @@ class Newton(NonlinearSolver):
     """
 
     name = "newton"
+    filters_steps = True  # every step through line_search
     supports_step_test = True
     uses_linear_solver = True
 

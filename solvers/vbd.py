@@ -135,6 +135,9 @@ class VertexBlockDescent(NonlinearSolver):
         dim = getattr(system, "dim", None)
         if not isinstance(dim, (int, np.integer)) or dim < 1 or system.dof_count % dim:
             return f"vbd updates one vertex at a time, and {type(system).__name__} has no vertices (dim {dim!r}, {system.dof_count} dofs)"
+        if getattr(system, "has_friction", False) or system.off_pattern_hessian(system.x0) is not None:
+            return ("vbd's vertex blocks hold the springs and the colliders, not friction or mesh contact (which couple "
+                    "vertices through ipctk): use newton, projected_newton or lbfgs")
         return None
 
     # -- the iteration ------------------------------------------------------------------------

@@ -11,8 +11,10 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from .base import System, SystemParams
 from .constraints import VertexConstraints
 from .mass_spring.generators import GridModel
-from .mass_spring.params import GroundContact  # the same ground for every mass-spring model
-from .mass_spring.system import Contact, Damping, MassSpring
+from .mass_spring.model import ModelError
+from .contact.build import build_contact
+from .contact.params import ContactSpec
+from .mass_spring.system import Damping, MassSpring
 
 PIN_NAMES = ("top_left", "top_right", "bottom_left", "bottom_right", "top", "bottom", "left", "right")
 
@@ -20,8 +22,8 @@ Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
-class SphereContact(BaseModel):
-    """Penalty contact with a sphere: P = k/2 max(0, radius - |x - center|)^2 per vertex."""
+class ClothSphere(BaseModel):
+    """Shorthand: penalty contact with a sphere, P = k/2 max(0, radius - |x - center|)^2 per vertex."""
 
     model_config = ConfigDict(extra="forbid")
     center: tuple[Finite, Finite, Finite] = Field((0.5, 0.5, -0.6), description="centre (m)")
@@ -29,10 +31,10 @@ class SphereContact(BaseModel):
     stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
 
 
-class ContactParams(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    ground: GroundContact | None = None
-    sphere: SphereContact | None = None
+class ClothContact(ContactSpec):
+    """The contact of every mass-spring model (systems/contact/params.py), with the cloth's sphere defaults."""
+
+    sphere: ClothSphere | None = None
 
 
 class ClothParams(SystemParams):
@@ -54,7 +56,7 @@ class ClothParams(SystemParams):
     height: Finite = Field(0.0, description="z of the flat cloth at the start (m)")
     initial_velocity: tuple[Finite, Finite, Finite] = Field((0.0, 0.0, 0.0), description="uniform velocity at the start (m/s)")
     initial_spin: tuple[Finite, Finite, Finite] = Field((0.0, 0.0, 0.0), description="angular velocity about the cloth's centre at the start (rad/s)")
-    contact: ContactParams = ContactParams()
+    contact: ClothContact = ClothContact()
 
     @model_validator(mode="after")
     def _pins_exist(self) -> "ClothParams":
@@ -62,6 +64,20 @@ class ClothParams(SystemParams):
         for pin in self.pinned:
             if isinstance(pin, int) and pin >= count:
                 raise ValueError(f"pinned: vertex {pin} does not exist; a {self.resolution[0]}x{self.resolution[1]} cloth has vertices 0..{count - 1}")
+        return self
+
+    @model_validator(mode="after")
+    def _contact_fits(self) -> "ClothParams":
+        """The contact's checks that need the model (files, meshes, an initial state that already intersects) when
+        the config is loaded, as mass_spring makes them: one line naming the field, before anything runs."""
+        if self.contact.active:
+            model = GridModel(resolution=self.resolution, size=self.size, height=self.height).build()
+            try:
+                build_contact(self.contact, dim=3, rest=model.vertices, x0=model.vertices,
+                              masses=np.full(model.vertex_count, self.mass / model.vertex_count),
+                              triangles=model.triangles, edges=model.springs)
+            except ModelError as error:
+                raise ValueError(str(error)) from None
         return self
 
     @property
@@ -110,16 +126,15 @@ class Cloth(MassSpring):
         pinned = np.unique(np.concatenate([model.named_vertices[pin] if isinstance(pin, str) else np.array([pin])
                                            for pin in params.pinned])).astype(np.intp) if params.pinned else np.zeros(0, dtype=np.intp)
         self.pinned_vertices = pinned
-        contact = params.contact
+        masses = np.full(model.vertex_count, self.vertex_mass)
         super().__init__(
             rest=rest, x0=rest, v0=v0, springs=springs, stiffness=stiffness[kept],
             rest_length=np.linalg.norm(rest[springs[:, 0]] - rest[springs[:, 1]], axis=1),
-            masses=np.full(model.vertex_count, self.vertex_mass), gravity=np.array(params.gravity, dtype=float),
+            masses=masses, gravity=np.array(params.gravity, dtype=float),
             damping=(Damping("spring", params.damping),) if params.damping > 0 else (),
             constraints=VertexConstraints(3, model.vertex_count, pinned, [], []),
-            contact=Contact(ground=None if contact.ground is None else (contact.ground.height, contact.ground.stiffness),
-                            sphere=None if contact.sphere is None else (np.array(contact.sphere.center), contact.sphere.radius,
-                                                                        contact.sphere.stiffness)),
+            contact=build_contact(params.contact, dim=3, rest=rest, x0=rest, masses=masses, triangles=model.triangles,
+                                  edges=model.springs),
             triangles=model.triangles, grid_shape=model.grid_shape)
 
     energy_reference_name = "max(M |g| L, |KE0| + |PE0|)"

@@ -44,6 +44,9 @@ SHORT = {
     "mixed_stiffness": ["duration=0.02", "sweep.dt=[0.005,0.01]"],
     "curtain": ["system.model={grid: {resolution: [6, 5], size: [1.0, 0.8]}}", "duration=0.03"],
     "twist": ["duration=0.05", "sweep.dt=[0.005,0.01]"],
+    "slope": ["duration=0.05"],
+    "cloth_drop": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
+    "penalty_vs_ipc": [*CLOTH, "duration=0.04"],
 }
 DEFAULT_SHORT = ["duration=0.1"]  # a config added without an entry above: at least not its full length
 

@@ -75,7 +75,8 @@ def test_mass_spring_blocks_are_the_diagonal_blocks_of_the_gradient_and_hessian(
     system = MassSpringParams(**MODELS[model], spring_law=law).build()
     x = deformed(system, 1, 0.03)
     rng = np.random.default_rng(2)
-    touching = sum(int((depth > 0).sum()) for depth, *_ in system._penetration(x.reshape(-1, system.dim)))
+    colliders = system.contact.colliders if system.contact is not None else ()
+    touching = sum(int((contact.collider.signed_distance(x.reshape(-1, system.dim)) < 0).sum()) for contact in colliders)
     assert ("contact" in MODELS[model]) == (touching > 0), "the contact models must touch"
     energy = abs(system.potential_energy(x))
     for colour in system.vertex_colouring():

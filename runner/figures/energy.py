@@ -183,7 +183,9 @@ BUDGET_TERMS = (  # dataset, legend text, colour
     ("gravity_energy", "potential: gravity", "#ccb974"),
     ("contact_energy", "potential: contact", "#8172b2"),
     ("dissipated_energy", "dissipated by physical damping", "#c44e52"),
+    ("friction_dissipated", "dissipated by friction", "#937860"),
 )
+DISSIPATED = ("dissipated_energy", "friction_dissipated")  # losses that accumulate: not part of E0
 NUMERICAL_LOSS_COLOUR, NUMERICAL_GAIN_COLOUR = "0.82", "#dd8452"
 # A term (or a gain) smaller than this fraction of the budget throughout is left out of the legend.
 BUDGET_VISIBLE = 1e-3
@@ -305,7 +307,7 @@ def _budget(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray
     stored = run.stored
     t = run.t
     parts = ("spring_energy", "gravity_energy", "contact_energy") if "spring_energy" in stored else ("potential_energy",)
-    terms = {key: stored.series(key)[: t.size] for key in ("kinetic_energy", *parts, "dissipated_energy") if key in stored}
+    terms = {key: stored.series(key)[: t.size] for key in ("kinetic_energy", *parts, *DISSIPATED) if key in stored}
     count = min([t.size] + [values.size for values in terms.values()])
     finite = np.all([np.isfinite(values[:count]) for values in terms.values()], axis=0) & np.isfinite(t[:count])
     stop = int(np.argmin(finite)) if not finite.all() else count
@@ -314,7 +316,7 @@ def _budget(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray
     for key in parts:
         if key in terms and terms[key].size and terms[key].min() < 0:
             terms[key] = terms[key] - float(terms[key].min())
-    start = sum(float(values[0]) for key, values in terms.items() if key != "dissipated_energy") if t.size else 0.0
+    start = sum(float(values[0]) for key, values in terms.items() if key not in DISSIPATED) if t.size else 0.0
     budget = np.full(t.size, start if start > 0 else 1.0)
     if "prescribed_work" in stored:
         budget = budget + stored.series("prescribed_work")[: t.size]

@@ -15,7 +15,8 @@ import numpy as np
 from ..constraints import PrescribedMotion, VertexConstraints, cross, filter_block, rotate
 from .files import find_file, load_model_file, lumped_area_masses
 from .model import ModelError, SpringModel
-from .system import Contact, Damping
+from ..contact.build import build_contact
+from .system import Damping
 
 if TYPE_CHECKING:
     from .params import MassSpringParams
@@ -43,7 +44,7 @@ def resolve(params: MassSpringParams) -> dict[str, Any]:
     constraints = _constraints(params, model, rest, x0)
     return dict(rest=rest, x0=x0, v0=v0, springs=model.springs[kept], stiffness=stiffness[kept], rest_length=rest_length[kept],
                 masses=_masses(params, model), gravity=gravity, law=params.spring_law, damping=damping,
-                constraints=constraints, contact=_contact(params, dim), triangles=model.triangles, grid_shape=model.grid_shape)
+                constraints=constraints, contact=_contact(params, model, x0), triangles=model.triangles, grid_shape=model.grid_shape)
 
 
 def _vector(values: list[float], dim: int, field: str) -> np.ndarray:
@@ -257,10 +258,8 @@ def _constraints(params: MassSpringParams, model: SpringModel, rest: np.ndarray,
     return VertexConstraints(dim, model.vertex_count, pinned, sliding, prescribed)
 
 
-def _contact(params: MassSpringParams, dim: int) -> Contact:
-    spec = params.contact
-    sphere = None
-    if spec.sphere is not None:
-        sphere = (_vector(spec.sphere.center, dim, "contact.sphere.center"), spec.sphere.radius, spec.sphere.stiffness)
-    ground = None if spec.ground is None else (spec.ground.height, spec.ground.stiffness)
-    return Contact(ground=ground, sphere=sphere)
+def _contact(params: MassSpringParams, model: SpringModel, x0: np.ndarray):
+    """The ContactModel of ``params.contact`` (None without contact); files were made absolute by the params."""
+    return build_contact(params.contact, dim=model.dim, rest=model.vertices.astype(float), x0=x0,
+                         masses=_masses(params, model), triangles=model.triangles, edges=model.springs,
+                         find_file=find_file)

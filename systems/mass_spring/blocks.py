@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse
 
 from ..base import colour_vertices
-from .system import SpringGeometry, filter_eigenvalues
+from .system import SpringGeometry
 
 if TYPE_CHECKING:
     from .system import MassSpring
@@ -112,12 +112,8 @@ class VertexBlocks:
         gradient -= part.gravity_force
         spring_blocks = law.blocks(part, geometry, project_spd).reshape(-1, d * d)
         hessian = (part.summing @ spring_blocks).reshape(-1, d, d)
-        for depth, normal, stiffness, distance in system._penetration(positions):
-            gradient -= stiffness * depth[:, None] * normal
-            touching = depth > 0
-            if touching.any():
-                hessian[touching] += contact_blocks(depth[touching], normal[touching], stiffness,
-                                                    None if distance is None else distance[touching], project_spd, system.identity)
+        if system.contact is not None:  # the colliders act on each vertex alone
+            system.contact.point_terms(positions, gradient, hessian, project_spd)
         return gradient, hessian
 
     def energy_changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -136,19 +132,6 @@ class VertexBlocks:
         moved_length = np.sqrt(np.einsum("ij,ij->i", moved, moved))
         changes = part.summing @ system.law.energy_changes(part, length, moved_length, squared_change)
         changes -= np.einsum("ij,ij->i", part.gravity_force, steps)
-        for (depth, _, stiffness, _), (moved_depth, _, _, _) in zip(system._penetration(positions),
-                                                                  system._penetration(positions + steps)):
-            changes += 0.5 * stiffness * (moved_depth - depth) * (moved_depth + depth)
+        if system.contact is not None:
+            changes += system.contact.point_energy_changes(positions, steps)
         return changes
-
-
-def contact_blocks(depth: np.ndarray, normal: np.ndarray, stiffness: float, distance: np.ndarray | None,
-                   project_spd, identity: np.ndarray) -> np.ndarray:
-    """Hessian blocks (N/m) of the penalty k/2 depth^2 at touching vertices, as ``MassSpring.hessian_data`` builds
-    them: k n n^T for the ground; k n n^T - k (r - d)/d (I - n n^T) for the sphere, whose negative second term a
-    clamp drops and ``abs`` mirrors."""
-    outer = normal[:, :, None] * normal[:, None, :]
-    if distance is None:
-        return stiffness * outer
-    curvature = filter_eigenvalues(-depth / distance, project_spd)[:, None, None]
-    return stiffness * (outer + curvature * (identity - outer))

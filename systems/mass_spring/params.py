@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from ..base import SystemParams
+from ..contact.params import ContactSpec
 from .assemble import resolve
 from .files import SEARCH_FOLDERS, file_digest, find_file, load_model_file
 from .generators import model_source
@@ -145,27 +146,6 @@ class Prescribed(BaseModel):
         return self
 
 
-class GroundContact(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    height: Finite = Field(-1.0, description="the last coordinate (z in 3-D, y in 2-D) of the ground (m)")
-    stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
-
-
-class SphereContact(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    center: Vector = Field(description="centre (m), in the model's dimension")
-    radius: Positive = Field(description="radius (m)")
-    stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
-
-
-class ContactSpec(BaseModel):
-    """Penalty contact P = k/2 depth^2 per vertex with a ground and/or a sphere (a circle in 2-D)."""
-
-    model_config = ConfigDict(extra="forbid")
-    ground: GroundContact | None = None
-    sphere: SphereContact | None = None
-
-
 class MassSpringParams(SystemParams):
     """Config of `mass_spring`: point masses and springs from a model file or a generator (2-D or 3-D)."""
 
@@ -186,9 +166,11 @@ class MassSpringParams(SystemParams):
     pinned: Selector = Field([], description="vertices that never move: indices, names of the model, {box: [[min], [max]]}")
     constraints: list[Sliding] = Field([], description="vertices that slide in a plane (normal) or along a line (direction)")
     prescribed: list[Prescribed] = Field([], description="vertices on a path: {vertices, velocity} or {vertices, rotation: {center, axis, rate}}")
-    contact: ContactSpec = ContactSpec()
+    contact: ContactSpec = Field(ContactSpec(), description="penalty or IPC contact with colliders, friction, self-contact "
+                                                            "(docs/contact.md); {ground, sphere} as shorthands")
     _file: Path | None = PrivateAttr(None)  # the model file, absolute (workers may start elsewhere)
     _initial_file: Path | None = PrivateAttr(None)  # initial.file, absolute
+    _contact_files: dict = PrivateAttr(default_factory=dict)  # the colliders' files by config field, absolute
 
     @field_validator("model")
     @classmethod
@@ -210,6 +192,11 @@ class MassSpringParams(SystemParams):
                 self._initial_file = find_file(self.initial.file, "initial.file")
                 if self._initial_file != (Path.cwd() / Path(self.initial.file).expanduser()).resolve():
                     self.initial.file = str(self._initial_file)
+            for number, collider in enumerate(self.contact.colliders):
+                if getattr(collider, "file", None) is not None:  # absolute, for the workers (which may start elsewhere)
+                    found = find_file(collider.file, f"contact.colliders[{number}].file")
+                    collider.file = str(found)
+                    self._contact_files[f"contact.colliders[{number}].file"] = found
             resolve(self)
         except ModelError as error:
             raise ValueError(str(error)) from None
@@ -217,7 +204,7 @@ class MassSpringParams(SystemParams):
 
     def input_files(self) -> dict[str, str]:
         """The files this system reads, by config field, with their sha256 (part of the config hash)."""
-        files = {"model": self._file, "initial.file": self._initial_file}
+        files = {"model": self._file, "initial.file": self._initial_file, **self._contact_files}
         return {field: file_digest(path) for field, path in files.items() if path is not None}
 
     @property

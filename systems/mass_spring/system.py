@@ -1,6 +1,6 @@
 """The mass-spring system: any model of point masses and springs in 2-D or 3-D.
 
-P(x) = sum_springs W_e(|x_i - x_j|) - sum_i m_i g . x_i + contact penalties, with the spring law W_e
+P(x) = sum_springs W_e(|x_i - x_j|) - sum_i m_i g . x_i + contact (systems/contact/), with the spring law W_e
 one of ``SPRING_LAWS``; damping forces f_d = -D(x) v from any sum of ``DAMPING_MODELS``; vertex
 constraints (pins, sliding, prescribed paths) as filters (systems/constraints.py).
 
@@ -20,9 +20,11 @@ from types import SimpleNamespace
 import numpy as np
 import scipy.sparse
 
-from ..base import System
+from ..base import System, add_keeping_pattern
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
+from ..contact.colliders import filter_eigenvalues
+from ..contact.model import ContactModel
 
 
 class SpringGeometry:
@@ -111,14 +113,6 @@ class SquaredLengthLaw:
                                                          + transverse[:, None, None] * (system.identity - outer))
 
 
-def filter_eigenvalues(values: np.ndarray, project_spd) -> np.ndarray:
-    """Eigenvalue factors of the spring and contact blocks as the projection asks: as they are (False),
-    clamped at 0 (True, "clamp") or mirrored (``"abs"``)."""
-    if not project_spd:
-        return values
-    return np.abs(values) if project_spd == "abs" else np.maximum(values, 0.0)
-
-
 SPRING_LAWS = {law.name: law for law in (HookeanLaw, SquaredLengthLaw)}
 
 
@@ -139,22 +133,13 @@ class Damping:
 DAMPING_MODELS = ("spring", "relative", "drag", "rayleigh")
 
 
-@dataclass(frozen=True)
-class Contact:
-    """Penalty contact, P = k/2 depth^2 per vertex: with the half-space x_last >= height (ground) or a
-    ball (sphere: centre and radius, in the model's dimension)."""
-
-    ground: tuple[float, float] | None = None  # (height, stiffness)
-    sphere: tuple[np.ndarray, float, float] | None = None  # (centre, radius, stiffness)
-
-
 class MassSpring(System):
     """Point masses joined by springs, in 2-D or 3-D: see the module docstring.
 
     Parameters (arrays as resolved from a model and a config; systems/mass_spring/params.py builds them):
     rest: (n, d) rest shape (m); x0, v0: (n, d) initial state; springs: (m, 2); stiffness: (m,) N/m;
     rest_length: (m,) m; masses: (n,) kg; gravity: (d,) m/s^2; law: a SPRING_LAWS name; damping: Damping
-    terms; constraints: VertexConstraints; contact: Contact; triangles: (t, 3) or None; grid_shape:
+    terms; constraints: VertexConstraints; contact: a ContactModel or None; triangles: (t, 3) or None; grid_shape:
     (ny, nx) or None.
     """
 
@@ -163,7 +148,7 @@ class MassSpring(System):
     def __init__(self, *, rest: np.ndarray, x0: np.ndarray, v0: np.ndarray, springs: np.ndarray, stiffness: np.ndarray,
                  rest_length: np.ndarray, masses: np.ndarray, gravity: np.ndarray, law: str = "hookean",
                  damping: tuple[Damping, ...] = (), constraints: VertexConstraints | None = None,
-                 contact: Contact = Contact(), triangles: np.ndarray | None = None, grid_shape: tuple[int, int] | None = None):
+                 contact: ContactModel | None = None, triangles: np.ndarray | None = None, grid_shape: tuple[int, int] | None = None):
         dim = rest.shape[1]
         self.dim = self.vertex_dim = dim
         self.vertex_count = rest.shape[0]
@@ -284,23 +269,6 @@ class MassSpring(System):
         self._geometry = geometry  # one assignment: a reader sees the old or the new geometry whole
         return geometry
 
-    def _penetration(self, positions: np.ndarray):
-        """Per contact: (penetration depth >= 0 per vertex, outward normal per vertex, stiffness, distance or None)."""
-        contacts = []
-        if self.contact.ground is not None:
-            height, stiffness = self.contact.ground
-            depth = np.maximum(height - positions[:, -1], 0.0)
-            normal = np.broadcast_to(self.identity[-1], positions.shape)
-            contacts.append((depth, normal, stiffness, None))
-        if self.contact.sphere is not None:
-            center, radius, stiffness = self.contact.sphere
-            offset = positions - center
-            distance = np.sqrt(np.einsum("ij,ij->i", offset, offset))
-            depth = np.maximum(radius - distance, 0.0)
-            normal = offset / np.maximum(distance, 1e-300)[:, None]
-            contacts.append((depth, normal, stiffness, distance))
-        return contacts
-
     # -- vertices on prescribed paths -----------------------------------------------------------
     def acceleration(self, x, v):
         """M^-1 f(x, v), and on the vertices of prescribed paths the paths' own acceleration (omega x v for a
@@ -338,9 +306,14 @@ class MassSpring(System):
                 rate = (np.take(v, part.first_dofs) - np.take(v, part.second_dofs)).reshape(-1, self.dim)
                 spring_force -= term.coefficient * np.einsum("ij,ij->i", rate, direction)[:, None] * direction
         force = (part.incidence @ spring_force).ravel() + self._gravity_force[self._moving]
-        positions = x.reshape(-1, self.dim)[self.constraints.moving_vertices]
-        for depth, normal, stiffness, _ in self._penetration(positions):
-            force += (stiffness * depth[:, None] * normal).ravel()
+        if self.contact is not None and not self.contact.couples_vertices:  # per vertex: the moving ones alone
+            contact_gradient = np.zeros((self.constraints.moving_vertices.size, self.dim))
+            self.contact.point_terms(x.reshape(-1, self.dim)[self.constraints.moving_vertices], contact_gradient)
+            force -= contact_gradient.ravel()
+        elif self.contact is not None:
+            contact_gradient = np.zeros(x.size)
+            self.contact.add_gradient(contact_gradient, x)
+            force -= contact_gradient[self._moving]
         if part.damping_rows is not None:
             force -= part.damping_rows @ v
         return force
@@ -356,8 +329,7 @@ class MassSpring(System):
         return -float(np.dot(self._gravity_force, x))
 
     def contact_energy(self, x: np.ndarray) -> float:
-        return sum(0.5 * stiffness * float(np.dot(depth, depth))
-                   for depth, _, stiffness, _ in self._penetration(x.reshape(-1, self.dim)))
+        return 0.0 if self.contact is None else self.contact.energy(x)
 
     def potential_energy(self, x):
         return self.spring_energy(x) + self.gravity_energy(x) + self.contact_energy(x)
@@ -368,7 +340,7 @@ class MassSpring(System):
         in its round-off (System.potential_magnitude)."""
         geometry = self._springs(x)
         virial = float(np.abs(self.law.gradient_factor(self, geometry)) @ np.square(geometry.length))
-        return self.spring_energy(x) + virial + float(np.abs(self._gravity_force * x).sum()) + self.contact_energy(x)
+        return self.spring_energy(x) + virial + float(np.abs(self._gravity_force * x).sum()) + abs(self.contact_energy(x))
 
     def gradient(self, x):
         geometry = self._springs(x)
@@ -377,12 +349,29 @@ class MassSpring(System):
         spring_gradient = (geometry.delta.T * self.law.gradient_factor(self, geometry)).T
         gradient = (self._incidence @ spring_gradient).ravel()
         gradient -= self._gravity_force
-        for depth, normal, stiffness, _ in self._penetration(x.reshape(-1, self.dim)):
-            gradient -= (stiffness * depth[:, None] * normal).ravel()
+        if self.contact is not None:
+            self.contact.add_gradient(gradient, x)
         return gradient
 
     def hessian(self, x, project_spd=False):
-        return self.pattern_matrix(self.hessian_data(x, project_spd))
+        matrix = self.pattern_matrix(self.hessian_data(x, project_spd))
+        coupling = self.off_pattern_hessian(x, project_spd)
+        return matrix if coupling is None else add_keeping_pattern(matrix, coupling)
+
+    def add_vertex_blocks(self, data: np.ndarray, vertices: np.ndarray, blocks: np.ndarray) -> None:
+        """Adds blocks (k, d, d) at the vertices (k,) (repeats summed) into the pattern's data array, in place."""
+        np.add.at(data, self._vertex_positions[vertices], blocks)
+
+    @functools.cached_property
+    def _vertex_positions(self) -> np.ndarray:
+        """(n, d, d): where each vertex block's entries sit in the pattern's data array (the scatter map's last part)."""
+        d = self.dim
+        return self._scatter[-self.vertex_count * d * d:].reshape(self.vertex_count, d, d)
+
+    def off_pattern_hessian(self, x, project_spd=False):
+        """The Hessian of the mesh contacts (IPC through ipctk), which couples vertices that no spring joins and so
+        lies outside ``hessian_pattern``; None without them (System.off_pattern_hessian)."""
+        return None if self.contact is None else self.contact.coupling_hessian(x, project_spd)
 
     def _spring_hessian_data(self, geometry: SpringGeometry, project_spd: bool, vertex_block=None) -> np.ndarray:
         return self._scatter_blocks(self.law.blocks(self, geometry, project_spd), vertex_block)
@@ -390,20 +379,9 @@ class MassSpring(System):
     def hessian_data(self, x: np.ndarray, project_spd: bool = False) -> np.ndarray:
         """The Hessian's values in the fixed CSR pattern (the data array of ``hessian``)."""
         geometry = self._springs(x)
-        positions = x.reshape(-1, self.dim)
         vertex_block = np.zeros((self.vertex_count, self.dim, self.dim))
-        for depth, normal, stiffness, distance in self._penetration(positions):
-            touching = depth > 0
-            if not touching.any():
-                continue
-            n = normal[touching]
-            contact_outer = n[:, :, None] * n[:, None, :]
-            if distance is None or (project_spd and project_spd != "abs"):
-                vertex_block[touching] += stiffness * contact_outer
-            else:  # sphere: k n n^T - k (r - d)/d (I - n n^T); the second term is negative (mirrored by abs)
-                curvature = (depth[touching] / distance[touching])[:, None, None]
-                sign = 1.0 if project_spd == "abs" else -1.0
-                vertex_block[touching] += stiffness * (contact_outer + sign * curvature * (self.identity - contact_outer))
+        if self.contact is not None:
+            self.contact.add_vertex_hessian(vertex_block, x, project_spd)
         return self._spring_hessian_data(geometry, project_spd, vertex_block)
 
     # -- for projective dynamics, L-BFGS's rest-shape Hessian and VBD's initial guess ------------------
@@ -416,13 +394,14 @@ class MassSpring(System):
     def projective_form(self) -> str | None:
         if self.law is not HookeanLaw:
             return f"spring_law {self.law.name} is not Hookean"
-        if self.contact.ground is not None or self.contact.sphere is not None:
-            return "penalty contact is not a spring of fixed rest length"
+        if self.contact is not None:
+            return "contact is not a spring of fixed rest length"
         return None  # spring damping too: D(x) is taken once per step, so A is refactorised per step
 
     @property
     def damping_is_constant(self) -> bool:
-        return not any(term.model == "spring" for term in self.damping_terms)
+        return not any(term.model == "spring" for term in self.damping_terms) and not (
+            self.contact is not None and self.contact.is_damped)  # contact damping acts where a vertex touches
 
     # -- for XPBD ------------------------------------------------------------------------------
     @property
@@ -440,11 +419,65 @@ class MassSpring(System):
             return None
         along = sum(term.coefficient for term in self.damping_terms if term.model == "spring")
         other = (any(term.model != "spring" for term in self.damping_terms)
-                 or self.contact.ground is not None or self.contact.sphere is not None)
+                 or self.contact is not None)
         return CompliantSprings(first=self.first, second=self.second, anchor=np.zeros((self.spring_count, self.dim)),
                                 rest_length=self.rest_length, stiffness=self.stiffness,
                                 damping=np.full(self.spring_count, float(along)), vertex_count=self.vertex_count,
                                 other_forces=bool(other))
+
+    # -- contact: what the runner and the problems ask (systems/contact/model.py does the work) -----------
+    @property
+    def requires_step_filter(self) -> bool:
+        return self.contact is not None and self.contact.requires_step_filter
+
+    @property
+    def has_contact(self) -> bool:
+        return self.contact is not None
+
+    @property
+    def has_friction(self) -> bool:
+        return self.contact is not None and self.contact.friction is not None
+
+    def max_step(self, x: np.ndarray, direction: np.ndarray) -> float:
+        return 1.0 if self.contact is None else self.contact.max_step(x, direction)
+
+    def contact_start(self, x: np.ndarray) -> np.ndarray:
+        """x with the vertices near moving IPC colliders carried along over the step (ContactModel.carried), the
+        move filtered as every solver step is (pins stay, sliding vertices stay on their planes and lines)."""
+        if self.contact is None:
+            return x
+        carried = self.contact.carried(x)
+        if carried is x:
+            return x
+        move = carried - x
+        if self.fixed_dofs.size:
+            move[self.fixed_dofs] = 0.0
+        if self.sliding is not None:
+            self.sliding.apply(move)
+        return x + move
+
+    def begin_run(self, dt: float, x: np.ndarray) -> None:
+        if self.contact is not None:
+            self.contact.begin_run(dt, x, self._elastic_gradient)
+
+    def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
+        if self.contact is not None:
+            self.contact.begin_step(t, dt, x, self._elastic_gradient)
+
+    def _elastic_gradient(self, x: np.ndarray) -> np.ndarray:
+        """dP/dx without contact (N): what IPC's stiffness estimate balances the barrier against."""
+        geometry = self._springs(x)
+        return (self._incidence @ (geometry.delta.T * self.law.gradient_factor(self, geometry)).T).ravel() - self._gravity_force
+
+    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float):
+        if self.contact is None:
+            return None
+        return self.contact.friction_term(x_start, velocity_origin, velocity_divisor)
+
+    def contact_record(self, x_start: np.ndarray, x: np.ndarray, v: np.ndarray, dt: float) -> tuple[float, int, float]:
+        """(smallest signed distance (m), active contacts, friction work (J)) of the step x_start -> (x, v)."""
+        contact = self.contact
+        return contact.minimum_distance(x), contact.active_count(x), contact.friction_work(x_start, x, v)
 
     # -- for vertex block descent: only the springs at each vertex (blocks.py) ------------------------
     @functools.cached_property
@@ -475,6 +508,10 @@ class MassSpring(System):
                 data = part if data is None else data + part
         if self._constant_damping is not None:
             data = self._constant_damping.copy() if data is None else data + self._constant_damping
+        contact = None if self.contact is None else self.contact.damping_blocks(x)
+        if contact is not None:
+            part = self._scatter_blocks(np.zeros((self.spring_count, self.dim, self.dim)), contact)
+            data = part if data is None else data + part
         return None if data is None else self.pattern_matrix(data)
 
     def observables(self, x, v):
