@@ -114,7 +114,6 @@ class ContactModel:
         self._previous_distance = math.inf
         self._step = 0.0  # dt of the step being solved (s)
         self._lag: tuple[np.ndarray, FrictionLag] | None = None
-        self.identity = np.eye(dim)
         if self.kappa_auto:
             self.kappa = 1.0  # until the first step's estimate
 
