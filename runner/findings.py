@@ -59,14 +59,17 @@ class Finding:
 
 def findings(data: FigureData, rows: list[SummaryRow] | None = None, orders: list[OrderRow] | None = None
              ) -> list[Finding]:
-    """The findings of a file's runs, in reading order (stability, damping, accuracy, cost, energy, not measured)."""
-    from simrun.findings_cost import solver_cost  # here, not above: findings_cost builds on Finding and the wording here
+    """The findings of a file's runs, in reading order (stability, contact, damping, accuracy, cost, energy, not
+    measured)."""
+    from simrun.findings_contact import contact_findings  # here, not above: both build on Finding and the wording here
+    from simrun.findings_cost import solver_cost
 
     rows = summary_rows(data) if rows is None else rows
     orders = order_rows(data) if orders is None else orders
     predictions = predictions_for(data) if test_equation_runs(data) else {}
     several = len(data.groups) > 1
     result = _stability(data, rows, predictions, several)
+    result += contact_findings(rows, several)
     result += _largest_dt(data, several)
     result += _damping(data, predictions, several)
     result += _measured_damping(rows)
@@ -486,7 +489,9 @@ def _not_measured(data, orders: list[OrderRow], several: bool) -> list[Finding]:
             why = "every run stopped (diverged or failed) before its end"
         elif any(np.isfinite(run.stored.error_time) or "error" not in run.stored.attrs for run in reached):
             why = ("the system has no exact solution and no reference solution was asked for "
-                   "(simrun report --reference dop853, or a run_id)")
+                   + ("(with contact: simrun report --reference <run_id>, e.g. the smallest dt)"
+                      if any(run.stored.attrs.get("max_active_contacts") is not None for run in reached)
+                      else "(simrun report --reference dop853, or a run_id)"))
         else:
             why = "no run reached its error time"
         result.append(Finding(f"Not measured: errors, observed orders and the accuracy ranking, because {why}.",

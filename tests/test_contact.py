@@ -335,6 +335,36 @@ def test_block_slides_at_coulombs_acceleration(integrator):
     assert acceleration == pytest.approx(slide_acceleration(0.05), rel=1e-4)
 
 
+def test_relagged_friction_slides_at_coulombs_acceleration_with_more_solves():
+    """friction.lag_iterations = 2: each step solves three times, the last two with the normal forces and tangent
+    bases lagged at the previous solution; on the sliding block (normal force and tangent constant) the motion is the
+    same, a = g (sin theta - mu cos theta) within 1e-4, and every step costs at least three solves' iterations."""
+    system = block(mu=0.05, epsv=1e-3)
+    system["contact"]["friction"]["lag_iterations"] = 2
+    relagged = run_one(system, "backward_euler", 0.01, 1.0, solver=NEWTON)
+    once = run_one(block(mu=0.05, epsv=1e-3), "backward_euler", 0.01, 1.0, solver=NEWTON)
+    assert relagged.status == "ok", relagged.message
+    t, s = along_slope(relagged)
+    late = t > 0.3
+    assert 2.0 * np.polyfit(t[late], s[late], 2)[0] == pytest.approx(slide_acceleration(0.05), rel=1e-4)
+    assert np.all(relagged.per_step["newton_iterations"] >= 3)
+    assert relagged.per_step["newton_iterations"].sum() > once.per_step["newton_iterations"].sum()
+
+
+def test_moving_collider_lifts_a_cloth_without_penetration():
+    """A sphere rising at 0.5 m/s under a free 8 x 8 cloth (IPC, friction, backward Euler, dt = 0.01 s, 1 s):
+    every step starts with the vertices within its reach carried along (their distance at t_n kept), so no step's
+    smallest distance is negative; the cloth ends lifted with the sphere (its lowest vertex above its start)."""
+    system = {"type": "cloth", "resolution": [8, 8], "pinned": [],
+              "contact": {"method": "ipc", "dhat": 2.0e-3, "friction": {"mu": 0.2},
+                          "colliders": [{"shape": "sphere", "center": [0.5, 0.5, -0.35], "radius": 0.3,
+                                         "velocity": [0.0, 0.0, 0.5]}]}}
+    result = run_one(system, "backward_euler", 0.01, 1.0, solver=NEWTON)
+    assert result.status == "ok", result.message
+    assert np.all(result.per_step["contact_distance"] > 0.0)
+    assert result.samples["frames"][-1][:, 2].min() > 0.0
+
+
 def test_course_square_slides_at_coulombs_acceleration():
     """The course's soft square (k = 2e4 N/m, bottom edge dhat/2 above the slope), mu = 0.05, backward Euler:
     the centre of mass accelerates at g (sin theta - mu cos theta) within 2 % (its elastic vibrations, which

@@ -100,12 +100,14 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "runs that took at least one step"),
     Figure("energy_budget", energy_budget,
            "Where the energy goes, at one time step: kinetic and potential energy (each potential term), the work "
-           "done by the physical damping, stacked, over E_ref; the grey gap up to the initial energy (dashed) is the "
+           "done by the physical damping and by friction, stacked, over E_ref; the grey gap up to the initial energy "
+           "(dashed) is the "
            "integrator's own numerical dissipation, an orange band above it a numerical gain. With damping 0 the gap "
            "is all of the drift; with damping it separates the model's loss from the method's.",
            "runs with at least two samples"),
     Figure("snapshots", snapshots,
-           "The vertex grid at four times of the run (from its stored frames).",
+           "The model at four times of the run (from its stored frames), with the contact colliders drawn in grey "
+           "(translucent, beneath the model) where they are at each time; the title names anything not drawn.",
            "runs that keep frames on a vertex grid (the cloth)", dpi=110),
 )}
 
