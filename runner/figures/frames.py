@@ -57,7 +57,7 @@ FIXED_NOTE = "squares: vertices that never move"
 # model so that vertices on the box are not cut in half.
 MIN_SIDE = {2: 0.05, 3: 0.2}
 BOX_MARGIN = 0.04
-VIEW_ZOOM = 0.88  # 3-D views a little smaller than their axes: room for the z label
+VIEW_ZOOM = 0.8  # 3-D views a little smaller than their axes: room for the z label (a long x side pushes it out at 0.88)
 TICK_BINS = 4  # at most this many ticks along an axis of a small panel
 # The colliders: light grey beneath the model, so that the model drawn over them stays readable.
 COLLIDER_COLOUR = "#808080"
