@@ -127,9 +127,14 @@ def contact_refusal(integrator: Integrator, system: System) -> str | None:
             return (f"solves for the position at t_n + {integrator.unknown_fraction:g} h and extrapolates x_{{n+1}} from it, "
                     "which CCD cannot keep out of a collider: IPC contact needs a method whose unknown is x_{n+1} "
                     "(backward_euler, bdf2, newmark; generalized_alpha only with rho_inf = 0)")
-    if getattr(system, "has_friction", False) and kind not in ("incremental_potential", "newton_step"):
-        return ("applies no friction: friction is a dissipative potential of the step's velocity map, which only the "
-                "incremental-potential methods carry")
+    if getattr(system, "has_friction", False):
+        if kind not in ("incremental_potential", "newton_step"):
+            return ("applies no friction: friction is a dissipative potential of the step's velocity map, which only "
+                    "the incremental-potential methods carry")
+        if integrator.unknown_fraction != 1.0:
+            return (f"applies friction at t_n + {integrator.unknown_fraction:g} h, while friction's loss is booked with "
+                    "the step's end velocity (the energy budget would not close): friction needs a method whose "
+                    "unknown is x_{n+1} (backward_euler, bdf2, newmark, semi_implicit_backward_euler)")
     return None
 
 
@@ -290,8 +295,10 @@ class IncrementalPotential:
         return energy
 
     def relag(self, y: np.ndarray) -> None:
-        """Friction's normal forces and tangent bases taken at y instead (``solve_step``)."""
-        self.friction = self.system.friction_term(y, self.velocity_origin, self.velocity_divisor)
+        """Friction's normal forces and tangent bases taken at y instead, with the colliders where they are at the
+        step's end, where y is (``solve_step``)."""
+        self.friction = self.system.friction_term(y, self.velocity_origin, self.velocity_divisor,
+                                                  self.system.contact.time)
 
     def max_step(self, y: np.ndarray, direction: np.ndarray) -> float:
         """The largest fraction in [0, 1] of the step y -> y + direction that no contact crosses (IPC's filter)."""

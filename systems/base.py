@@ -198,9 +198,11 @@ class System(ABC):
         None; ``hessian`` includes it, ``hessian_data`` does not."""
         return None
 
-    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float):
-        """The friction potential of a step from x_start for the velocity map v(y) = (y - a)/b (an object with
-        value, gradient and hessian in y), or None (systems/contact/model.py, FrictionTerm)."""
+    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float,
+                      time: float | None = None):
+        """The friction potential of a step from x_start (colliders at ``time``, default the step's start) for the
+        velocity map v(y) = (y - a)/b (an object with value, gradient and hessian in y), or None
+        (systems/contact/model.py, FrictionTerm)."""
         return None
 
     # -- what vertex block descent uses (solvers/vbd.py) ----------------------------------------------

@@ -6,10 +6,11 @@ from __future__ import annotations
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
 from .base import System, SystemParams
 from .constraints import VertexConstraints
+from .mass_spring.files import file_digest, find_file
 from .mass_spring.generators import GridModel
 from .mass_spring.model import ModelError
 from .contact.build import build_contact
@@ -66,19 +67,31 @@ class ClothParams(SystemParams):
                 raise ValueError(f"pinned: vertex {pin} does not exist; a {self.resolution[0]}x{self.resolution[1]} cloth has vertices 0..{count - 1}")
         return self
 
+    _contact_files: dict = PrivateAttr(default_factory=dict)  # the colliders' files by config field, absolute
+
     @model_validator(mode="after")
     def _contact_fits(self) -> "ClothParams":
         """The contact's checks that need the model (files, meshes, an initial state that already intersects) when
-        the config is loaded, as mass_spring makes them: one line naming the field, before anything runs."""
+        the config is loaded, as mass_spring makes them: one line naming the field, before anything runs. The
+        colliders' files are found as a model file is (beside the config first) and kept absolute, for workers."""
         if self.contact.active:
             model = GridModel(resolution=self.resolution, size=self.size, height=self.height).build()
             try:
+                for number, collider in enumerate(self.contact.colliders):
+                    if getattr(collider, "file", None) is not None:
+                        found = find_file(collider.file, f"contact.colliders[{number}].file")
+                        collider.file = str(found)
+                        self._contact_files[f"contact.colliders[{number}].file"] = found
                 build_contact(self.contact, dim=3, rest=model.vertices, x0=model.vertices,
                               masses=np.full(model.vertex_count, self.mass / model.vertex_count),
-                              triangles=model.triangles, edges=model.springs)
+                              triangles=model.triangles, edges=model.springs, find_file=find_file)
             except ModelError as error:
                 raise ValueError(str(error)) from None
         return self
+
+    def input_files(self) -> dict[str, str]:
+        """The colliders' files with their sha256 (part of the config hash, as a mass_spring model file is)."""
+        return {field: file_digest(path) for field, path in self._contact_files.items()}
 
     @property
     def dof_count(self) -> int:
@@ -134,7 +147,7 @@ class Cloth(MassSpring):
             damping=(Damping("spring", params.damping),) if params.damping > 0 else (),
             constraints=VertexConstraints(3, model.vertex_count, pinned, [], []),
             contact=build_contact(params.contact, dim=3, rest=rest, x0=rest, masses=masses, triangles=model.triangles,
-                                  edges=model.springs),
+                                  edges=model.springs, find_file=find_file),
             triangles=model.triangles, grid_shape=model.grid_shape)
 
     energy_reference_name = "max(M |g| L, |KE0| + |PE0|)"

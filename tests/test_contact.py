@@ -365,6 +365,56 @@ def test_moving_collider_lifts_a_cloth_without_penetration():
     assert result.samples["frames"][-1][:, 2].min() > 0.0
 
 
+def _rope_on(plane_velocity: list[float], gap: float = 0.005) -> dict:
+    """Two vertices 0.1 m apart resting ``gap`` above a plane through the origin with normal +y that moves with
+    ``plane_velocity``; gravity, IPC (dhat = 1 cm, IPC's stiffness) and friction mu = 0.5."""
+    return {"type": "mass_spring", "model": {"rope": {"count": 2, "length": 0.1, "direction": [1.0, 0.0],
+                                                      "start": [0.0, gap]}},
+            "stiffness": 100.0, "mass": {"per_vertex": 0.1}, "gravity": [0.0, -9.81],
+            "contact": {"method": "ipc", "dhat": 0.01, "friction": {"mu": 0.5, "epsv": 1e-3},
+                        "colliders": [{"shape": "plane", "normal": [0.0, 1.0], "point": [0.0, 0.0],
+                                       "velocity": plane_velocity}]}}
+
+
+@pytest.mark.parametrize("normal_speed", [0.0, 0.8, -0.3])
+def test_a_moving_collider_drags_by_friction_lagged_where_it_was(normal_speed):
+    """A conveyor: the plane moves at 1 m/s along x (and at normal_speed along its normal) under the resting pair.
+    Friction is lagged at the step's start with the plane where it was then, so the pair within reach feels its
+    normal force and is dragged along whatever the normal motion: 0.90, 0.96 and 0.87 m in 1 s (lagged at the
+    plane's end position instead, a plane rising at 0.8 m/s found no contact and dragged nothing, and one sinking
+    at 0.3 m/s a wrong normal force: 0.47 m); every step's distance stays positive."""
+    result = run_one(_rope_on([1.0, normal_speed]), "backward_euler", 0.01, 1.0, solver=NEWTON)
+    assert result.status == "ok", result.message
+    assert np.all(result.per_step["contact_distance"] > 0.0)
+    moved = result.samples["frames"][-1][:, 0] - result.samples["frames"][0][:, 0]
+    assert np.all(moved > 0.8), moved
+
+
+def test_a_carried_start_does_not_push_a_vertex_into_another_collider():
+    """A lid 11 mm above the ground comes down at 0.5 m/s onto a pair resting 4 mm above the ground: carried along
+    with the lid, the pair would start the step inside the ground; it stays instead (there is room: the lid ends the
+    step 6 mm up), and the step ends with every distance positive."""
+    system = _rope_on([0.0, 0.0], gap=0.004)
+    system["contact"].pop("friction")
+    system["contact"]["colliders"].append({"shape": "plane", "normal": [0.0, -1.0], "point": [0.0, 0.011],
+                                           "velocity": [0.0, -0.5]})
+    result = run_one(system, "backward_euler", 0.01, 0.01, solver=NEWTON)
+    assert result.status == "ok", result.message
+    assert np.all(result.per_step["contact_distance"] > 0.0)
+
+
+def test_a_collider_faster_than_a_step_allows_fails_in_one_line():
+    """The same lid at 2 m/s passes the ground's top within one 0.01 s step: no start is collision-free, and the run
+    fails naming the collider and the vertex, instead of recording a negative distance."""
+    system = _rope_on([0.0, 0.0], gap=0.004)
+    system["contact"].pop("friction")
+    system["contact"]["colliders"].append({"shape": "plane", "normal": [0.0, -1.0], "point": [0.0, 0.011],
+                                           "velocity": [0.0, -2.0]})
+    result = run_one(system, "backward_euler", 0.01, 0.02, solver=NEWTON)
+    assert result.status == "failed"
+    assert "overtook vertex" in result.message and "\n" not in result.message
+
+
 def test_course_square_slides_at_coulombs_acceleration():
     """The course's soft square (k = 2e4 N/m, bottom edge dhat/2 above the slope), mu = 0.05, backward Euler:
     the centre of mass accelerates at g (sin theta - mu cos theta) within 2 % (its elastic vibrations, which

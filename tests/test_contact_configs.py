@@ -65,3 +65,25 @@ def test_penalty_penetrates_where_ipc_keeps_a_positive_distance(tmp_path):
     stiffness = {1000.0: 1.0e3, 100000.0: 1.0e5, "auto": 1.0e4}
     ordered = sorted(depth, key=lambda key: stiffness[key])
     assert [depth[key] for key in ordered] == sorted(depth.values(), reverse=True)
+
+
+def test_a_cloths_obstacle_file_is_found_beside_its_config_and_hashed(tmp_path, monkeypatch):
+    """A cloth's obstacle mesh named relative to its config is found beside the config from any working folder
+    (as a mass_spring model file is), made absolute for the workers, and its sha256 is part of the config's inputs."""
+    import meshio
+
+    from simrun.config import load_experiment
+
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    floor = np.array([[-1.0, -1.0, -0.2], [2.0, -1.0, -0.2], [2.0, 2.0, -0.2], [-1.0, 2.0, -0.2]])
+    meshio.write(folder / "floor.obj", meshio.Mesh(floor, [("triangle", np.array([[0, 1, 2], [0, 2, 3]]))]))
+    (folder / "scene.yaml").write_text(yaml.safe_dump({
+        "name": "scene", "integrators": ["backward_euler"], "sweep": {"dt": [0.01]},
+        "system": {"type": "cloth", "resolution": [4, 4], "pinned": [],
+                   "contact": {"method": "ipc", "colliders": [{"shape": "mesh", "file": "floor.obj"}]}}}))
+    monkeypatch.chdir(tmp_path)
+    experiment, _ = load_experiment(folder / "scene.yaml")
+    (path,) = [collider.file for collider in experiment.system.contact.colliders]
+    assert Path(path).is_absolute() and Path(path).name == "floor.obj"
+    assert list(experiment.system.input_files()) == ["contact.colliders[0].file"]

@@ -65,6 +65,10 @@ def mollifier(speed: np.ndarray, epsilon: float) -> tuple[np.ndarray, np.ndarray
     return value, f1_over, curvature
 
 
+class ContactOvertaken(RuntimeError):
+    """A moving collider reached a vertex within one step, so that no start of the step is collision-free."""
+
+
 @dataclass
 class ColliderContact:
     """One analytic or sampled collider with its penalty stiffness (N/m; None for IPC)."""
@@ -113,7 +117,7 @@ class ContactModel:
         self.time = 0.0  # the colliders are where they are at this time (s): the end of the step being solved
         self._previous_distance = math.inf
         self._step = 0.0  # dt of the step being solved (s)
-        self._lag: tuple[np.ndarray, FrictionLag] | None = None
+        self._lag: tuple[np.ndarray, FrictionLag, tuple] | None = None  # (x, lag, (time, kappa))
         if self.kappa_auto:
             self.kappa = 1.0  # until the first step's estimate
 
@@ -132,9 +136,15 @@ class ContactModel:
     def is_damped(self) -> bool:
         return self.damping > 0.0
 
-    def offset(self, contact: ColliderContact) -> np.ndarray | None:
+    def offset(self, contact: ColliderContact, time: float | None = None) -> np.ndarray | None:
+        """How far the collider has moved by ``time`` (s; default ``self.time``, the end of the step being solved)."""
         velocity = contact.collider.velocity
-        return None if not np.any(velocity) else velocity * self.time
+        return None if not np.any(velocity) else velocity * (self.time if time is None else time)
+
+    @property
+    def step_start_time(self) -> float:
+        """t_n (s), where the colliders stood at the start of the step being solved."""
+        return self.time - self._step
 
     # -- per point: the colliders (penalty and IPC) -------------------------------------------------
     def _reach(self) -> float:
@@ -251,13 +261,15 @@ class ContactModel:
         return blocks
 
     # -- what the runner records -------------------------------------------------------------------
-    def minimum_distance(self, x: np.ndarray) -> float:
-        """The smallest signed distance (m) of a vertex to a collider, and of the mesh pairs within dhat (their
-        distance is unsigned: IPC keeps them apart); inf when nothing is near."""
+    def minimum_distance(self, x: np.ndarray, time: float | None = None) -> float:
+        """The smallest signed distance (m) of a vertex to a collider (where the colliders are at ``time``, by default
+        the end of the step), and of the mesh pairs within dhat (their distance is unsigned: IPC keeps them apart);
+        inf when nothing is near."""
         smallest = math.inf
         positions = x.reshape(-1, self.dim)
         for contact in self.colliders:
-            smallest = min(smallest, float(np.min(contact.collider.signed_distance(positions, self.offset(contact)))))
+            phi = contact.collider.signed_distance(positions, self.offset(contact, time))
+            smallest = min(smallest, float(np.min(phi)))
         if self.mesh is not None:
             smallest = min(smallest, self.mesh.minimum_distance(x))
         return smallest
@@ -315,21 +327,42 @@ class ContactModel:
         return max(fraction, 0.0)
 
     def carried(self, x: np.ndarray) -> np.ndarray:
-        """The step's start x_n (flat, m) as IPC's solvers may begin from it: the vertices within reach of a moving
-        collider at t_n, moved with it over the step, keep at t_n + dt the distance they had at t_n (positive),
-        where x_n itself could lie inside the collider's new place. A new array where anything moved; the filters
-        (pins, sliding) are the caller's to apply to the move."""
+        """The step's start x_n (flat, m) as IPC's solvers may begin from it: each vertex within reach of a moving
+        collider at t_n (the first such collider: moves are not summed) moved with it over the step, so that at
+        t_n + dt it keeps the distance it had at t_n, where x_n itself could lie inside the collider's new place. A
+        carried vertex that would end on or inside another collider stays; the moves are cut to ipctk's collision-free
+        fraction for the meshes. ContactOvertaken where the start still lies on or inside a collider at t_n + dt: a
+        step too long for that collider's speed. A new array where anything moved; the filters (pins, sliding) are
+        the caller's to apply to the move."""
         moving = [contact for contact in self.colliders if np.any(contact.collider.velocity)]
         if self.method != "ipc" or not moving or not self._step:
             return x
         positions = x.reshape(-1, self.dim)
         shift = np.zeros_like(positions)
+        claimed = np.zeros(positions.shape[0], dtype=bool)
         for contact in moving:
-            velocity = contact.collider.velocity
-            move = velocity * self._step
-            phi = contact.collider.signed_distance(positions, velocity * (self.time - self._step))
-            shift[phi < self.dhat + float(np.linalg.norm(move))] += move
-        return x + shift.ravel() if np.any(shift) else x
+            move = contact.collider.velocity * self._step
+            phi = contact.collider.signed_distance(positions, self.offset(contact, self.step_start_time))
+            near = (phi < self.dhat + contact.collider.lipschitz * float(np.linalg.norm(move))) & ~claimed
+            shift[near] = move
+            claimed |= near
+        if claimed.any():
+            moved = positions + shift
+            for contact in self.colliders:  # a carried vertex must not land on or in another collider
+                blocked = claimed & (contact.collider.signed_distance(moved, self.offset(contact)) <= 0.0)
+                shift[blocked] = 0.0
+                claimed &= ~blocked
+        carried = x + shift.ravel() if claimed.any() else x
+        if carried is not x and self.mesh is not None:
+            carried = x + self.mesh.collision_free_step(x, carried) * (carried - x)
+        for number, contact in enumerate(self.colliders):
+            phi = contact.collider.signed_distance(carried.reshape(-1, self.dim), self.offset(contact))
+            if np.any(phi <= 0.0):
+                vertex = int(np.argmin(phi))
+                raise ContactOvertaken(
+                    f"collider {number} ({contact.collider.shape}) overtook vertex {vertex} within the step from "
+                    f"t = {self.step_start_time:.6g} s (signed distance {phi[vertex]:.3g} m at its end): a smaller dt")
+        return carried
 
     def begin_step(self, t: float, dt: float, x: np.ndarray, elastic_gradient) -> None:
         """Before the step from t (s) of size dt (s) at positions x: the colliders move to t + dt, and IPC's
@@ -346,7 +379,7 @@ class ContactModel:
         if not math.isfinite(self.max_kappa):
             self.begin_run(dt, x, elastic_gradient)
         scale = self._ipc_units(dt)
-        distance = self.minimum_distance(x)
+        distance = self.minimum_distance(x, t)  # x is where the step starts: the colliders as they were then
         # ipctk compares squared distances (as IPC does), against 1e-9 of the scene's diagonal
         self.kappa = ipctk.update_barrier_stiffness(self._previous_distance ** 2, distance ** 2, self.max_kappa / scale,
                                                     self.kappa / scale, self._scene_diagonal(x)) * scale
@@ -390,16 +423,19 @@ class ContactModel:
         return float(np.linalg.norm(upper - lower))
 
     # -- friction ----------------------------------------------------------------------------------
-    def friction_lag(self, x: np.ndarray) -> FrictionLag | None:
-        """The normal forces and tangent bases at x (the step's start), kept for the last x asked."""
+    def friction_lag(self, x: np.ndarray, time: float | None = None) -> FrictionLag | None:
+        """The normal forces and tangent bases at x with the colliders where they are at ``time`` (s; default the
+        start of the step being solved, which x is); the last one asked is kept (keyed by x, time and kappa)."""
         if self.friction is None:
             return None
-        if self._lag is not None and np.array_equal(self._lag[0], x):
+        time = self.step_start_time if time is None else time
+        key = (time, self.kappa)
+        if self._lag is not None and self._lag[2] == key and np.array_equal(self._lag[0], x):
             return self._lag[1]
         positions = x.reshape(-1, self.dim)
         vertices, forces, normals, velocities = [], [], [], []
         for contact in self.colliders:
-            offset = self.offset(contact)
+            offset = self.offset(contact, time)
             phi = contact.collider.signed_distance(positions, offset)
             near = np.flatnonzero((phi < 0.0) if self.method == "penalty" else (phi < self.dhat) & (phi > 0.0))
             if not near.size:
@@ -422,13 +458,15 @@ class ContactModel:
             normal_force=np.concatenate(forces) if forces else np.zeros(0),
             normals=np.concatenate(normals) if normals else empty,
             velocities=np.concatenate(velocities) if velocities else empty, mesh=mesh_lag)
-        self._lag = (x.copy(), lag)
+        self._lag = (x.copy(), lag, key)
         return lag
 
-    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float):
-        """The friction potential of one step (``FrictionTerm``), lagged at x_start, for the velocity map
-        v(y) = (y - velocity_origin)/velocity_divisor; None without friction or without contacts at x_start."""
-        lag = self.friction_lag(x_start)
+    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float,
+                      time: float | None = None):
+        """The friction potential of one step (``FrictionTerm``), lagged at x_start (the colliders at ``time``: by
+        default the step's start), for the velocity map v(y) = (y - velocity_origin)/velocity_divisor; None without
+        friction or without contacts at x_start."""
+        lag = self.friction_lag(x_start, time)
         if lag is None or (not lag.vertices.size and (lag.mesh is None or not self.mesh.friction_count(lag.mesh))):
             return None
         return FrictionTerm(self, lag, velocity_origin, velocity_divisor)
@@ -441,8 +479,10 @@ class ContactModel:
         if self.friction is None:
             return 0.0
         # the lag the step's last solve used: x_start's, or its solution's where friction is re-lagged
-        lag_point = self._lag[0] if self.friction_relags and self._lag is not None else x_start
-        term = self.friction_term(lag_point, np.zeros_like(v_end), 1.0)
+        if self.friction_relags and self._lag is not None:
+            term = self.friction_term(self._lag[0], np.zeros_like(v_end), 1.0, self._lag[2][0])
+        else:
+            term = self.friction_term(x_start, np.zeros_like(v_end), 1.0)
         if term is None:
             return 0.0
         return float(term.gradient(v_end) @ (x_end - x_start))

@@ -469,10 +469,11 @@ class MassSpring(System):
         geometry = self._springs(x)
         return (self._incidence @ (geometry.delta.T * self.law.gradient_factor(self, geometry)).T).ravel() - self._gravity_force
 
-    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float):
+    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float,
+                      time: float | None = None):
         if self.contact is None:
             return None
-        return self.contact.friction_term(x_start, velocity_origin, velocity_divisor)
+        return self.contact.friction_term(x_start, velocity_origin, velocity_divisor, time)
 
     def contact_record(self, x_start: np.ndarray, x: np.ndarray, v: np.ndarray, dt: float) -> tuple[float, int, float]:
         """(smallest signed distance (m), active contacts, friction work (J)) of the step x_start -> (x, v)."""
