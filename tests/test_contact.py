@@ -575,3 +575,58 @@ def test_contact_numbers_in_the_results_file(tmp_path):
     assert run["frame_t"][-1] == pytest.approx(0.6)
     assert distance[-1] == system.contact.minimum_distance(last)
     assert active[-1] == system.contact.active_count(last)
+
+
+# -- rotating colliders -------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_spinning_colliders_derivatives_are_those_of_its_distance(dim):
+    """A box turning about an axis through a point off its centre (and translating), at t = 0.7 s: phi(p) =
+    phi_0(R^T (p - c - v t) + c); its gradient R grad phi_0 and Hessian R Hess phi_0 R^T against central differences
+    of phi and of the gradient, |grad phi| = 1 (a rigid motion keeps an SDF an SDF), and the velocity of the surface
+    v + omega x (p - c(t)) against a difference of the carried points."""
+    from simrun.systems.contact.colliders import build_collider
+    from simrun.systems.contact.model import ColliderContact
+
+    rng = np.random.default_rng(3)
+    center = np.zeros(dim)
+    box = build_collider("box", dim, center=center, half_extents=np.full(dim, 0.3), velocity=0.2 * np.ones(dim))
+    axis = np.array([0.0, 0.0, 1.0]) if dim == 2 else np.array([1.0, 2.0, 2.0]) / 3.0
+    contact = ColliderContact(box, None, (np.full(dim, 0.1), axis, 1.3))
+    time = 0.7
+    points = contact.carry(rng.uniform(-0.6, 0.6, (40, dim)), 0.0, time)
+    phi, gradient, hessian = contact.derivatives(points, time)
+    np.testing.assert_allclose(np.linalg.norm(gradient, axis=1), 1.0, rtol=1e-12)
+    step = 1e-6
+    for axis_index in range(dim):
+        shift = np.zeros(dim)
+        shift[axis_index] = step
+        difference = (contact.signed_distance(points + shift, time) - contact.signed_distance(points - shift, time)) / (2 * step)
+        smooth = np.abs(phi) > 1e-3  # away from the surface and the box's kinks, which central differences straddle
+        np.testing.assert_allclose(difference[smooth], gradient[smooth, axis_index], atol=1e-7)
+        hessian_column = (contact.derivatives(points + shift, time)[1] - contact.derivatives(points - shift, time)[1]) / (2 * step)
+        np.testing.assert_allclose(hessian_column[smooth], hessian[smooth, :, axis_index], atol=1e-4)
+    later = contact.carry(points, time, time + step)
+    earlier = contact.carry(points, time, time - step)
+    np.testing.assert_allclose((later - earlier) / (2 * step), contact.velocity_at(points, time), atol=1e-7)
+
+
+def test_a_turntable_carries_a_block_round_by_friction():
+    """A small square (4 vertices, 0.1 m, 0.4 kg) at rest on a floor turning at 90 deg/s about the vertical axis
+    through the origin, its centre 0.5 m out; mu = 0.5. Friction (the floor's surface moves at omega x r) spins it up
+    to turn with the floor (the centripetal omega^2 r = 1.23 m/s^2 is far below mu g = 4.9 m/s^2), so after 2 s its
+    centre has turned through omega (2 s - the spin-up, a few hundredths of a second) at the same radius, and no
+    step's distance to the floor is negative."""
+    system = {"type": "mass_spring", "model": {"grid": {"resolution": [2, 2], "size": [0.1, 0.1]}}, "stiffness": 1.0e4,
+              "mass": {"per_vertex": 0.1}, "gravity": [0.0, 0.0, -9.81], "initial": {"translate": [0.45, -0.05, 0.002]},
+              "contact": {"method": "ipc", "dhat": 0.005, "friction": {"mu": 0.5, "epsv": 1e-4},
+                          "colliders": [{"shape": "plane", "normal": [0.0, 0.0, 1.0], "point": [0.0, 0.0, 0.0],
+                                         "rotation": {"center": [0.0, 0.0, 0.0], "axis": [0.0, 0.0, 1.0], "rate": 90.0}}]}}
+    result = run_one(system, "backward_euler", 0.005, 2.0, solver=NEWTON)
+    assert result.status == "ok", result.message
+    assert np.all(result.per_step["contact_distance"] > 0.0)
+    centre = result.samples["frames"][-1].mean(axis=0)
+    angle = math.atan2(centre[1], centre[0]) % (2 * math.pi)
+    assert math.hypot(centre[0], centre[1]) == pytest.approx(0.5, abs=0.02)
+    assert math.degrees(angle) == pytest.approx(180.0, abs=8.0)

@@ -305,3 +305,28 @@ def test_a_model_without_contact_draws_no_collider(tmp_path):
         assert [type(collection) for collection in figure.axes[0].collections] == [PolyCollection, LineCollection]
     finally:
         plt.close(figure)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_turning_box_is_drawn_turned(dim):
+    """A box turning at 90 deg/s about a point off its centre (and moving) is drawn, at t = 0.5 s, with every drawn
+    point on the surface of the box as the system turns it (phi = 0 within round-off, phi from ColliderContact)."""
+    from simrun.figures.frames import _collider, _draw_collider
+    from simrun.systems.contact.colliders import build_collider
+    from simrun.systems.contact.model import ColliderContact
+
+    entry = {"shape": "box", "center": [0.0] * dim, "half_extents": [0.3] * dim, "velocity": [0.1] * dim,
+             "rotation": {"center": [0.1] * dim, "axis": [0.0, 0.0, 1.0] if dim == 2 else [0.0, 1.0, 0.0], "rate": 90.0}}
+    drawn = _collider("box", entry, dim)
+    figure = plt.figure()
+    axes = figure.add_subplot(**({"projection": "3d"} if dim == 3 else {}))
+    t = 0.5
+    assert _draw_collider(axes, drawn, 0, t, np.full(dim, -2.0), np.full(dim, 2.0))
+    points = np.concatenate([np.column_stack(line.get_data_3d() if dim == 3 else line.get_data()) for line in axes.lines])
+    points = points[np.all(np.isfinite(points), axis=1)]
+    box = build_collider("box", dim, center=np.zeros(dim), half_extents=np.full(dim, 0.3), velocity=np.full(dim, 0.1))
+    axis = np.array(entry["rotation"]["axis"])
+    system_box = ColliderContact(box, None, (np.full(dim, 0.1), axis, np.radians(90.0)))
+    assert points.shape[0] >= 8  # the outline's corners at least
+    np.testing.assert_allclose(system_box.signed_distance(points, t), 0.0, atol=1e-12)
+    plt.close(figure)

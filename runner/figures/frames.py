@@ -21,8 +21,9 @@ import contextlib
 import functools
 import io
 import itertools
+import math
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from simrun.figures._data import FigureData, format_value
 from simrun.results import Results, Status, StoredRun
+from simrun.systems.constraints import rotate  # a turning collider, drawn as the system turns it
 
 SNAPSHOT_COUNT = 4
 # A sweep of many such runs would drown its figure folder in snapshots: beyond this many runs,
@@ -380,6 +382,15 @@ class _Collider:
     fields: dict = field(default_factory=dict)
     velocity: np.ndarray | None = None
     note: str = ""
+    spin: tuple | None = None  # (center (d,) m, unit axis (3,), rate rad/s) of a turning collider
+
+    def turned(self, points: np.ndarray, t: float) -> np.ndarray:
+        """Points (k, d) of the t = 0 shape (already moved by velocity t) turned about the moved centre by rate t."""
+        if self.spin is None or not len(points):
+            return points
+        center, axis, rate = self.spin
+        center = center + self.velocity * t
+        return center + rotate(points - center, axis, rate * t)
 
 
 def _colliders(run: StoredRun) -> tuple[_Collider, ...]:
@@ -412,36 +423,49 @@ def _collider(name: str, entry: dict, dim: int) -> _Collider:
 
     try:
         velocity = np.zeros(dim) if entry.get("velocity") is None else vector("velocity")
-        if shape == "plane":
-            normal = vector("normal")
-            if not np.any(normal):
-                raise ValueError("normal is zero")
-            point = np.zeros(dim) if entry.get("point") is None else vector("point")
-            return _Collider(shape, name, {"normal": normal / np.linalg.norm(normal), "point": point}, velocity)
-        if shape == "sphere":
-            return _Collider(shape, name, {"center": vector("center"), "radius": float(entry["radius"])}, velocity)
-        if shape == "box":
-            return _Collider(shape, name, {"center": vector("center"), "half_extents": vector("half_extents")},
-                             velocity)
-        if shape == "capsule":
-            return _Collider(shape, name, {"a": vector("a"), "b": vector("b"), "radius": float(entry["radius"])},
-                             velocity)
-        if shape == "torus":
-            if dim != 3:
-                return _Collider(shape, name, note="not drawn (a torus exists only in 3-D)")
-            axis = vector("axis") if entry.get("axis") is not None else np.eye(3)[2]
-            if not np.any(axis):
-                raise ValueError("axis is zero")
-            return _Collider(shape, name, {"center": vector("center"), "axis": axis / np.linalg.norm(axis),
-                                           "major_radius": float(entry["major_radius"]),
-                                           "minor_radius": float(entry["minor_radius"])}, velocity)
-        if shape == "grid_sdf":
-            return _grid_collider(name, entry, dim, velocity)
-        if shape == "mesh":
-            return _mesh_collider(name, entry, dim)
-        return _Collider(shape, name, note="not drawn (a shape this figure does not know)")
+        collider = _shape(shape, name, entry, dim, vector, velocity)
+        rotation = entry.get("rotation")
+        if isinstance(rotation, dict) and float(rotation.get("rate", 0.0)) != 0.0 and collider.fields:
+            axis = np.asarray(rotation.get("axis", [0.0, 0.0, 1.0]), dtype=float)
+            center = np.asarray(rotation["center"], dtype=float)
+            if center.shape != (dim,) or axis.shape != (3,) or not np.any(axis):
+                raise ValueError("rotation is not {center, axis, rate} in the model's dimension")
+            collider = replace(collider, spin=(center, axis / np.linalg.norm(axis), math.radians(float(rotation["rate"]))))
+        return collider
     except (KeyError, TypeError, ValueError) as error:
         return _Collider(shape, name, note=f"not drawn ({error})")
+
+
+def _shape(shape: str, name: str, entry: dict, dim: int, vector, velocity: np.ndarray) -> _Collider:
+    """The collider of one config entry, without its rotation."""
+    if shape == "plane":
+        normal = vector("normal")
+        if not np.any(normal):
+            raise ValueError("normal is zero")
+        point = np.zeros(dim) if entry.get("point") is None else vector("point")
+        return _Collider(shape, name, {"normal": normal / np.linalg.norm(normal), "point": point}, velocity)
+    if shape == "sphere":
+        return _Collider(shape, name, {"center": vector("center"), "radius": float(entry["radius"])}, velocity)
+    if shape == "box":
+        return _Collider(shape, name, {"center": vector("center"), "half_extents": vector("half_extents")},
+                         velocity)
+    if shape == "capsule":
+        return _Collider(shape, name, {"a": vector("a"), "b": vector("b"), "radius": float(entry["radius"])},
+                         velocity)
+    if shape == "torus":
+        if dim != 3:
+            return _Collider(shape, name, note="not drawn (a torus exists only in 3-D)")
+        axis = vector("axis") if entry.get("axis") is not None else np.eye(3)[2]
+        if not np.any(axis):
+            raise ValueError("axis is zero")
+        return _Collider(shape, name, {"center": vector("center"), "axis": axis / np.linalg.norm(axis),
+                                       "major_radius": float(entry["major_radius"]),
+                                       "minor_radius": float(entry["minor_radius"])}, velocity)
+    if shape == "grid_sdf":
+        return _grid_collider(name, entry, dim, velocity)
+    if shape == "mesh":
+        return _mesh_collider(name, entry, dim)
+    return _Collider(shape, name, note="not drawn (a shape this figure does not know)")
 
 
 def _grid_collider(name: str, entry: dict, dim: int, velocity: np.ndarray) -> _Collider:
@@ -532,7 +556,8 @@ def _collider_text(run: StoredRun, drawn: set[int] | None = None, legend: bool =
     for collider in colliders:
         seen[collider.name] += 1
         names.append(collider.name + (f" {seen[collider.name]}" if counts[collider.name] > 1 else ""))
-    moving = [collider.velocity is not None and bool(np.any(collider.velocity)) for collider in colliders]
+    moving = [(collider.velocity is not None and bool(np.any(collider.velocity))) or collider.spin is not None
+              for collider in colliders]
     listed = ", ".join(name + " moving" * move for name, move in zip(names, moving))
     parts = [f"{COLLIDER_NOTE} ({listed})"] if legend else []
     parts += [f"{name} collider {collider.note}" for name, collider in zip(names, colliders) if collider.note]
@@ -578,7 +603,16 @@ def _draw_collider(axes, collider: _Collider, number: int, t: float, low: np.nda
     if not collider.fields:
         return False
     dim = low.size
-    lines, faces = _geometry(collider, collider.velocity * t, low, high)
+    if collider.spin is not None and collider.shape == "plane":  # a plane turns as its normal and point do
+        center, axis, rate = collider.spin
+        center = center + collider.velocity * t
+        fields = {"normal": rotate(collider.fields["normal"][None], axis, rate * t)[0],
+                  "point": center + rotate((collider.fields["point"] + collider.velocity * t - center)[None], axis, rate * t)[0]}
+        lines, faces = _geometry(replace(collider, fields=fields, spin=None), np.zeros(dim), low, high)
+    else:
+        lines, faces = _geometry(collider, collider.velocity * t, low, high)
+        lines = [collider.turned(line, t) for line in lines]
+        faces = [collider.turned(face, t) for face in faces]
     segments = _clip_segments(lines, low, high)
     polygons = [polygon for polygon in (_clip_polygon(face, low, high) for face in faces) if len(polygon) >= 3]
     gid = f"collider-{number}-{collider.shape}"

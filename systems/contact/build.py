@@ -46,7 +46,8 @@ def build_contact(spec: ContactSpec, *, dim: int, rest: np.ndarray, x0: np.ndarr
             obstacles.append(_obstacle(entry, dim, where, find_file))
             continue
         colliders.append(ColliderContact(_collider(entry, dim, where, find_file),
-                                         (entry.stiffness or default_stiffness) if penalty else None))
+                                         (entry.stiffness or default_stiffness) if penalty else None,
+                                         _spin(entry.rotation, dim, f"{where}.rotation")))
     mesh = None
     if obstacles or spec.self_contact:
         from .mesh_contact import MeshContact  # ipctk: only mesh contact needs it
@@ -66,6 +67,19 @@ def build_contact(spec: ContactSpec, *, dim: int, rest: np.ndarray, x0: np.ndarr
     return model
 
 
+def _spin(rotation, dim: int, field: str) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(center (d,) m, unit axis (3,), rate rad/s) of a collider's rotation, or None."""
+    if rotation is None or rotation.rate == 0.0:
+        return None
+    axis = _vector(rotation.axis, 3, f"{field}.axis")
+    length = float(np.linalg.norm(axis))
+    if not length > 0.0:
+        raise ModelError(f"{field}.axis: the axis {rotation.axis} is zero")
+    if dim == 2 and (axis[0] != 0.0 or axis[1] != 0.0):
+        raise ModelError(f"{field}.axis: a 2-D collider turns about z; give [0, 0, 1] or [0, 0, -1]")
+    return _vector(rotation.center, dim, f"{field}.center"), axis / length, float(np.radians(rotation.rate))
+
+
 def _vector(values, dim: int, field: str) -> np.ndarray:
     if values is None:
         return np.zeros(dim)
@@ -80,7 +94,7 @@ _VECTOR_FIELDS = {"plane": ("normal", "point"), "sphere": ("center",), "box": ("
 
 
 def _collider(entry, dim: int, where: str, find_file):
-    arguments = entry.model_dump(exclude={"shape", "stiffness", "velocity"}, exclude_none=True)
+    arguments = entry.model_dump(exclude={"shape", "stiffness", "velocity", "rotation"}, exclude_none=True)
     try:
         for name in _VECTOR_FIELDS.get(entry.shape, ()):
             if name in arguments or name == "point":

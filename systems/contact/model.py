@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
+from ..constraints import cross, rotate
 from .colliders import Collider
 
 # A line-search step goes at most this fraction short of the first time of impact along it: a point that heads
@@ -71,10 +72,104 @@ class ContactOvertaken(RuntimeError):
 
 @dataclass
 class ColliderContact:
-    """One analytic or sampled collider with its penalty stiffness (N/m; None for IPC)."""
+    """One analytic or sampled collider with its penalty stiffness (N/m; None for IPC) and its motion: the collider's
+    own constant ``velocity`` (m/s), and ``spin`` = (center (d,) m, unit axis (3,), rate rad/s) or None, a rotation
+    about an axis through ``center`` (which moves with the velocity; 2-D: about z). At time t a point p of space is
+    the point q = R(t)^T (p - c - v t) + c of the t = 0 shape, R(t) the rotation by rate t: every query maps the
+    points there and the derivatives back (grad phi -> R grad phi, Hess phi -> R Hess phi R^T)."""
 
     collider: Collider
     stiffness: float | None
+    spin: tuple[np.ndarray, np.ndarray, float] | None = None
+
+    @property
+    def moves(self) -> bool:
+        return bool(np.any(self.collider.velocity)) or self.spin is not None
+
+    def _offset(self, time: float) -> np.ndarray | None:
+        velocity = self.collider.velocity
+        return None if not np.any(velocity) else velocity * time
+
+    def _rotation(self, time: float) -> np.ndarray:
+        center, axis, rate = self.spin
+        return rotate(np.eye(center.size), axis, rate * time).T
+
+    def _local(self, points: np.ndarray, time: float) -> np.ndarray:
+        """The points in the t = 0 frame of a spinning collider (q = R^T (p - c - v t) + c)."""
+        center = self.spin[0] + self.collider.velocity * time
+        return (points - center) @ self._rotation(time) + self.spin[0]
+
+    def signed_distance(self, points: np.ndarray, time: float) -> np.ndarray:
+        if self.spin is None:
+            return self.collider.signed_distance(points, self._offset(time))
+        return self.collider.signed_distance(self._local(points, time))
+
+    def derivatives(self, points: np.ndarray, time: float):
+        if self.spin is None:
+            return self.collider.derivatives(points, self._offset(time))
+        phi, gradient, hessian = self.collider.derivatives(self._local(points, time))
+        rotation = self._rotation(time)
+        return phi, gradient @ rotation.T, np.einsum("ij,kjl,ml->kim", rotation, hessian, rotation)
+
+    def distance_and_normal(self, points: np.ndarray, time: float):
+        if self.spin is None:
+            return self.collider.distance_and_normal(points, self._offset(time))
+        phi, normal = self.collider.distance_and_normal(self._local(points, time))
+        return phi, normal @ self._rotation(time).T
+
+    def scaled_hessian(self, points: np.ndarray, scale: np.ndarray, project_spd, time: float) -> np.ndarray:
+        if self.spin is None:
+            return self.collider.scaled_hessian(points, scale, project_spd, self._offset(time))
+        rotation = self._rotation(time)  # a congruence: the projection's eigenvalues are the same in either frame
+        local = self.collider.scaled_hessian(self._local(points, time), scale, project_spd)
+        return np.einsum("ij,kjl,ml->kim", rotation, local, rotation)
+
+    def time_of_impact(self, start: np.ndarray, end: np.ndarray, time: float) -> np.ndarray:
+        """Along straight moves with the collider held where it is at ``time``: still straight in its own frame."""
+        if self.spin is None:
+            return self.collider.time_of_impact(start, end, self._offset(time))
+        return self.collider.time_of_impact(self._local(start, time), self._local(end, time))
+
+    def bounding_box(self, time: float):
+        box = self.collider.bounding_box(self._offset(time))
+        if box is None or self.spin is None:
+            return box
+        # the box's corners turned about the (moved) centre: a box around the turned shape
+        lower, upper = box
+        corners = np.array(np.meshgrid(*zip(lower, upper), indexing="ij")).reshape(lower.size, -1).T
+        center = self.spin[0] + self.collider.velocity * time
+        turned = (corners - center) @ self._rotation(time).T + center
+        return turned.min(axis=0), turned.max(axis=0)
+
+    def velocity_at(self, points: np.ndarray, time: float) -> np.ndarray:
+        """The collider's velocity (m/s) at the points (k, d) of space: v + omega x (p - c(t))."""
+        velocity = np.broadcast_to(self.collider.velocity, points.shape)
+        if self.spin is None:
+            return velocity
+        center, axis, rate = self.spin
+        omega = rate * (axis if points.shape[1] == 3 else np.array([0.0, 0.0, axis[2]]))
+        return velocity + cross(omega, points - (center + self.collider.velocity * time))
+
+    def carry(self, points: np.ndarray, start: float, end: float) -> np.ndarray:
+        """The points moved rigidly with the collider from its pose at ``start`` to its pose at ``end`` (s)."""
+        if self.spin is None:
+            return points + self.collider.velocity * (end - start)
+        local = self._local(points, start)
+        center = self.spin[0] + self.collider.velocity * end
+        return (local - self.spin[0]) @ self._rotation(end).T + center
+
+    @property
+    def reach_speed(self) -> float:
+        """A bound (m/s) on the speed of the collider's surface, for how far it can travel in a step: |v| + |rate| r,
+        r the distance from the spin's centre to the farthest point of the shape's box (inf when it is unbounded)."""
+        speed = float(np.linalg.norm(self.collider.velocity))
+        if self.spin is None:
+            return speed
+        box = self.collider.bounding_box()
+        if box is None:
+            return math.inf
+        corners = np.array(np.meshgrid(*zip(*box), indexing="ij")).reshape(box[0].size, -1).T
+        return speed + abs(self.spin[2]) * float(np.max(np.linalg.norm(corners - self.spin[0], axis=1)))
 
 
 @dataclass
@@ -136,10 +231,6 @@ class ContactModel:
     def is_damped(self) -> bool:
         return self.damping > 0.0
 
-    def offset(self, contact: ColliderContact, time: float | None = None) -> np.ndarray | None:
-        """How far the collider has moved by ``time`` (s; default ``self.time``, the end of the step being solved)."""
-        velocity = contact.collider.velocity
-        return None if not np.any(velocity) else velocity * (self.time if time is None else time)
 
     @property
     def step_start_time(self) -> float:
@@ -157,18 +248,18 @@ class ContactModel:
         place: each point on its own (collider contact is separable per vertex). inf where a point is on or inside
         a collider with IPC."""
         energy = 0.0
+        time = self.time
         for contact in self.colliders:
-            collider, offset = contact.collider, self.offset(contact)
             if self.method == "penalty":
-                energy += self._penalty(contact, positions, offset, gradient, hessian, project_spd)
+                energy += self._penalty(contact, positions, time, gradient, hessian, project_spd)
                 continue
-            distance = collider.signed_distance(positions, offset)
+            distance = contact.signed_distance(positions, time)
             near = np.flatnonzero(distance < self.dhat)
             if not near.size:
                 continue
             if np.any(distance[near] <= 0.0):
                 return math.inf
-            phi, normal, _ = collider.derivatives(positions[near], offset)
+            phi, normal, _ = contact.derivatives(positions[near], time)
             value, first, second = barrier(phi, self.dhat)
             energy += self.kappa * float(value.sum())
             if gradient is not None:
@@ -177,15 +268,15 @@ class ContactModel:
                 outer = normal[:, :, None] * normal[:, None, :]
                 # kappa (B'' n n^T + B' Hess phi): B'' > 0 always; B' < 0, so the curvature term is negative where
                 # the collider is convex (a clamp drops it, abs mirrors it)
-                bend = collider.scaled_hessian(positions[near], self.kappa * first, project_spd, offset)
+                bend = contact.scaled_hessian(positions[near], self.kappa * first, project_spd, time)
                 hessian[near] += (self.kappa * second)[:, None, None] * outer + bend
         return energy
 
-    def _penalty(self, contact: ColliderContact, positions, offset, gradient, hessian, project_spd) -> float:
+    def _penalty(self, contact: ColliderContact, positions, time, gradient, hessian, project_spd) -> float:
         """k/2 min(phi, 0)^2 at all points, with the same operations for every vertex (touching or not), as the
         penalty of the ground and the sphere always was computed (the cloth's recorded results depend on it)."""
-        collider, stiffness = contact.collider, contact.stiffness
-        phi, normal = collider.distance_and_normal(positions, offset)
+        stiffness = contact.stiffness
+        phi, normal = contact.distance_and_normal(positions, time)
         depth = np.maximum(-phi, 0.0)
         if gradient is not None:
             gradient -= stiffness * depth[:, None] * normal
@@ -194,7 +285,7 @@ class ContactModel:
             if touching.any():
                 n = normal[touching]
                 outer = n[:, :, None] * n[:, None, :]
-                bend = collider.scaled_hessian(positions[touching], -depth[touching], project_spd, offset)
+                bend = contact.scaled_hessian(positions[touching], -depth[touching], project_spd, time)
                 hessian[touching] += stiffness * (outer + bend)
         return 0.5 * stiffness * float(np.dot(depth, depth))
 
@@ -204,9 +295,8 @@ class ContactModel:
         changes = np.zeros(positions.shape[0])
         moved = positions + steps
         for contact in self.colliders:
-            offset = self.offset(contact)
-            before = contact.collider.signed_distance(positions, offset)
-            after = contact.collider.signed_distance(moved, offset)
+            before = contact.signed_distance(positions, self.time)
+            after = contact.signed_distance(moved, self.time)
             if self.method == "penalty":
                 depth, moved_depth = np.maximum(-before, 0.0), np.maximum(-after, 0.0)
                 changes += 0.5 * contact.stiffness * (moved_depth - depth) * (moved_depth + depth)
@@ -254,7 +344,7 @@ class ContactModel:
         positions = x.reshape(-1, self.dim)
         blocks = np.zeros(positions.shape + (self.dim,))
         for contact in self.colliders:
-            phi, normal = contact.collider.distance_and_normal(positions, self.offset(contact))
+            phi, normal = contact.distance_and_normal(positions, self.time)
             touching = phi < 0.0
             n = normal[touching]
             blocks[touching] += self.damping * n[:, :, None] * n[:, None, :]
@@ -268,7 +358,7 @@ class ContactModel:
         smallest = math.inf
         positions = x.reshape(-1, self.dim)
         for contact in self.colliders:
-            phi = contact.collider.signed_distance(positions, self.offset(contact, time))
+            phi = contact.signed_distance(positions, self.time if time is None else time)
             smallest = min(smallest, float(np.min(phi)))
         if self.mesh is not None:
             smallest = min(smallest, self.mesh.minimum_distance(x))
@@ -279,7 +369,7 @@ class ContactModel:
         for IPC) and mesh pairs within dhat."""
         positions = x.reshape(-1, self.dim)
         reach = self._reach()
-        count = sum(int(np.count_nonzero(contact.collider.signed_distance(positions, self.offset(contact)) < reach))
+        count = sum(int(np.count_nonzero(contact.signed_distance(positions, self.time) < reach))
                     for contact in self.colliders)
         if self.mesh is not None:
             count += self.mesh.active_count(x)
@@ -291,7 +381,7 @@ class ContactModel:
         positions = x.reshape(-1, self.dim)
         if self.method == "ipc":
             for number, contact in enumerate(self.colliders):
-                phi = contact.collider.signed_distance(positions, self.offset(contact))
+                phi = contact.signed_distance(positions, self.time)
                 inside = np.flatnonzero(phi <= 0.0)
                 if inside.size:
                     first = int(inside[np.argmin(phi[inside])])
@@ -312,14 +402,13 @@ class ContactModel:
             moves = direction.reshape(-1, self.dim)
             length = np.sqrt(np.einsum("ij,ij->i", moves, moves))
             for contact in self.colliders:
-                offset = self.offset(contact)
-                phi = contact.collider.signed_distance(positions, offset)
+                phi = contact.signed_distance(positions, self.time)
                 # a point moving less than its distance cannot reach the collider (phi is L-Lipschitz)
                 reaching = np.flatnonzero(contact.collider.lipschitz * length >= phi)
                 if not reaching.size:
                     continue
                 start = positions[reaching]
-                impact = float(np.min(contact.collider.time_of_impact(start, start + moves[reaching], offset)))
+                impact = float(np.min(contact.time_of_impact(start, start + moves[reaching], self.time)))
                 if impact <= 1.0:
                     fraction = min(fraction, (1.0 - CCD_MARGIN) * impact)
         if self.mesh is not None and fraction > 0.0:
@@ -334,29 +423,30 @@ class ContactModel:
         fraction for the meshes. ContactOvertaken where the start still lies on or inside a collider at t_n + dt: a
         step too long for that collider's speed. A new array where anything moved; the filters (pins, sliding) are
         the caller's to apply to the move."""
-        moving = [contact for contact in self.colliders if np.any(contact.collider.velocity)]
+        moving = [contact for contact in self.colliders if contact.moves]
         if self.method != "ipc" or not moving or not self._step:
             return x
         positions = x.reshape(-1, self.dim)
         shift = np.zeros_like(positions)
         claimed = np.zeros(positions.shape[0], dtype=bool)
+        start = self.step_start_time
         for contact in moving:
-            move = contact.collider.velocity * self._step
-            phi = contact.collider.signed_distance(positions, self.offset(contact, self.step_start_time))
-            near = (phi < self.dhat + contact.collider.lipschitz * float(np.linalg.norm(move))) & ~claimed
-            shift[near] = move
-            claimed |= near
+            travel = contact.reach_speed * self._step
+            phi = contact.signed_distance(positions, start)
+            near = np.flatnonzero((phi < self.dhat + contact.collider.lipschitz * travel) & ~claimed)
+            shift[near] = contact.carry(positions[near], start, self.time) - positions[near]
+            claimed[near] = True
         if claimed.any():
             moved = positions + shift
             for contact in self.colliders:  # a carried vertex must not land on or in another collider
-                blocked = claimed & (contact.collider.signed_distance(moved, self.offset(contact)) <= 0.0)
+                blocked = claimed & (contact.signed_distance(moved, self.time) <= 0.0)
                 shift[blocked] = 0.0
                 claimed &= ~blocked
         carried = x + shift.ravel() if claimed.any() else x
         if carried is not x and self.mesh is not None:
             carried = x + self.mesh.collision_free_step(x, carried) * (carried - x)
         for number, contact in enumerate(self.colliders):
-            phi = contact.collider.signed_distance(carried.reshape(-1, self.dim), self.offset(contact))
+            phi = contact.signed_distance(carried.reshape(-1, self.dim), self.time)
             if np.any(phi <= 0.0):
                 vertex = int(np.argmin(phi))
                 raise ContactOvertaken(
@@ -417,7 +507,7 @@ class ContactModel:
         positions = x.reshape(-1, self.dim)
         lower, upper = positions.min(axis=0), positions.max(axis=0)
         for contact in self.colliders:
-            box = contact.collider.bounding_box(self.offset(contact))
+            box = contact.bounding_box(self.time)
             if box is not None:
                 lower, upper = np.minimum(lower, box[0]), np.maximum(upper, box[1])
         return float(np.linalg.norm(upper - lower))
@@ -435,12 +525,11 @@ class ContactModel:
         positions = x.reshape(-1, self.dim)
         vertices, forces, normals, velocities = [], [], [], []
         for contact in self.colliders:
-            offset = self.offset(contact, time)
-            phi = contact.collider.signed_distance(positions, offset)
+            phi = contact.signed_distance(positions, time)
             near = np.flatnonzero((phi < 0.0) if self.method == "penalty" else (phi < self.dhat) & (phi > 0.0))
             if not near.size:
                 continue
-            phi, normal, _ = contact.collider.derivatives(positions[near], offset)
+            phi, normal, _ = contact.derivatives(positions[near], time)
             if self.method == "penalty":
                 force = contact.stiffness * np.maximum(-phi, 0.0)
             else:
@@ -448,7 +537,7 @@ class ContactModel:
             vertices.append(near)
             forces.append(force)
             normals.append(normal)
-            velocities.append(np.broadcast_to(contact.collider.velocity, normal.shape))
+            velocities.append(contact.velocity_at(positions[near], time))
         mesh_lag = None
         if self.mesh is not None:
             mesh_lag = self.mesh.lag_friction(x, self.kappa, self.friction[0])

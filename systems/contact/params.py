@@ -47,12 +47,28 @@ class SphereContact(BaseModel):
     stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
 
 
+class ColliderRotation(BaseModel):
+    """A collider turning at a constant rate about an axis through ``center`` (which moves with its velocity)."""
+
+    model_config = ConfigDict(extra="forbid")
+    center: Vector = Field(description="a point on the axis (m), at t = 0")
+    axis: Vector = Field([0.0, 0.0, 1.0], description="rotation axis (3 components; 2-D colliders turn about z)")
+    rate: Finite = Field(description="angular velocity (deg/s)")
+
+
 class _MovingShape(BaseModel):
-    """What every analytic collider has: a constant velocity and an optional penalty stiffness of its own."""
+    """What every analytic collider has: a motion (a constant velocity, a constant rotation) and an optional
+    penalty stiffness of its own."""
 
     model_config = ConfigDict(extra="forbid")
     velocity: Vector | None = Field(None, description="constant translation velocity (m/s); static when omitted")
+    rotation: ColliderRotation | None = Field(None, description="{center, axis, rate (deg/s)}: turning at a constant rate")
     stiffness: Positive | None = Field(None, description="penalty stiffness of this collider (N/m); default: contact.stiffness")
+
+    @property
+    def moves(self) -> bool:
+        return (self.velocity is not None and any(component != 0.0 for component in self.velocity)) or (
+            self.rotation is not None and self.rotation.rate != 0.0)
 
 
 class PlaneSpec(_MovingShape):
@@ -146,10 +162,9 @@ class ContactSpec(BaseModel):
                 raise ValueError(f"colliders[{number}]: an obstacle mesh has no signed distance for a penalty: use method: ipc")
             if collider.shape != "mesh" and collider.stiffness is not None and self.method == "ipc":
                 raise ValueError(f"colliders[{number}].stiffness: a penalty stiffness; IPC takes contact.stiffness")
-            if (self.damping > 0 and collider.shape != "mesh" and collider.velocity is not None
-                    and any(component != 0.0 for component in collider.velocity)):
-                raise ValueError(f"colliders[{number}].velocity: contact damping acts on the vertex velocity, "
-                                 "so it needs static colliders")
+            if self.damping > 0 and collider.shape != "mesh" and collider.moves:
+                raise ValueError(f"colliders[{number}]: contact damping acts on the vertex velocity, "
+                                 "so it needs static colliders (no velocity or rotation)")
         return self
 
     @property
