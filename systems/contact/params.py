@@ -47,12 +47,13 @@ class SphereContact(BaseModel):
     stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
 
 
-class ColliderRotation(BaseModel):
-    """A collider turning at a constant rate about an axis through ``center`` (which moves with its velocity)."""
+class ConstantRotation(BaseModel):
+    """A rotation at a constant rate about an axis through ``center``: of prescribed vertices, or of a collider
+    (whose centre moves with its velocity)."""
 
     model_config = ConfigDict(extra="forbid")
     center: Vector = Field(description="a point on the axis (m), at t = 0")
-    axis: Vector = Field([0.0, 0.0, 1.0], description="rotation axis (3 components; 2-D colliders turn about z)")
+    axis: Vector = Field([0.0, 0.0, 1.0], description="rotation axis (3 components; 2-D ones turn about z)")
     rate: Finite = Field(description="angular velocity (deg/s)")
 
 
@@ -62,7 +63,7 @@ class _MovingShape(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     velocity: Vector | None = Field(None, description="constant translation velocity (m/s); static when omitted")
-    rotation: ColliderRotation | None = Field(None, description="{center, axis, rate (deg/s)}: turning at a constant rate")
+    rotation: ConstantRotation | None = Field(None, description="{center, axis, rate (deg/s)}: turning at a constant rate")
     stiffness: Positive | None = Field(None, description="penalty stiffness of this collider (N/m); default: contact.stiffness")
 
     @property

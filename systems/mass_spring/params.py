@@ -17,7 +17,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from ..base import SystemParams
-from ..contact.params import ContactSpec
+from ..contact.params import ConstantRotation, ContactSpec
 from .assemble import resolve
 from .files import SEARCH_FOLDERS, file_digest, find_file, load_model_file
 from .generators import model_source
@@ -124,20 +124,13 @@ class Sliding(BaseModel):
         return self
 
 
-class PathRotation(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    center: Vector = Field(description="a point on the axis (m)")
-    axis: Vector = Field([0.0, 0.0, 1.0], description="rotation axis (3 components; 2-D models turn about z)")
-    rate: Finite = Field(description="angular velocity (deg/s)")
-
-
 class Prescribed(BaseModel):
     """Vertices moved by the user: a constant velocity, or a rotation about an axis at a constant rate."""
 
     model_config = ConfigDict(extra="forbid")
     vertices: Selector
     velocity: Vector | None = Field(None, description="m/s")
-    rotation: PathRotation | None = None
+    rotation: ConstantRotation | None = None
 
     @model_validator(mode="after")
     def _one_of(self) -> "Prescribed":
