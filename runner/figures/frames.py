@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import scipy.spatial.transform
 from matplotlib import pyplot as plt
 from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.collections import LineCollection, PolyCollection
@@ -35,7 +36,6 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from simrun.figures._data import FigureData, format_value
 from simrun.results import Results, Status, StoredRun
-from simrun.systems.constraints import rotate  # a turning collider, drawn as the system turns it
 
 SNAPSHOT_COUNT = 4
 # A sweep of many such runs would drown its figure folder in snapshots: beyond this many runs,
@@ -390,7 +390,15 @@ class _Collider:
             return points
         center, axis, rate = self.spin
         center = center + self.velocity * t
-        return center + rotate(points - center, axis, rate * t)
+        return center + _rotate(points - center, axis, rate * t)
+
+
+def _rotate(offsets: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """The rows of offsets (k, d) turned by angle (rad) about the unit axis (3,) (2-D: about z, axis[2]'s sign)."""
+    turn = scipy.spatial.transform.Rotation.from_rotvec(angle * axis)
+    if offsets.shape[1] == 3:
+        return turn.apply(offsets)
+    return turn.apply(np.column_stack([offsets, np.zeros(len(offsets))]))[:, :2]
 
 
 def _colliders(run: StoredRun) -> tuple[_Collider, ...]:
@@ -606,8 +614,8 @@ def _draw_collider(axes, collider: _Collider, number: int, t: float, low: np.nda
     if collider.spin is not None and collider.shape == "plane":  # a plane turns as its normal and point do
         center, axis, rate = collider.spin
         center = center + collider.velocity * t
-        fields = {"normal": rotate(collider.fields["normal"][None], axis, rate * t)[0],
-                  "point": center + rotate((collider.fields["point"] + collider.velocity * t - center)[None], axis, rate * t)[0]}
+        fields = {"normal": _rotate(collider.fields["normal"][None], axis, rate * t)[0],
+                  "point": center + _rotate((collider.fields["point"] + collider.velocity * t - center)[None], axis, rate * t)[0]}
         lines, faces = _geometry(replace(collider, fields=fields, spin=None), np.zeros(dim), low, high)
     else:
         lines, faces = _geometry(collider, collider.velocity * t, low, high)
