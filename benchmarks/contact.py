@@ -18,7 +18,7 @@ import numpy as np
 from simrun.integrators import INTEGRATORS, State
 from simrun.solvers import solver_params
 from simrun.systems import ClothParams
-from simrun.systems.contact import mesh_contact, model
+from simrun.systems.contact import friction, mesh_contact, model
 
 RESOLUTION = 64
 DHAT = 1.0e-3  # m
@@ -32,7 +32,7 @@ CONTACT_PARTS = {
                                                                              "barrier_hessian")),
     "CCD (collision-free step)": (model.ContactModel, ("max_step",)),
     "friction": (model.ContactModel, ("friction_lag",)),
-    "friction terms": (model.FrictionTerm, ("value", "gradient", "hessian")),
+    "friction terms": (friction.FrictionTerm, ("value", "gradient", "vertex_blocks", "point_matrix", "mesh_hessian")),
 }
 
 

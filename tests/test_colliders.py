@@ -13,8 +13,9 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from simrun.systems.contact.colliders import (COLLIDERS, TOI_TOLERANCE, Box, Capsule, GridSDF, Plane, Sphere, Torus,
-                                              build_collider, load_grid_sdf)
+from simrun.systems.contact.colliders import (COLLIDERS, Box, Capsule, GridSDF, Plane, Sphere, Torus, build_collider,
+                                              load_grid_sdf)
+from simrun.systems.contact.sdf import TOI_TOLERANCE
 
 # Central differences: truncation STEP^2 |phi'''| <= 1e-10 * 1/KINK_MARGIN^2 and round-off eps / STEP ~ 1e-11
 STEP = 1e-5

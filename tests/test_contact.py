@@ -33,7 +33,8 @@ import yaml
 import simrun
 from conftest import run_one, step_problem
 from simrun.errors import ConfigError
-from simrun.systems.contact.model import barrier, mollifier
+from simrun.systems.contact.friction import mollifier
+from simrun.systems.contact.model import barrier
 from simrun.systems.mass_spring.params import MassSpringParams
 from simrun.systems.mass_spring.system import MassSpring
 

@@ -24,8 +24,8 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 import simrun
 from simrun.figures import FIGURES, figure_data
-from simrun.figures.frames import (BOX_MARGIN, COLLIDER_COLOUR, COLLIDER_NOTE, COLLIDER_REACH, snapshot_grid,
-                                   write_gif)
+from simrun.figures.colliders import COLLIDER_COLOUR, COLLIDER_NOTE, COLLIDER_REACH
+from simrun.figures.frames import BOX_MARGIN, snapshot_grid, write_gif
 
 TOLERANCE = 1e-9  # m: the drawn points are the shapes' own formulas, cut to the box (round-off only)
 GRID_CENTRE, GRID_RADIUS, GRID_SPACING = np.array([0.0, -1.2]), 0.2, 0.05  # m: the 2-D grid_sdf's circle
@@ -311,7 +311,7 @@ def test_a_model_without_contact_draws_no_collider(tmp_path):
 def test_a_turning_box_is_drawn_turned(dim):
     """A box turning at 90 deg/s about a point off its centre (and moving) is drawn, at t = 0.5 s, with every drawn
     point on the surface of the box as the system turns it (phi = 0 within round-off, phi from ColliderContact)."""
-    from simrun.figures.frames import _collider, _draw_collider
+    from simrun.figures.colliders import _collider, draw_collider
     from simrun.systems.contact.colliders import build_collider
     from simrun.systems.contact.model import ColliderContact
 
@@ -321,7 +321,7 @@ def test_a_turning_box_is_drawn_turned(dim):
     figure = plt.figure()
     axes = figure.add_subplot(**({"projection": "3d"} if dim == 3 else {}))
     t = 0.5
-    assert _draw_collider(axes, drawn, 0, t, np.full(dim, -2.0), np.full(dim, 2.0))
+    assert draw_collider(axes, drawn, 0, t, np.full(dim, -2.0), np.full(dim, 2.0))
     points = np.concatenate([np.column_stack(line.get_data_3d() if dim == 3 else line.get_data()) for line in axes.lines])
     points = points[np.all(np.isfinite(points), axis=1)]
     box = build_collider("box", dim, center=np.zeros(dim), half_extents=np.full(dim, 0.3), velocity=np.full(dim, 0.1))

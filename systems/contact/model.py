@@ -23,13 +23,11 @@ tangential velocity w/b, static below epsv. ``FrictionTerm`` is that potential f
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 
-from ..constraints import cross, rotate
-from .colliders import Collider
+from .friction import FrictionLag, FrictionTerm
+from .pose import ColliderContact
 
 # A line-search step goes at most this fraction short of the first time of impact along it: a point that heads
 # straight for a collider keeps a tenth of its distance (IPC scales its CCD's time of impact the same way), so
@@ -52,136 +50,8 @@ def barrier(distance: np.ndarray, dhat: float) -> tuple[np.ndarray, np.ndarray, 
     return scale * value, scale * 2.0 * distance * first, scale * (4.0 * s * second + 2.0 * first)
 
 
-def mollifier(speed: np.ndarray, epsilon: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """IPC's friction mollifier at |w| = ``speed`` (m) with threshold epsilon (m), vectorised, as ipctk's
-    smooth_friction_f0, f1_over_x and f2_x_minus_f1_over_x3:
-    f0 = -y^3/(3 e^2) + y^2/e + e/3 (y < e) else y;  f1/y = 2/e - y/e^2 (y < e) else 1/y;
-    (f2 y - f1)/y^3 = -1/(e^2 y) (y < e) else -1/y^3, finite times w w^T as y -> 0."""
-    slow = speed < epsilon
-    e2 = epsilon * epsilon
-    value = np.where(slow, -speed ** 3 / (3.0 * e2) + np.square(speed) / epsilon + epsilon / 3.0, speed)
-    safe = np.where(speed > 0.0, speed, 1.0)
-    f1_over = np.where(slow, 2.0 / epsilon - speed / e2, 1.0 / safe)
-    curvature = np.where(slow, -1.0 / (e2 * safe), -1.0 / safe ** 3)
-    return value, f1_over, curvature
-
-
 class ContactOvertaken(RuntimeError):
     """A moving collider reached a vertex within one step, so that no start of the step is collision-free."""
-
-
-@dataclass
-class ColliderContact:
-    """One analytic or sampled collider with its penalty stiffness (N/m; None for IPC) and its motion: the collider's
-    own constant ``velocity`` (m/s), and ``spin`` = (center (d,) m, unit axis (3,), rate rad/s) or None, a rotation
-    about an axis through ``center`` (which moves with the velocity; 2-D: about z). At time t a point p of space is
-    the point q = R(t)^T (p - c - v t) + c of the t = 0 shape, R(t) the rotation by rate t: every query maps the
-    points there and the derivatives back (grad phi -> R grad phi, Hess phi -> R Hess phi R^T)."""
-
-    collider: Collider
-    stiffness: float | None
-    spin: tuple[np.ndarray, np.ndarray, float] | None = None
-
-    @property
-    def moves(self) -> bool:
-        return bool(np.any(self.collider.velocity)) or self.spin is not None
-
-    def _offset(self, time: float) -> np.ndarray | None:
-        velocity = self.collider.velocity
-        return None if not np.any(velocity) else velocity * time
-
-    def _rotation(self, time: float) -> np.ndarray:
-        center, axis, rate = self.spin
-        return rotate(np.eye(center.size), axis, rate * time).T
-
-    def _local(self, points: np.ndarray, time: float) -> np.ndarray:
-        """The points in the t = 0 frame of a spinning collider (q = R^T (p - c - v t) + c)."""
-        center = self.spin[0] + self.collider.velocity * time
-        return (points - center) @ self._rotation(time) + self.spin[0]
-
-    def signed_distance(self, points: np.ndarray, time: float) -> np.ndarray:
-        if self.spin is None:
-            return self.collider.signed_distance(points, self._offset(time))
-        return self.collider.signed_distance(self._local(points, time))
-
-    def derivatives(self, points: np.ndarray, time: float):
-        if self.spin is None:
-            return self.collider.derivatives(points, self._offset(time))
-        phi, gradient, hessian = self.collider.derivatives(self._local(points, time))
-        rotation = self._rotation(time)
-        return phi, gradient @ rotation.T, np.einsum("ij,kjl,ml->kim", rotation, hessian, rotation)
-
-    def distance_and_normal(self, points: np.ndarray, time: float):
-        if self.spin is None:
-            return self.collider.distance_and_normal(points, self._offset(time))
-        phi, normal = self.collider.distance_and_normal(self._local(points, time))
-        return phi, normal @ self._rotation(time).T
-
-    def scaled_hessian(self, points: np.ndarray, scale: np.ndarray, project_spd, time: float) -> np.ndarray:
-        if self.spin is None:
-            return self.collider.scaled_hessian(points, scale, project_spd, self._offset(time))
-        rotation = self._rotation(time)  # a congruence: the projection's eigenvalues are the same in either frame
-        local = self.collider.scaled_hessian(self._local(points, time), scale, project_spd)
-        return np.einsum("ij,kjl,ml->kim", rotation, local, rotation)
-
-    def time_of_impact(self, start: np.ndarray, end: np.ndarray, time: float) -> np.ndarray:
-        """Along straight moves with the collider held where it is at ``time``: still straight in its own frame."""
-        if self.spin is None:
-            return self.collider.time_of_impact(start, end, self._offset(time))
-        return self.collider.time_of_impact(self._local(start, time), self._local(end, time))
-
-    def bounding_box(self, time: float):
-        box = self.collider.bounding_box(self._offset(time))
-        if box is None or self.spin is None:
-            return box
-        # the box's corners turned about the (moved) centre: a box around the turned shape
-        lower, upper = box
-        corners = np.array(np.meshgrid(*zip(lower, upper), indexing="ij")).reshape(lower.size, -1).T
-        center = self.spin[0] + self.collider.velocity * time
-        turned = (corners - center) @ self._rotation(time).T + center
-        return turned.min(axis=0), turned.max(axis=0)
-
-    def velocity_at(self, points: np.ndarray, time: float) -> np.ndarray:
-        """The collider's velocity (m/s) at the points (k, d) of space: v + omega x (p - c(t))."""
-        velocity = np.broadcast_to(self.collider.velocity, points.shape)
-        if self.spin is None:
-            return velocity
-        center, axis, rate = self.spin
-        omega = rate * (axis if points.shape[1] == 3 else np.array([0.0, 0.0, axis[2]]))
-        return velocity + cross(omega, points - (center + self.collider.velocity * time))
-
-    def carry(self, points: np.ndarray, start: float, end: float) -> np.ndarray:
-        """The points moved rigidly with the collider from its pose at ``start`` to its pose at ``end`` (s)."""
-        if self.spin is None:
-            return points + self.collider.velocity * (end - start)
-        local = self._local(points, start)
-        center = self.spin[0] + self.collider.velocity * end
-        return (local - self.spin[0]) @ self._rotation(end).T + center
-
-    @property
-    def reach_speed(self) -> float:
-        """A bound (m/s) on the speed of the collider's surface, for how far it can travel in a step: |v| + |rate| r,
-        r the distance from the spin's centre to the farthest point of the shape's box (inf when it is unbounded)."""
-        speed = float(np.linalg.norm(self.collider.velocity))
-        if self.spin is None:
-            return speed
-        box = self.collider.bounding_box()
-        if box is None:
-            return math.inf
-        corners = np.array(np.meshgrid(*zip(*box), indexing="ij")).reshape(box[0].size, -1).T
-        return speed + abs(self.spin[2]) * float(np.max(np.linalg.norm(corners - self.spin[0], axis=1)))
-
-
-@dataclass
-class FrictionLag:
-    """The friction of one step, lagged at its start: per point contact (vertex, collider) the normal force lambda (N),
-    the normal n (tangent projector I - n n^T) and the collider's velocity; and the mesh contacts' (ipctk's)."""
-
-    vertices: np.ndarray  # (q,) vertex indices
-    normal_force: np.ndarray  # (q,) N
-    normals: np.ndarray  # (q, d)
-    velocities: np.ndarray  # (q, d) m/s of the collider at each contact
-    mesh: object | None  # mesh_contact's lag, or None
 
 
 class ContactModel:
@@ -575,82 +445,3 @@ class ContactModel:
         if term is None:
             return 0.0
         return float(term.gradient(v_end) @ (x_end - x_start))
-
-
-class FrictionTerm:
-    """Psi(y) = sum mu lambda f0(|w|; epsv b), w = T (y - a - b v_c) per contact (see the module docstring), and the
-    mesh contacts' friction potential through ipctk with the same w and epsilon; value (J), gradient (N), Hessian."""
-
-    def __init__(self, model: ContactModel, lag: FrictionLag, velocity_origin: np.ndarray, velocity_divisor: float):
-        self.model = model
-        self.lag = lag
-        self.origin = velocity_origin
-        self.divisor = velocity_divisor
-        self.mu, epsv = model.friction
-        self.epsilon = epsv * velocity_divisor  # m: the sliding speed epsv as a displacement over b
-        self.weight = self.mu * lag.normal_force  # (q,) N
-        d = model.dim
-        self.dofs = (d * lag.vertices[:, None] + np.arange(d)).ravel()
-
-    def _tangential(self, y: np.ndarray) -> np.ndarray:
-        """w = T (y_i - a_i - b v_c) per contact, (q, d) (m)."""
-        d = self.model.dim
-        offset = (y[self.dofs] - self.origin[self.dofs]).reshape(-1, d) - self.divisor * self.lag.velocities
-        normals = self.lag.normals
-        return offset - np.einsum("ij,ij->i", offset, normals)[:, None] * normals
-
-    def value(self, y: np.ndarray) -> float:
-        energy = 0.0
-        if self.lag.vertices.size:
-            w = self._tangential(y)
-            speed = np.sqrt(np.einsum("ij,ij->i", w, w))
-            energy = float(self.weight @ mollifier(speed, self.epsilon)[0])
-        if self.lag.mesh is not None:
-            energy += self.model.mesh.friction_energy(self.lag.mesh, y - self.origin, self.epsilon)
-        return energy
-
-    def gradient(self, y: np.ndarray) -> np.ndarray:
-        gradient = np.zeros(y.size)
-        if self.lag.vertices.size:
-            w = self._tangential(y)
-            speed = np.sqrt(np.einsum("ij,ij->i", w, w))
-            np.add.at(gradient, self.dofs, ((self.weight * mollifier(speed, self.epsilon)[1])[:, None] * w).ravel())
-        if self.lag.mesh is not None:
-            gradient += self.model.mesh.friction_gradient(self.lag.mesh, y - self.origin, self.epsilon)
-        return gradient
-
-    def vertex_blocks(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The point contacts' Hessian blocks: (vertices (q,), blocks (q, d, d) N/m), each
-        mu lambda [f1/|w| T + (f2 |w| - f1)/|w|^3 w w^T] (PSD: its eigenvalues are f1/|w| >= 0 across w and
-        f2 >= 0 along it, so no projection is needed)."""
-        if not self.lag.vertices.size:
-            return self.lag.vertices, np.zeros((0, self.model.dim, self.model.dim))
-        w = self._tangential(y)
-        speed = np.sqrt(np.einsum("ij,ij->i", w, w))
-        _, f1_over, curvature = mollifier(speed, self.epsilon)
-        normals = self.lag.normals
-        tangent = np.eye(self.model.dim) - normals[:, :, None] * normals[:, None, :]
-        blocks = self.weight[:, None, None] * (f1_over[:, None, None] * tangent
-                                               + curvature[:, None, None] * w[:, :, None] * w[:, None, :])
-        return self.lag.vertices, blocks
-
-    def mesh_hessian(self, y: np.ndarray, project_spd=False):
-        """The mesh contacts' friction Hessian through ipctk (CSR, n d x n d), or None without them."""
-        if self.lag.mesh is None:
-            return None
-        return self.model.mesh.friction_hessian(self.lag.mesh, y - self.origin, self.epsilon, project_spd)
-
-    def point_matrix(self, y: np.ndarray):
-        """``vertex_blocks`` as a CSR matrix (n d x n d)."""
-        n, d = y.size, self.model.dim
-        vertices, blocks = self.vertex_blocks(y)
-        dofs = d * vertices[:, None] + np.arange(d)
-        rows = np.repeat(dofs, d, axis=1).ravel()
-        cols = np.tile(dofs, (1, d)).ravel()
-        return scipy.sparse.csr_matrix((blocks.ravel(), (rows, cols)), shape=(n, n))
-
-    def hessian(self, y: np.ndarray, project_spd=False):
-        """The whole friction Hessian as a CSR matrix (n d x n d): the point contacts' and the meshes'."""
-        mesh = self.mesh_hessian(y, project_spd)
-        matrix = self.point_matrix(y)
-        return matrix if mesh is None else (matrix + mesh).tocsr()

@@ -23,7 +23,7 @@ import scipy.sparse
 from ..base import System, add_keeping_pattern
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
-from ..contact.colliders import filter_eigenvalues
+from ..contact.sdf import filter_eigenvalues
 from ..contact.model import ContactModel
 
 
