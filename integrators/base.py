@@ -43,6 +43,30 @@ class State:
     aux: tuple[np.ndarray, ...] = ()
 
 
+@dataclass(slots=True)
+class StepPlan:
+    """An incremental-potential step before its solve: the predictor y~ (m), the scale s = c h^2 (s^2), the velocity
+    map v(y) = (y - a)/b (origin a in m, divisor b in s), where D is taken, and the fraction theta of the step at
+    which the unknown lies; ``carried``: what the method's ``finish`` needs besides y (Newmark's x^).
+
+    Every array is a linear function of the step's start state without a constant term (gravity is in P, not in
+    y~), so a method's ``plan`` and ``finish`` applied to a state's derivative give the derivative of the plan and of
+    the next state: the forward sensitivities of integrators/sensitivity.py step through the methods' own code."""
+
+    y_tilde: np.ndarray
+    scale: float
+    velocity_origin: np.ndarray
+    velocity_divisor: float
+    damping_at: np.ndarray
+    fraction: float = 1.0
+    carried: tuple = ()
+
+    def problem(self, system: System, state: State, dt: float) -> "IncrementalPotential":
+        return IncrementalPotential(system, self.y_tilde, self.scale, velocity_origin=self.velocity_origin,
+                                    velocity_divisor=self.velocity_divisor, damping_at=self.damping_at,
+                                    step_start=(state.x, state.v, dt), fraction=self.fraction)
+
+
 class Integrator(BaseModel):
     """Base of all integrators; see the module docstring for the contract."""
 
@@ -63,6 +87,26 @@ class Integrator(BaseModel):
     @abstractmethod
     def step(self, system: System, state: State, dt: float, solver) -> tuple[State, SolveStats]:
         """Advance ``state`` by dt (s); implicit methods solve with ``solver``."""
+
+    def plan(self, state: State, dt: float) -> StepPlan | None:
+        """The incremental potential of the step from ``state`` (``StepPlan``), for the methods whose steps are one;
+        None for the others. Such a method's ``step`` is ``potential_step``."""
+        return None
+
+    def finish(self, state: State, plan: StepPlan, y: np.ndarray, dt: float) -> State:
+        """The state after the step, from the minimiser y of ``plan``'s potential (linear in state and y)."""
+        raise TypeError(f"{self.name} takes no incremental-potential steps")
+
+    # what ``start`` puts in State.aux: () (nothing, or a multistep method's history that its first step fills),
+    # or ("acceleration",), M^-1 f(x0, v0) (Newmark's family): the forward sensitivities start it too
+    started_aux: ClassVar[tuple[str, ...]] = ()
+
+    def potential_step(self, system: System, state: State, dt: float, solver) -> tuple[State, SolveStats]:
+        """``plan``, its problem solved from x_n (``solve_step``), then ``finish``."""
+        plan = self.plan(state, dt)
+        problem = plan.problem(system, state, dt)
+        y, stats = solve_step(solver, problem, problem.start_point(state.x))
+        return self.finish(state, plan, y, dt), stats
 
     def refusal(self, system: System) -> str | None:
         """Why this method cannot step ``system``, in one line, or None: the config refuses such a run before any

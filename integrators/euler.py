@@ -6,7 +6,7 @@ from typing import ClassVar
 
 from simrun.solvers import EXPLICIT_STEP
 
-from .base import IncrementalPotential, Integrator, State, solve_step
+from .base import Integrator, State, StepPlan
 
 
 class ForwardEuler(Integrator):
@@ -56,9 +56,10 @@ class BackwardEuler(Integrator):
     problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "implicit Euler; energy shrinks by 1/(1 + (h w)^2) per step on the spring"
 
-    def step(self, system, state, dt, solver):
-        problem = IncrementalPotential(system, state.x + dt * state.v, dt * dt,
-                                       velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x,
-                                       step_start=(state.x, state.v, dt))
-        x, stats = solve_step(solver, problem, problem.start_point(state.x))
-        return State(state.t + dt, x, (x - state.x) / dt), stats
+    def plan(self, state, dt):
+        return StepPlan(state.x + dt * state.v, dt * dt, state.x, dt, state.x)
+
+    def finish(self, state, plan, y, dt):
+        return State(state.t + dt, y, (y - state.x) / dt)
+
+    step = Integrator.potential_step

@@ -13,7 +13,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from .base import IncrementalPotential, Integrator, SegmentPotential, State, solve_step
+from .base import IncrementalPotential, Integrator, SegmentPotential, State, StepPlan, solve_step
 
 
 class ImplicitMidpoint(Integrator):
@@ -37,19 +37,20 @@ class ImplicitMidpoint(Integrator):
     def unknown_fraction(self) -> float:
         return 0.5
 
-    def step(self, system, state, dt, solver):
+    def plan(self, state, dt):
         half = 0.5 * dt
         predictor = state.x + half * state.v  # x_{n+1/2} to O(h^2): D(x) there keeps the method second order
-        problem = IncrementalPotential(system, predictor, 0.25 * dt * dt,
-                                       velocity_origin=state.x, velocity_divisor=half, damping_at=predictor,
-                                       step_start=(state.x, state.v, dt), fraction=0.5)
-        midpoint, stats = solve_step(solver, problem, problem.start_point(state.x))
-        v_half = (midpoint - state.x) / half
-        return State(state.t + dt, 2.0 * midpoint - state.x, 2.0 * v_half - state.v), stats
+        return StepPlan(predictor, 0.25 * dt * dt, state.x, half, predictor, fraction=0.5)
+
+    def finish(self, state, plan, y, dt):
+        v_half = (y - state.x) / plan.velocity_divisor
+        return State(state.t + dt, 2.0 * y - state.x, 2.0 * v_half - state.v)
+
+    step = Integrator.potential_step
 
 
-def _newmark_like_step(system, state, dt, solver, beta, gamma, alpha_m=0.0, alpha_f=0.0):
-    """One step of the generalized-alpha family (Newmark: alpha_m = alpha_f = 0), carried acceleration in aux[0].
+def _newmark_like_plan(state, dt, beta, gamma, alpha_m=0.0, alpha_f=0.0) -> StepPlan:
+    """The step of the generalized-alpha family (Newmark: alpha_m = alpha_f = 0), carried acceleration in aux[0]:
 
         x_{n+1} = x_n + h v_n + h^2 [(1/2 - beta) a_n + beta a_{n+1}],  v_{n+1} = v_n + h [(1 - gamma) a_n + gamma a_{n+1}],
         M [(1 - alpha_m) a_{n+1} + alpha_m a_n] = f(x_{n+1-alpha_f}, v_{n+1-alpha_f}),  (.)_{n+1-alpha_f} = (1 - alpha_f) (.)_{n+1} + alpha_f (.)_n.
@@ -57,7 +58,8 @@ def _newmark_like_step(system, state, dt, solver, beta, gamma, alpha_m=0.0, alph
     As an incremental potential in y = x_{n+1-alpha_f}, with the Newmark predictor x^ = x_n + h v_n + h^2 (1/2 - beta) a_n:
     y~ = x_n + (1 - alpha_f) (x^ - x_n) - c h^2 alpha_m a_n,  c = beta (1 - alpha_f) / (1 - alpha_m),
     v_{n+1-alpha_f} = (y - a) / b with b = beta h / gamma, a = y0 - b (v_n + (1 - alpha_f) h (1 - gamma) a_n),
-    y0 = x_n + (1 - alpha_f) (x^ - x_n).
+    y0 = x_n + (1 - alpha_f) (x^ - x_n). D(x) is taken at y0, the evaluation point to O(h^2), so that damping keeps
+    the method's order.
     """
     (acceleration,) = state.aux
     x_hat = state.x + dt * state.v + (dt * dt * (0.5 - beta)) * acceleration
@@ -66,15 +68,16 @@ def _newmark_like_step(system, state, dt, solver, beta, gamma, alpha_m=0.0, alph
     divisor = beta * dt / gamma
     origin = y_start - divisor * (state.v + ((1.0 - alpha_f) * dt * (1.0 - gamma)) * acceleration)
     y_tilde = y_start - (scale * dt * dt * alpha_m) * acceleration
-    # D(x) at y_start, the evaluation point to O(h^2), so that damping keeps the method's order
-    problem = IncrementalPotential(system, y_tilde, scale * dt * dt, velocity_origin=origin,
-                                   velocity_divisor=divisor, damping_at=y_start,
-                                   step_start=(state.x, state.v, dt), fraction=1.0 - alpha_f)
-    y, stats = solve_step(solver, problem, problem.start_point(state.x))
+    return StepPlan(y_tilde, scale * dt * dt, origin, divisor, y_start, fraction=1.0 - alpha_f, carried=(x_hat,))
+
+
+def _newmark_like_finish(state, plan, y, dt, beta, gamma, alpha_f=0.0) -> State:
+    (acceleration,) = state.aux
+    (x_hat,) = plan.carried
     x = state.x + (y - state.x) / (1.0 - alpha_f)
     new_acceleration = (x - x_hat) / (beta * dt * dt)
     v = state.v + dt * ((1.0 - gamma) * acceleration + gamma * new_acceleration)
-    return State(state.t + dt, x, v, (new_acceleration,)), stats
+    return State(state.t + dt, x, v, (new_acceleration,))
 
 
 class Newmark(Integrator):
@@ -105,11 +108,18 @@ class Newmark(Integrator):
     def order_of_accuracy(self) -> int:
         return 2 if self.gamma == 0.5 else 1
 
+    started_aux: ClassVar[tuple[str, ...]] = ("acceleration",)
+
     def start(self, system, state):
         return State(state.t, state.x, state.v, (system.acceleration(state.x, state.v),))
 
-    def step(self, system, state, dt, solver):
-        return _newmark_like_step(system, state, dt, solver, self.beta, self.gamma)
+    def plan(self, state, dt):
+        return _newmark_like_plan(state, dt, self.beta, self.gamma)
+
+    def finish(self, state, plan, y, dt):
+        return _newmark_like_finish(state, plan, y, dt, self.beta, self.gamma)
+
+    step = Integrator.potential_step
 
 
 class GeneralizedAlpha(Integrator):
@@ -152,12 +162,20 @@ class GeneralizedAlpha(Integrator):
     def unknown_fraction(self) -> float:
         return 1.0 - self.coefficients[1]
 
+    started_aux: ClassVar[tuple[str, ...]] = ("acceleration",)
+
     def start(self, system, state):
         return State(state.t, state.x, state.v, (system.acceleration(state.x, state.v),))
 
-    def step(self, system, state, dt, solver):
+    def plan(self, state, dt):
         alpha_m, alpha_f, beta, gamma = self.coefficients
-        return _newmark_like_step(system, state, dt, solver, beta, gamma, alpha_m, alpha_f)
+        return _newmark_like_plan(state, dt, beta, gamma, alpha_m, alpha_f)
+
+    def finish(self, state, plan, y, dt):
+        _, alpha_f, beta, gamma = self.coefficients
+        return _newmark_like_finish(state, plan, y, dt, beta, gamma, alpha_f)
+
+    step = Integrator.potential_step
 
 
 class SemiImplicitBackwardEuler(Integrator):

@@ -10,7 +10,7 @@ from typing import ClassVar
 
 from pydantic import Field
 
-from .base import IncrementalPotential, Integrator, SegmentPotential, State, solve_step
+from .base import Integrator, SegmentPotential, State, StepPlan, solve_step
 from .euler import BackwardEuler
 
 # BDF2 increment: u_{n+1} - u_n = HISTORY (u_n - u_{n-1}) + IMPLICIT_WEIGHT h F(u_{n+1})
@@ -35,20 +35,21 @@ class BDF2(Integrator):
     problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "two-step BDF, started with one backward Euler step; 2nd order, L-stable (damps)"
 
-    def step(self, system, state, dt, solver):
-        if not state.aux:
-            new, stats = BackwardEuler().step(system, state, dt, solver)
-            return State(new.t, new.x, new.v, (state.x, state.v)), stats
+    def plan(self, state, dt):
+        if not state.aux:  # the first step: backward Euler
+            return BackwardEuler().plan(state, dt)
         x_prev, v_prev = state.aux
         x_hat = state.x + BDF2_HISTORY * (state.x - x_prev)
         v_hat = state.v + BDF2_HISTORY * (state.v - v_prev)
         divisor = BDF2_IMPLICIT_WEIGHT * dt
         predictor = x_hat + divisor * v_hat  # x_{n+1} to O(h^2): D(x) there keeps the method second order
-        problem = IncrementalPotential(system, predictor, divisor * divisor,
-                                       velocity_origin=x_hat, velocity_divisor=divisor, damping_at=predictor,
-                                       step_start=(state.x, state.v, dt))
-        x, stats = solve_step(solver, problem, problem.start_point(state.x))
-        return State(state.t + dt, x, (x - x_hat) / divisor, (state.x, state.v)), stats
+        return StepPlan(predictor, divisor * divisor, x_hat, divisor, predictor)
+
+    def finish(self, state, plan, y, dt):
+        # (y - a)/b: backward Euler's (x - x_n)/h on the first step, BDF2's (x - x^)/(2h/3) after it
+        return State(state.t + dt, y, (y - plan.velocity_origin) / plan.velocity_divisor, (state.x, state.v))
+
+    step = Integrator.potential_step
 
 
 class BDF2MidpointMix(Integrator):

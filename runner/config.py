@@ -23,6 +23,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, SerializeAs
                       field_validator)
 from pydantic_core import PydanticCustomError, PydanticKnownError
 
+from simrun.calibration.params import FitParams
 from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS, Integrator
 from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
@@ -186,6 +187,7 @@ class Experiment(BaseModel):
     record: RecordParams = RecordParams()
     divergence: DivergenceParams = DivergenceParams()
     output: str | None = Field(None, description="output folder; default results/<name>")
+    fit: FitParams | None = Field(None, description="`simrun fit`: what was observed and which parameters to fit (docs/calibration.md)")
 
     @field_validator("sweep")
     @classmethod

@@ -39,6 +39,7 @@ import functools
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import ClassVar
 
 import numpy as np
@@ -79,6 +80,16 @@ class Capabilities:
             "energy_reference_name": str(self.energy_reference_name),
             "vertex_dim": int(self.vertex_dim),
         }
+
+
+@dataclass(frozen=True)
+class ParameterDerivative:
+    """d/dtheta of a system's potential gradient and damping matrix along one parameter theta in which both are
+    linear: ``gradient(x)`` (N per unit of theta, shape (dof_count,)) and ``damping(x)`` (a matrix as
+    ``damping_matrix`` gives, or None when theta does not enter D)."""
+
+    gradient: Callable[[np.ndarray], np.ndarray]
+    damping: Callable[[np.ndarray], object] | None = None
 
 
 class System(ABC):
@@ -173,6 +184,20 @@ class System(ABC):
         a nearly relaxed spring (W ~ stretch^2) is far above eps W. The default is |P| + sum_i |g_i x_i|;
         a line search cannot judge changes of E below ENERGY_ROUNDOFF times this."""
         return abs(self.potential_energy(x)) + float(np.abs(self.gradient(x) * x).sum())
+
+    # -- calibration: exact forward sensitivities (integrators/sensitivity.py) ---------------------------
+    def parameter_derivative(self, changed: "System", change: float) -> "ParameterDerivative | None":
+        """How a parameter enters this system, found from ``changed``: the same system with one config value moved
+        by ``change``. Systems whose gradient and damping matrix are linear in coefficients that config values
+        select (a spring's stiffness, a damper's coefficient) return d(grad P)/dtheta and dD/dtheta; None when the
+        change moves anything else (masses, rest shape, initial state), which only finite differences can follow."""
+        return None
+
+    def damping_derivative(self, x: np.ndarray, dx: np.ndarray, w: np.ndarray) -> np.ndarray | None:
+        """d/de D(x + e dx) w at e = 0 (N), ``dx`` and ``w`` of shape (dof_count,) or (dof_count, p); None where
+        D does not depend on x (``damping_is_constant``). Systems whose D(x) moves with x override it; for those that
+        do not, exact sensitivities are not offered (``integrators.sensitivity.exact_refusal``)."""
+        return None
 
     # P is quadratic in x with a constant positive definite Hessian (the spring, the linear central force): the
     # incremental potential is then a convex quadratic, one full Newton step solves it, and Newton skips its line search

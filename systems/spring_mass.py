@@ -9,7 +9,7 @@ import numpy as np
 import scipy.linalg
 from pydantic import ConfigDict, Field
 
-from .base import System, SystemParams
+from .base import ParameterDerivative, System, SystemParams
 from .compliant import anchored_springs
 
 
@@ -20,7 +20,8 @@ class SpringMassParams(SystemParams):
     type: Literal["spring_mass"] = "spring_mass"
     mass: float = Field(1.0, gt=0, allow_inf_nan=False, description="m (kg)")
     stiffness: float = Field(100.0, gt=0, allow_inf_nan=False, description="k (N/m)")
-    damping: float = Field(0.0, ge=0, allow_inf_nan=False, description="d (N s/m): q'' + (d/m) q' + (k/m) q = 0")
+    damping: float = Field(0.0, allow_inf_nan=False, description="d (N s/m): q'' + (d/m) q' + (k/m) q = 0; a negative d "
+                                                              "pumps energy in (what a calibration can need to match a damped method)")
     x0: float = Field(1.0, allow_inf_nan=False, description="initial position (m)")
     v0: float = Field(0.0, allow_inf_nan=False, description="initial velocity (m/s)")
 
@@ -43,7 +44,7 @@ class SpringMass(System):
         self.x0 = np.array([params.x0])
         self.v0 = np.array([params.v0])
         self._hessian = np.array([[params.stiffness]])
-        self._damping = np.array([[params.damping]]) if params.damping > 0 else None
+        self._damping = np.array([[params.damping]]) if params.damping != 0 else None
 
     @property
     def angular_frequency(self) -> float:
@@ -103,6 +104,17 @@ class SpringMass(System):
 
     def compliant_springs(self):
         return anchored_springs(self.stiffness, self.damping, dim=1)
+
+    def parameter_derivative(self, changed, change):
+        """k and d enter linearly: d(grad P)/dtheta = (dk/dtheta) q, dD/dtheta = dd/dtheta; None when the change
+        moves the mass or the initial state."""
+        if not isinstance(changed, SpringMass) or (changed.params.mass, changed.params.x0, changed.params.v0) != (
+                self.params.mass, self.params.x0, self.params.v0):
+            return None
+        stiffness_rate = (changed.stiffness - self.stiffness) / change
+        damping_rate = np.array([[(changed.damping - self.damping) / change]])
+        return ParameterDerivative(gradient=lambda x: stiffness_rate * x,
+                                   damping=(lambda x: damping_rate) if damping_rate[0, 0] != 0.0 else None)
 
     energy_reference_name = "E0 (initial energy)"  # = |KE0| + |PE0|: both parts are >= 0
 

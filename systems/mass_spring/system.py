@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse
 
 from ..base import System, add_keeping_pattern
+from . import derivatives
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
 from ..contact.sdf import filter_eigenvalues
@@ -70,6 +71,11 @@ class HookeanLaw:
         return geometry.tension / geometry.length
 
     @staticmethod
+    def unit_gradient_factor(system: "MassSpring", geometry: SpringGeometry) -> np.ndarray:
+        """c_e per unit stiffness, (L - l0) / L: W is linear in k (calibration's sensitivities)."""
+        return geometry.stretch / geometry.length
+
+    @staticmethod
     def blocks(system: "MassSpring", geometry: SpringGeometry, project_spd: bool) -> np.ndarray:
         outer = geometry.direction[:, :, None] * geometry.direction[:, None, :]
         transverse = filter_eigenvalues(1.0 - system.rest_length / geometry.length, project_spd)
@@ -102,6 +108,10 @@ class SquaredLengthLaw:
     @staticmethod
     def gradient_factor(system, geometry) -> np.ndarray:
         return 2.0 * system.stiffness * (SquaredLengthLaw._ratio(system, geometry) - 1.0)
+
+    @staticmethod
+    def unit_gradient_factor(system, geometry) -> np.ndarray:
+        return 2.0 * (SquaredLengthLaw._ratio(system, geometry) - 1.0)
 
     @staticmethod
     def blocks(system, geometry, project_spd):
@@ -495,6 +505,12 @@ class MassSpring(System):
 
     def vertex_colouring(self):
         return self._vertex_blocks.colouring()
+
+    def parameter_derivative(self, changed, change):
+        return derivatives.parameter_derivative(self, changed, change)
+
+    def damping_derivative(self, x, dx, w):
+        return derivatives.spring_damping_derivative(self, x, dx, w)
 
     @functools.cached_property
     def external_acceleration(self) -> np.ndarray:
