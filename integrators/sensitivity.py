@@ -17,7 +17,6 @@ and vertices on prescribed paths follow their paths whatever theta is.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
@@ -113,10 +112,12 @@ class ForwardSensitivity:
             block = hessian[free][:, free].tocsc()
             known = hessian[free][:, fixed] @ dy[fixed] if fixed.size else 0.0
             dy[free] = scipy.sparse.linalg.splu(block).solve(np.ascontiguousarray(rhs[free] - known))
+        elif not fixed.size:  # a small dense system (the spring): numpy's solve, without scipy's checks
+            dy = np.linalg.solve(np.asarray(hessian, dtype=float), rhs)
         else:
             hessian = np.asarray(hessian, dtype=float)
-            known = hessian[np.ix_(free, fixed)] @ dy[fixed] if fixed.size else 0.0
-            dy[free] = scipy.linalg.solve(hessian[np.ix_(free, free)], rhs[free] - known, assume_a="sym")
+            known = hessian[np.ix_(free, fixed)] @ dy[fixed]
+            dy[free] = np.linalg.solve(hessian[np.ix_(free, free)], rhs[free] - known)
         return dy
 
 

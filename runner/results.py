@@ -433,6 +433,15 @@ class Results:
                 frame.insert(SUMMARY_COLUMNS.index(name), name, [getattr(self.runs[run_id], name) for run_id in frame["run_id"]])
         return frame
 
+    @functools.cached_property
+    def fits(self):
+        """The calibration's fits (``simrun fit``), as ``simrun.calibration.results.FitResults``; None when the file
+        holds none."""
+        from simrun.calibration.results import read_fits
+
+        with self.opened() as file:
+            return read_fits(file)
+
     @contextlib.contextmanager
     def opened(self) -> Iterator[h5py.File]:
         """The file, open for reading; nested uses share one handle (reading many runs' datasets in a block)."""

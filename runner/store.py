@@ -216,6 +216,16 @@ class ResultsWriter:
         writer.file.flush()
         return writer
 
+    def remove_runs(self, run_ids: list[str]) -> None:
+        """Delete these runs' groups and rebuild the summary without them (a calibration refitting them)."""
+        runs = self.file["runs"]
+        for run_id in run_ids:
+            del runs[run_id]
+        rows = [summary_row(run_id, runs[run_id]) for run_id in sorted(runs, key=lambda key: runs[key].attrs["index"])]
+        del self.file["summary"]
+        self.file.create_dataset("summary", data=np.array(rows, dtype=SUMMARY_DTYPE), maxshape=(None,), chunks=True)
+        self.file.flush()
+
     def completed_runs(self) -> set[str]:
         return set(self.file["runs"])
 

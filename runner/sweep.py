@@ -36,7 +36,7 @@ def expand_runs(experiment: Experiment) -> list[Run]:
     total = len(combinations) * len(experiment.integrators) * len(experiment.sweep["dt"])
     if total > MAX_RUNS:
         raise ConfigError(f"sweep: {total} runs exceed the limit of {MAX_RUNS}; shorten the sweep")
-    base = experiment.model_dump(exclude={"sweep", "output", "name"}, mode="python")
+    base = experiment.model_dump(exclude={"sweep", "output", "name", "fit"}, mode="python")
     # the solver as written (its defaults filled in again per run), so that sweeping solver.type does not
     # carry the base solver's own options to a solver that does not take them
     base["solver"] = experiment.solver.model_dump(exclude_unset=True, mode="python")

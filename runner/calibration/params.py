@@ -83,10 +83,15 @@ class FitParams(BaseModel):
     weights: Literal["position", "position_and_velocity"] = Field(
         "position", description="position: sum of squared position errors; position_and_velocity: velocities too, "
                                 "scaled by the observed motion's time scale rms(x)/rms(v)")
+    compare: Literal["steps", "interpolated"] = Field(
+        "steps", description="steps: only the observations at a run's steps enter its residual (a method has no motion "
+                             "between its steps); interpolated: every observation, with the run's motion interpolated "
+                             "(cubic Hermite on x and v) in each step")
     sensitivities: Literal["auto", "exact", "finite_differences"] = Field(
         "auto", description="auto: exact forward sensitivities where the method and parameter have them, else finite "
                             "differences; exact: refuse a fit that would need finite differences")
-    max_simulations: int = Field(200, ge=2, description="per fit, the least-squares solver's budget of function evaluations")
+    max_evaluations: int = Field(100, ge=2, description="per fit, the least-squares solver's budget of residual evaluations "
+                                                        "(max_nfev; a finite-difference Jacobian costs one more simulation per parameter)")
     tolerance: float = Field(1e-10, gt=0, lt=1, description="ftol, xtol and gtol of scipy.optimize.least_squares")
     transfer: Transfer = Transfer()
 

@@ -7,6 +7,7 @@ worker pool's fork server starts before them.
 # subcommand -> module of simrun.commands, in the order of `simrun --help`
 COMMANDS = {
     "run": "run",
+    "fit": "fit",
     "plot": "plot",
     "report": "report",
     "show": "show",

@@ -1,0 +1,42 @@
+"""`simrun fit CONFIG`: calibrate the config's parameters to observed motion for every integrator x dt of its sweep
+(simrun.calibration), write OUTPUT/results.h5 (its ``fits`` group and the fitted runs), then the figures."""
+
+from __future__ import annotations
+
+import sys
+
+EXIT_INTERRUPTED = 130
+
+
+def add_parser(commands) -> None:
+    fit = commands.add_parser(
+        "fit", help="calibrate parameters to observed motion, per integrator and dt (a config with a fit block)",
+        description="Fit the config's `fit.parameters` to the observations `fit.observed` with scipy's least_squares, "
+                    "once per integrator x dt of the sweep, and write OUTPUT/results.h5 (a `fits` group, and each "
+                    "fit's run) and OUTPUT/figures/. See docs/calibration.md.")
+    fit.add_argument("config", help="the experiment's YAML file with a fit block, e.g. configs/calibrate_spring.yaml")
+    fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a config key, value in YAML (repeatable), e.g. --set fit.observed.synthetic.noise=0")
+    fit.add_argument("--output", help="output folder (default: the config's `output`, else results/<name>)")
+    fit.add_argument("--no-plots", action="store_true", help="write the results file only")
+    fit.add_argument("-j", "--jobs", type=int, help="fits at once (default: the number of cores; 1 = serial)")
+    fit.add_argument("--force", action="store_true", help="start over even if OUTPUT/results.h5 holds other results")
+    fit.add_argument("-q", "--quiet", action="store_true", help="print only errors and the final paths")
+    fit.set_defaults(handler=handle)
+
+
+def handle(args) -> int:
+    from simrun.calibration.pipeline import fit
+
+    try:
+        results = fit(args.config, output=args.output, jobs=args.jobs, force=args.force, progress=not args.quiet,
+                      figures=not args.no_plots, overrides=args.overrides, command_line=getattr(args, "command_line", None))
+    except KeyboardInterrupt:
+        print("simrun: interrupted: the finished fits are in the results file; run the same command again to finish "
+              "the rest", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    counts = results.fits.table["status"].value_counts().to_dict() if results.fits is not None else {}
+    print(f"results: {results.path}  ({', '.join(f'{count} {status}' for status, count in counts.items())})")
+    if not args.no_plots:
+        print(f"figures: {results.path.parent / 'figures'}  ({len(results.figure_files)} files)")
+    return 0
