@@ -62,8 +62,9 @@ plot: install                          ## redraw the default experiment's figure
 
 sweep: $(RESULTS)                      ## run every config in configs/ (CONFIGS=... for some), each once
 
+# a config with a fit block is a calibration: `simrun fit` (docs/calibration.md); the others are run
 results/%/results.h5: configs/%.yaml | $(VENV)/.installed
-	$(BIN)/simrun $< --output results/$* --force -q
+	$(BIN)/simrun $(if $(shell grep -l '^fit:' $<),fit,run) $< --output results/$* --force -q
 
 reports: $(REPORTS)                    ## an HTML report beside each sweep's results
 

@@ -87,7 +87,7 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
             _remove_drawn(output)
         try:
             writer = open_writer(path, config_text, config_hash(experiment), experiment.name, force,
-                                 command_line=command_line, config_path=_config_file(config),
+                                 command_line=command_line, config_path=config_file_of(config),
                                  resolved_config=resolved_config(experiment))
         except OSError as error:
             raise write_error("output", path, error) from None
@@ -137,7 +137,7 @@ def _remove_drawn(output: Path) -> None:
                           f"({error.strerror or error}); remove them, or choose another --output") from None
 
 
-def _config_file(config) -> Path | None:
+def config_file_of(config) -> Path | None:
     """The config's file, when it was given as a path (not YAML text or a dict)."""
     if isinstance(config, Path) or (isinstance(config, str) and "\n" not in config and ": " not in config):
         return Path(config)
@@ -146,7 +146,7 @@ def _config_file(config) -> Path | None:
 
 def _call_text(config, **keywords) -> str:
     """This call as text, for the provenance: simrun.run('configs/x.yaml', output='results/x', jobs=2)."""
-    source = repr(str(config)) if _config_file(config) is not None else ("<dict>" if isinstance(config, dict) else "<YAML text>")
+    source = repr(str(config)) if config_file_of(config) is not None else ("<dict>" if isinstance(config, dict) else "<YAML text>")
     defaults = {"executor": "process", "force": False, "overrides": ()}
     shown = [f"{key}={str(value)!r}" if isinstance(value, Path) else f"{key}={value!r}" for key, value in keywords.items()
              if key not in defaults or defaults[key] != (tuple(value) if key == "overrides" else value)]

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from simrun.figures import frames as frame_figures
-from simrun.figures import FIGURES, Figure, FigureData, figure_data
+from simrun.figures import CALIBRATION, FIGURES, Figure, FigureData, figure_data
 from simrun.findings import Finding, drift_text, findings
 from simrun.reference import REFERENCE_RTOL, reference_errors
 from simrun.results import FRAME_TIME, Results, Status, load
@@ -125,6 +125,9 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
     sections.append(("provenance", "Provenance and config", _provenance_section(results, path)))
     anchors = {f"#{key}" for key, _, _ in sections} | {f"#figure-{name}" for _, name, _ in figures}
     sections.insert(0, ("findings", "Findings", _findings_section(found, anchors, rows, data.dt_names)))
+    if results.fits is not None:  # a calibration answers its own question first; its runs each have their own values
+        sections[0] = ("findings", "Findings on the fitted runs (each simulated with its own fit's values)", sections[0][2])
+        sections.insert(0, ("calibration", "Calibration", _calibration_section(results)))
     page = _page(results, data, sections)
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(page, encoding="utf-8")
@@ -206,7 +209,7 @@ def _verdict(text: str) -> str:
 # -- findings ---------------------------------------------------------------------------------------
 def _anchor_name(anchor: str) -> str:
     names = {"#summary": "runs table", "#orders": "orders table", "#stability": "stability table",
-             "#determinants": "determinants table"}
+             "#determinants": "determinants table", "#calibration": "fitted values", "#calibration-transfer": "transfer table"}
     return names.get(anchor, "figure: " + anchor.removeprefix("#figure-").replace("_", " "))
 
 
@@ -264,6 +267,40 @@ def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
             "whole run and its real-time factor (simulated over wall time, > 1x faster than real time). Stopped runs "
             "show their status and the step at which they stopped.</p>")
     return note + f'<div class="box"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
+
+
+# -- calibration (simrun fit) -----------------------------------------------------------------------
+def _calibration_section(results: Results) -> str:
+    """What the fits were fitted to, their findings, the fitted values (integrators x dt) and the transfer table."""
+    from simrun import findings_calibration as calibration
+
+    fits = results.fits
+    items = "".join(f'<li>{_e(finding.sentence)} <a class="see" href="{_e(finding.link_anchor)}">→ '
+                    f"{_e(_anchor_name(finding.link_anchor))}</a></li>" for finding in calibration.calibration_findings(results))
+    parts = [f'<p class="note">Observed: {_e(calibration.source_text(fits))}.</p>', f'<ul class="findings">{items}</ul>']
+    for table in calibration.fitted_tables(results):
+        head = [("integrator", "label")] + [(f"dt = {dt:g} s" + (f" (h w = {hw:.3g})" if np.isfinite(hw) else ""), False)
+                                            for dt, hw in zip(table.dts, table.hws)]
+        body = [[_e(label)] + ["" if cell is None else _e(cell.value_text()) + (
+            f'<br><span class="sub">({_e(cell.predicted_text())})</span>' if cell.predicted_text() else "") + (
+            "" if cell.status == "converged" else f"<br>{_status(cell.status)}") for cell in cells]
+            for label, cells in table.rows]
+        anchor = (f"; {table.anchor_name}: {table.anchor:g} {table.unit}" if np.isfinite(table.anchor) else "")
+        exact = f"; the exact-solution fit: {table.reference.text()}" if table.reference is not None else ""
+        parts.append(f"<h3>{_e(table.key)}" + (f" ({_e(table.unit)})" if table.unit else "") + "</h3>"
+                     f'<p class="note">Each cell: the fitted value ± its standard error, below it (the predicted value: '
+                     f"where the method's own step has the observed eigenvalue){_e(anchor + exact)}.</p>" + _table(head, body))
+    transfer = calibration.transfer_table(fits)
+    if transfer is not None:
+        head = [("fitted with", "label"), ("dt (s)", False)] + [(f"{name} at dt = {dt:g} s", False) for name, dt in transfer.targets]
+        body = [[_e(row.label), "–" if not np.isfinite(row.dt) else f"{row.dt:g}"] + [
+            "" if cell is None else f'<span class="{"agrees" if cell.within else ""}">{_e(cell.text())}</span>'
+            for cell in row.cells] for row in transfer.rows]
+        parts.append('<h3 id="calibration-transfer">Fitted parameters simulated with other integrators</h3><p class="note">'
+                     "Each cell: the relative rms error |x − x_obs|_rms / |x_obs|_rms of the fit's parameters simulated "
+                     f"with the column's integrator and dt (green: within {100 * calibration.TRANSFER_TOLERANCE:g} %).</p>"
+                     + _table(head, body, scroll=len(body) > SCROLLING_TABLE_ROWS))
+    return "".join(parts)
 
 
 # -- the tables ------------------------------------------------------------------------------------
@@ -431,7 +468,9 @@ def _figures_section(figures: list[tuple[Figure, str, str]], test_equation: bool
     if not figures:
         return '<p class="note">The file holds no run with data to draw.</p>'
     drawn = {entry.name for entry, _, _ in figures}
-    missing = [f"{name.replace('_', ' ')} (needs {entry.needs})" for name, entry in FIGURES.items() if name not in drawn]
+    calibrated = any(FIGURES[name].needs == CALIBRATION for name in drawn)  # else its figures are not this file's kind
+    missing = [f"{name.replace('_', ' ')} (needs {entry.needs})" for name, entry in FIGURES.items()
+               if name not in drawn and (calibrated or entry.needs != CALIBRATION)]
     parts = [f'<p class="note">Not drawn for this file: {_e("; ".join(missing))}.</p>'] if missing else []
     for entry, name, data in figures:
         title = name.replace("_", " ")

@@ -13,6 +13,11 @@ from .base import ParameterDerivative, System, SystemParams
 from .compliant import anchored_springs
 
 
+# the roots of m l^2 + d l + k count as distinct when they differ by this fraction of their size: the two-exponential
+# form then loses at most eps / DISTINCT_ROOTS of its digits (about 1e-13)
+DISTINCT_ROOTS = 1e-3
+
+
 class SpringMassParams(SystemParams):
     """Config of `spring_mass`: a 1-D mass on a linear spring with optional viscous damping."""
 
@@ -119,11 +124,23 @@ class SpringMass(System):
     energy_reference_name = "E0 (initial energy)"  # = |KE0| + |PE0|: both parts are >= 0
 
     def exact_solution(self, t):
+        """q(t) = c1 e^{l1 t} + c2 e^{l2 t} with the roots l1, l2 of m l^2 + d l + k = 0 (complex for an
+        oscillation); near critical damping, where the two roots nearly coincide and the form loses digits, the
+        propagator exp(t A) itself (scipy's expm, batched over t: exact at any damping, far slower)."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         m = self.mass[0]
+        q0, p0 = float(self.x0[0]), float(self.v0[0])
+        discriminant = complex(self.damping * self.damping - 4.0 * m * self.stiffness)
+        first, second = (-self.damping + np.sqrt(discriminant)) / (2.0 * m), (-self.damping - np.sqrt(discriminant)) / (2.0 * m)
+        if abs(first - second) > DISTINCT_ROOTS * max(abs(first), abs(second)):
+            c1, c2 = (p0 - second * q0) / (first - second), (first * q0 - p0) / (first - second)
+            grow1, grow2 = np.exp(first * t), np.exp(second * t)
+            q = (c1 * grow1 + c2 * grow2).real
+            p = (c1 * first * grow1 + c2 * second * grow2).real
+            return q[:, None], p[:, None]
         generator = np.array([[0.0, 1.0], [-self.stiffness / m, -self.damping / m]])
         propagators = scipy.linalg.expm(t[:, None, None] * generator)  # batched over t
-        states = propagators @ np.array([self.x0[0], self.v0[0]])
+        states = propagators @ np.array([q0, p0])
         return states[:, :1], states[:, 1:]
 
 

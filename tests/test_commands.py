@@ -203,7 +203,7 @@ def test_an_unknown_command_is_named_with_a_suggestion(tmp_path, monkeypatch, ca
     (tmp_path / "config.yaml").write_text(SPRING)
     assert main(argv) == 2
     line = assert_one_line_error(capsys, f"unknown command {argv[0]!r}{' ' + suggestion if suggestion else ';'}")
-    assert "run, plot" in line
+    assert "run, fit, plot" in line
     assert not (tmp_path / "results").exists()
 
 

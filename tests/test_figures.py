@@ -22,14 +22,16 @@ import yaml
 from matplotlib.image import imread
 
 from simrun.cli import main
-from simrun.figures import FIGURES, draw_figures, figure_data
+from simrun.figures import CALIBRATION, FIGURES, draw_figures, figure_data
 from simrun.figures.solver_work import newton_iterations_vs_dt
 from simrun.results import load
 
 # runs on the undamped test equation (spring, linear circular motion) add the predicted-vs-measured curves
 TEST_EQUATION = {"artificial_damping", "spectral_radius_and_period"}
 # the figures every file with runs of the small systems gets (from the registry: a new figure joins these sets)
-ALWAYS = set(FIGURES) - TEST_EQUATION - {"orbits", "snapshots"}
+# the calibration's figures need a file of `simrun fit` (tests/test_calibration_figures.py)
+CALIBRATION_FIGURES = {name for name, entry in FIGURES.items() if entry.needs == CALIBRATION}
+ALWAYS = set(FIGURES) - TEST_EQUATION - CALIBRATION_FIGURES - {"orbits", "snapshots"}
 EULERS = ["forward_euler", "symplectic_euler", "backward_euler"]
 SPRING = {"system": {"type": "spring_mass", "stiffness": 100.0}, "integrators": EULERS,
           "duration": 2.0, "sweep": {"dt": [0.01, 0.05, 0.25]}}

@@ -16,6 +16,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
+import yaml
 from matplotlib.text import Text
 
 from simrun.cli import main
@@ -47,6 +48,11 @@ SHORT = {
     "slope": ["duration=0.05"],
     "cloth_drop": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
     "penalty_vs_ipc": [*CLOTH, "duration=0.04"],
+    # calibrations (`simrun fit`): every integrator at two steps, observations every 10 ms of a short motion
+    "calibrate_spring": ["duration=1.0", "sweep.dt=[0.01,0.05]", "fit.observed.synthetic.dt=0.01",
+                         "fit.transfer.dt=[0.01]", "fit.max_evaluations=20"],
+    "calibrate_cloth": [*CLOTH, "duration=0.1", "sweep.dt=[0.01,0.02]", "fit.observed.synthetic.dt=0.002",
+                        "fit.markers=[0,5]", "fit.transfer.dt=[0.01]", "fit.max_evaluations=6"],
 }
 DEFAULT_SHORT = ["duration=0.1"]  # a config added without an entry above: at least not its full length
 
@@ -89,7 +95,8 @@ def shortened(config: Path) -> list[str]:
 @pytest.mark.parametrize("config", CONFIGS, ids=[config.stem for config in CONFIGS])
 def test_every_figure_names_every_integrator_and_swept_value(config, tmp_path):
     output = tmp_path / config.stem
-    assert main([str(config), "--output", str(output), "-q", "--no-plots", "-j", "1", *shortened(config)]) == 0
+    command = "fit" if "fit" in yaml.safe_load(config.read_text()) else "run"  # a calibration is fitted
+    assert main([command, str(config), "--output", str(output), "-q", "--no-plots", "-j", "1", *shortened(config)]) == 0
     results = load(output / "results.h5")
     # systems without an exact solution: errors against a reference, so that convergence is drawn (and checked) too
     errors = reference_errors(results, "dop853")

@@ -35,12 +35,13 @@ def set_value(node: Any, parts: list, value: Any) -> None:
 
 
 def numeric_keys(node: Any, prefix: str = "system") -> list[str]:
-    """Every key below ``node`` whose value is a number (the keys a fit can name)."""
+    """Every key below ``node`` whose value is a real number (the keys a fit can name; whole-number settings such as
+    a grid's resolution are not fitted)."""
     if isinstance(node, dict):
         return [key for name, child in node.items() for key in numeric_keys(child, f"{prefix}.{name}")]
     if isinstance(node, list):
         return [key for number, child in enumerate(node) for key in numeric_keys(child, f"{prefix}.{number}")]
-    return [prefix] if _is_number(node) else []
+    return [prefix] if isinstance(node, float) else []
 
 
 def _is_number(value: Any) -> bool:
@@ -78,8 +79,9 @@ def check_parameters(system, parameters: dict) -> None:
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise ConfigError(f"{where}: the system ({mapping.get('type')}) has no key {key.removeprefix('system.')!r}"
                               f"{hint}; numeric keys: {', '.join(numbers) or 'none'}") from None
-        if not _is_number(value):
-            raise ConfigError(f"{where}: {key} is {value!r}, not a number; numeric keys: {', '.join(numbers) or 'none'}")
+        if not isinstance(value, float):
+            what = "a whole-number setting" if _is_number(value) else "not a number"
+            raise ConfigError(f"{where}: {key} is {value!r}, {what}; numeric keys: {', '.join(numbers) or 'none'}")
         for name, trial in (("start", spec.start), ("bounds", spec.bounds[0]), ("bounds", spec.bounds[1])):
             if not math.isfinite(trial):
                 continue

@@ -31,6 +31,7 @@ class Observations:
     names: list[str]
     source: str
     truth: dict[str, float] = field(default_factory=dict)
+    first_line: int | None = None  # the file line of the first observation (a CSV file's), for error messages
 
     @property
     def velocity_scale(self) -> float:
@@ -119,7 +120,7 @@ def _csv(name: str, dofs: np.ndarray, names: list[str], with_velocity: bool, fol
         raise ConfigError(f"{where} line {row + 2}, column {columns[column]!r} is not finite")
     velocities = values[:, 1 + dofs.size:] if values.shape[1] == 1 + 2 * dofs.size else None
     return Observations(values[:, 0].copy(), values[:, 1:1 + dofs.size].copy(), velocities, dofs,
-                        [str(column) for column in columns[1:1 + dofs.size]], f"{name} ({path})")
+                        [str(column) for column in columns[1:1 + dofs.size]], f"{name} ({path})", first_line=2)
 
 
 def _stored_run(source: StoredRun, system, dofs: np.ndarray, names: list[str], with_velocity: bool, folders) -> Observations:
@@ -157,12 +158,12 @@ def _stored_run(source: StoredRun, system, dofs: np.ndarray, names: list[str], w
 
 def _synthetic(spec: Synthetic, experiment, dofs: np.ndarray, names: list[str], keys_truth) -> Observations:
     from simrun.calibration.engine import step_run
-    from simrun.calibration.keys import set_value, system_mapping
-    from simrun.config import validate_system
+    from simrun.calibration.keys import system_mapping
+    from simrun.config import set_path, validate_system
 
     mapping = system_mapping(experiment.system)
-    for key, value in spec.system.items():
-        set_value(mapping, key.split("."), value) if "." in key else mapping.__setitem__(key, value)
+    for key, value in spec.system.items():  # dotted keys reach into mappings: stiffness.stretch
+        set_path(mapping, key.removeprefix("system.").split("."), value, f"fit.observed.synthetic.system.{key}")
     try:
         truth = validate_system(mapping)
     except ConfigError as error:
@@ -214,9 +215,11 @@ def _check_times(observations: Observations, duration: float, dt: float) -> None
         raise ConfigError(f"{where}: {t.size} observation time; a fit needs at least two")
     steps = np.diff(t)
     if np.any(steps <= 0):
-        number = int(np.flatnonzero(steps <= 0)[0])
-        raise ConfigError(f"{where}: times must increase, but t = {t[number + 1]:g} s (row {number + 2}) follows "
-                          f"t = {t[number]:g} s")
+        number = int(np.flatnonzero(steps <= 0)[0]) + 1  # the observation that does not follow on
+        place = (f"line {number + observations.first_line}" if observations.first_line is not None
+                 else f"observation {number + 1}")
+        raise ConfigError(f"{where}: times must increase, but t = {t[number]:g} s ({place}) follows "
+                          f"t = {t[number - 1]:g} s")
     if t[0] < 0 or t[-1] > duration + END_TOLERANCE * max(dt, 1.0):
         outside = t[0] if t[0] < 0 else t[-1]
         raise ConfigError(f"{where}: t = {outside:g} s lies outside the run (0 to duration {duration:g} s)")

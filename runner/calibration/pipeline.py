@@ -29,6 +29,7 @@ from simrun.calibration.predicted import predicted_values
 from simrun.config import _build_integrator, load_experiment
 from simrun.errors import ConfigError
 from simrun.lock import FIGURES_NAME, OutputLock, check_writable, filling, write_error
+from simrun.pipeline import config_file_of
 from simrun.results import RESULTS_NAME, Results, load
 from simrun.simulate import simulate
 from simrun.store import open_writer
@@ -54,7 +55,8 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
         raise ConfigError("fit: this config has no fit block (what was observed, which parameters); add one "
                           "(docs/calibration.md), or run the experiment with `simrun run`")
     runs = expand_runs(experiment)
-    folders = (Path(config).resolve().parent,) if isinstance(config, (str, Path)) and Path(str(config)).is_file() else ()
+    config_file = config_file_of(config)  # None for YAML text or a dict
+    folders = (config_file.resolve().parent,) if config_file is not None else ()
     tasks, observations = prepare(experiment, runs, folders)
     transfer_steps = _transfer_steps(experiment)
     output = Path(output) if output is not None else experiment.output_dir
@@ -65,13 +67,13 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
         output.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise write_error("output", output, error) from None
-    digest = hashlib.sha256(f"{config_hash(experiment)}\nsimrun fit".encode()).hexdigest()
+    digest = fit_digest(experiment, observations)
     runs_by_id = {run.run_id: run for run in runs}
     with OutputLock(output):
         try:
             writer = open_writer(path, config_text, digest, experiment.name, force,
                                  command_line=command_line or f"simrun.fit({str(config)!r})",
-                                 config_path=Path(config) if folders else None, resolved_config=resolved_config(experiment))
+                                 config_path=config_file, resolved_config=resolved_config(experiment))
         except OSError as error:
             raise write_error("output", path, error) from None
         with writer:
@@ -103,10 +105,24 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     return results
 
 
+def fit_digest(experiment, observations) -> str:
+    """What a calibration's results depend on: the config (its hash) and the observations' numbers (a changed
+    observation file is a changed calibration: refused, or started over with --force, never resumed)."""
+    digest = hashlib.sha256(f"{config_hash(experiment)}\nsimrun fit\n".encode())
+    for array in (observations.t, observations.positions, observations.velocities):
+        if array is not None:
+            digest.update(np.ascontiguousarray(array, dtype=float).tobytes())
+    return digest.hexdigest()
+
+
 def prepare(experiment, runs, folders: tuple[Path, ...] = ()) -> tuple[list[FitTask], object]:
     """The fit tasks of the sweep (the exact solution's first, where the system has one) and the observations."""
     fit = experiment.fit
     keys = list(fit.parameters)
+    swept = [key for key in keys if key in experiment.sweep]
+    if swept:
+        raise ConfigError(f"fit.parameters.{swept[0]}: the sweep also sets {swept[0]}; a fitted key is the fit's to "
+                          "choose: remove it from the sweep")
     system_params = runs[0].system
     check_parameters(system_params, fit.parameters)
     system = system_params.build()
@@ -200,11 +216,14 @@ def _transfer_steps(experiment) -> list[tuple]:
     return [(integrator, float(dt)) for integrator in integrators for dt in steps]
 
 
-def transfer_rows(task: FitTask, values: np.ndarray, steps: list[tuple], solver) -> list[tuple]:
-    """The fit's values simulated with each (integrator, dt): rms(x - x_obs) / rms(x_obs) over the observations."""
+def transfer_rows(task: FitTask, values: np.ndarray, steps: list[tuple], solver, energy_factor: float) -> list[tuple]:
+    """The fit's values simulated with each (integrator, dt): rms(x - x_obs) / rms(x_obs) over the observations.
+    A motion that leaves sqrt(energy_factor) times the observed amplitude (the runs' divergence bound, on an
+    amplitude instead of an energy) is ``diverged``, with its error."""
     observations = task.observations
     system = system_at(task.system, task.keys, values).build()
     scale = float(np.sqrt(np.mean(np.square(observations.positions))))
+    bound = math.sqrt(energy_factor) * float(np.max(np.abs(observations.positions)))
     rows = []
     for integrator, dt in steps:
         count = max(1, math.floor(task.duration / dt + 1e-9))
@@ -218,12 +237,14 @@ def transfer_rows(task: FitTask, values: np.ndarray, steps: list[tuple], solver)
             continue
         x, _ = at_times(trajectory, dt, observations.t)
         error = float(np.sqrt(np.mean(np.square(x - observations.positions)))) / scale if scale > 0 else math.nan
-        rows.append((task.fit_id, integrator.label, dt, error, "ok"))
+        grew = float(np.max(np.abs(x - observations.positions))) > bound
+        rows.append((task.fit_id, integrator.label, dt, error, "diverged" if grew else "ok"))
     return rows
 
 
 def _transfer(experiment, tasks: list[FitTask], stored, steps: list[tuple], jobs: int) -> list[tuple]:
     table = stored.table.set_index("fit_id")
+    factor = experiment.divergence.energy_factor
     work = []
     for task in tasks:
         if task.fit_id not in table.index:
@@ -232,10 +253,10 @@ def _transfer(experiment, tasks: list[FitTask], stored, steps: list[tuple], jobs
         if np.all(np.isfinite(values)):
             work.append((task, values))
     if jobs <= 1 or len(work) <= 1:
-        return [row for task, values in work for row in transfer_rows(task, values, steps, experiment.solver)]
+        return [row for task, values in work for row in transfer_rows(task, values, steps, experiment.solver, factor)]
     with concurrent.futures.ProcessPoolExecutor(min(jobs, len(work))) as pool:
         chunks = pool.map(transfer_rows, [task for task, _ in work], [values for _, values in work],
-                          [steps] * len(work), [experiment.solver] * len(work))
+                          [steps] * len(work), [experiment.solver] * len(work), [factor] * len(work))
         return [row for chunk in chunks for row in chunk]
 
 

@@ -2,7 +2,7 @@
 
 Data flows one way: the figures read the file through ``simrun.results`` and nothing else, so they
 can be redrawn without re-running (``simrun plot results.h5``). One module per family (energy,
-stability, solver work, theory curves, convergence, orbits, frames); this module holds the registry.
+stability, solver work, theory curves, convergence, orbits, frames, calibration); this module holds the registry.
 
 A figure is a function plus an entry in ``FIGURES``: the function takes the file's runs as
 ``FigureData`` and returns a matplotlib Figure, a list of (file name, Figure) pairs (one per run),
@@ -19,6 +19,7 @@ from pathlib import Path
 
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, RunData, figure_data
+from simrun.figures.calibration import fitted_parameters_vs_dt, observed_vs_fitted, transfer_errors
 from simrun.figures.convergence import convergence, work_precision
 from simrun.figures.energy import energy_budget, energy_drift_vs_dt, energy_over_time
 from simrun.figures.frames import snapshots
@@ -27,6 +28,9 @@ from simrun.figures.solver_work import newton_iterations_vs_dt, wall_time_per_st
 from simrun.figures.stability import stability_map
 from simrun.figures.theory import artificial_damping, spectral_radius_and_period
 from simrun.results import Results, load
+
+
+CALIBRATION = "a calibration (simrun fit)"
 
 
 @dataclass(frozen=True)
@@ -109,6 +113,25 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "The model at four times of the run (from its stored frames), with the contact colliders drawn in grey "
            "(translucent, beneath the model) where they are at each time; the title names anything not drawn.",
            "runs that keep frames on a vertex grid (the cloth)", dpi=110),
+    Figure("fitted_parameters_vs_dt", fitted_parameters_vs_dt,
+           "Each fitted parameter against dt (log), a line per integrator with its standard errors, the predicted "
+           "value (where the method's own step has the observed eigenvalue) dashed in the same colour, the truth (or "
+           "the exact-solution fit) as a grey line; the top axis gives dt × w on the spring. Look for lines that "
+           "leave the grey line as dt grows (the fit absorbs the method's error into the parameters), damping pushed "
+           "below zero (the method damps more than the motion: the fit pumps energy in) or far above it (the method "
+           "damps less, or gains), and solid lines that part from their dashed prediction.",
+           CALIBRATION),
+    Figure("observed_vs_fitted", observed_vs_fitted,
+           "The observed positions (grey dots) against each fit's trajectory at the observation times, a panel per "
+           "integrator, a line per dt, over the first and the last tenth of the observations. Look for fits that "
+           "match the decay but start with an offset in amplitude or phase, and for large steps whose best "
+           "trajectory still misses the dots.",
+           CALIBRATION),
+    Figure("transfer_errors", transfer_errors,
+           "Each fit's parameters simulated with another integrator and dt (the columns), coloured by the relative rms "
+           "error against the observations (log). Look for parameters that only work with the method and dt they were "
+           "fitted with: small errors on the diagonal of a method with itself, large ones elsewhere.",
+           CALIBRATION),
 )}
 
 
@@ -148,4 +171,4 @@ def draw_figures(results: Results | str | Path, out_dir: str | Path,
     return written
 
 
-__all__ = ["FIGURES", "Figure", "FigureData", "RunData", "draw_figures", "figure_data", "render_figures"]
+__all__ = ["CALIBRATION", "FIGURES", "Figure", "FigureData", "RunData", "draw_figures", "figure_data", "render_figures"]
