@@ -43,7 +43,6 @@ from simrun.config import load_experiment, validate_system
 from simrun.errors import ConfigError
 from simrun.integrators import INTEGRATORS
 from simrun.integrators.sensitivity import ForwardSensitivity, exact_refusal
-from simrun.results import load
 from simrun.solvers import solver_params
 from simrun.sweep import expand_runs
 from simrun.systems import SpringMassParams
