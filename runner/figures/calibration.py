@@ -25,6 +25,8 @@ LOG_RATIO = 10.0
 # A parameter that changes sign and reaches beyond this multiple of its anchor gets a symlog axis (linear around 0
 # up to the anchor's decade, so the small deviations near the truth stay visible beside the large ones).
 SYMLOG_SPAN = 10.0
+# a value below this fraction of its anchor (the truth) counts as 0 when choosing the axis
+NEGLIGIBLE = 1e-6
 FIT_MARKER_SIZE = 5.0
 # observed_vs_fitted shows this fraction of the observed span at its start and at its end: the fit's phase and
 # amplitude at the start, and what is left of them at the end (the whole span is a solid band of oscillations).
@@ -85,12 +87,14 @@ def _y_scale(ax_row, values: np.ndarray, anchor: float) -> None:
     if values.size == 0:
         return
     low, high = float(values.min()), float(values.max())
-    if low > 0 and high / low > LOG_RATIO:
+    reference = abs(anchor) if np.isfinite(anchor) and anchor != 0 else float(np.min(np.abs(values[values != 0]), initial=1.0))
+    # values at a bound of 0 (a damping the fit drove to nothing: 1e-30) are 0 to the reader, not decades below it
+    at_zero = low >= 0 and low < NEGLIGIBLE * reference
+    if low > 0 and high / low > LOG_RATIO and not at_zero:
         for ax in ax_row:
             ax.set_yscale("log")
         return
-    reference = abs(anchor) if np.isfinite(anchor) and anchor != 0 else float(np.min(np.abs(values[values != 0]), initial=1.0))
-    if low < 0 < high and max(abs(low), abs(high)) > SYMLOG_SPAN * reference:
+    if (low < 0 < high or at_zero) and max(abs(low), abs(high)) > SYMLOG_SPAN * reference:
         threshold = 10.0 ** math.floor(math.log10(reference))
         for ax in ax_row:
             ax.set_yscale("symlog", linthresh=threshold, linscale=0.6)
@@ -217,8 +221,10 @@ def observed_vs_fitted(data: FigureData):
     rows = found.fit_rows(fits)
     frequency = found.spring_frequency(data.results, fits)
     t = np.asarray(fits.observed_t, dtype=float)
-    observed = np.asarray(fits.observed_positions, dtype=float).reshape(t.size, -1)[:, 0]
-    name = str(fits.names[0]) if fits.names else "x"
+    positions = np.asarray(fits.observed_positions, dtype=float).reshape(t.size, -1)
+    shown_dof = int(np.argmax(np.ptp(positions, axis=0))) if positions.shape[1] else 0  # the coordinate that moves most
+    observed = positions[:, shown_dof]
+    name = str(fits.names[shown_dof]) if fits.names else "x"
     panels: list[tuple[str, list]] = []
     reference = fits.reference
     if reference is not None and reference["status"] not in found.STOPPED:
@@ -254,10 +260,10 @@ def observed_vs_fitted(data: FigureData):
             height = max(high - low, 1e-300)
             for member in members:
                 if isinstance(member, str):  # the exact-solution fit
-                    line = fits.fitted(member).reshape(t.size, -1)[:, 0]
+                    line = fits.fitted(member).reshape(t.size, -1)[:, shown_dof]
                     ax.plot(t[inside], line[inside], "-", color="black", lw=1.0, zorder=3)
                     continue
-                line = fits.fitted(member.fit_id).reshape(t.size, -1)[:, 0]
+                line = fits.fitted(member.fit_id).reshape(t.size, -1)[:, shown_dof]
                 style = "-" if member.status == "converged" else ":"
                 late |= style == ":"
                 ax.plot(t[inside], line[inside], style, color=dt_colours[member.dt], lw=1.0, zorder=2)
@@ -282,7 +288,8 @@ def observed_vs_fitted(data: FigureData):
     layout.figure_legend(figure, handles, title="fitted with")
     notes = []
     if len(fits.names) > 1:
-        notes.append(f"{name}: the first of the {len(fits.names)} observed coordinates ({', '.join(map(str, fits.names))})")
+        notes.append(f"{name}: of the {len(fits.names)} observed coordinates ({', '.join(map(str, fits.names))}), the one "
+                     "that moves most")
     if clipped:
         shown = list(dict.fromkeys(clipped))
         notes.append("lines leaving the observed range are cut at the panel's edge: " + ", ".join(shown[:6])
