@@ -131,7 +131,9 @@ class SpringMass(System):
         m = self.mass[0]
         q0, p0 = float(self.x0[0]), float(self.v0[0])
         discriminant = complex(self.damping * self.damping - 4.0 * m * self.stiffness)
-        first, second = (-self.damping + np.sqrt(discriminant)) / (2.0 * m), (-self.damping - np.sqrt(discriminant)) / (2.0 * m)
+        # the larger root without cancellation, the other from their product k/m (strong overdamping keeps its digits)
+        first = (-self.damping - math.copysign(1.0, self.damping) * np.sqrt(discriminant)) / (2.0 * m)
+        second = self.stiffness / (m * first)
         if abs(first - second) > DISTINCT_ROOTS * max(abs(first), abs(second)):
             c1, c2 = (p0 - second * q0) / (first - second), (first * q0 - p0) / (first - second)
             grow1, grow2 = np.exp(first * t), np.exp(second * t)

@@ -29,6 +29,7 @@ import cmath
 import dataclasses
 import json
 import math
+import textwrap
 
 import h5py
 import numpy as np
@@ -501,3 +502,55 @@ def test_fit_accepts_yaml_text(tmp_path):
     text = spring_config(observed, ["backward_euler"], [0.1], 2.0)
     results = fit(text, output=tmp_path / "out", jobs=1, progress=False, figures=False)
     assert len(results.fits.table) == 2
+
+
+# -- found in review ---------------------------------------------------------------------------------------------
+def test_rayleigh_damping_with_a_fitted_stiffness_falls_back_to_differences():
+    """Rayleigh damping's beta K_rest moves with the stiffness: the system gives no exact derivative for a stiffness
+    then (finite differences follow it), while beta itself still has one."""
+    params = {"type": "mass_spring", "model": {"grid": {"resolution": [3, 3], "size": [1.0, 1.0]}}, "stiffness": 1000.0,
+              "damping": [{"model": "rayleigh", "alpha": 0.1, "beta": 0.01}], "pinned": [6, 8]}
+    system = validate_system(params).build()
+    stiffer = validate_system({**params, "stiffness": 1001.0}).build()
+    assert system.parameter_derivative(stiffer, 1.0) is None
+    more_beta = validate_system({**params, "damping": [{"model": "rayleigh", "alpha": 0.1, "beta": 1.01}]}).build()
+    assert system.parameter_derivative(more_beta, 1.0) is not None
+
+
+def test_a_trial_the_model_refuses_is_penalised_not_a_failed_fit():
+    """Without bounds a trust-region step can ask for k < 0, which the model refuses: that trial gets the divergence
+    penalty and the fit goes on to the minimum."""
+    experiment, _ = load_experiment(textwrap.dedent("""\
+        name: unbounded
+        system: {type: spring_mass, mass: 1.0, stiffness: 100.0, damping: 0.4}
+        integrators: [implicit_midpoint]
+        duration: 2.0
+        sweep: {dt: [0.01]}
+        fit:
+          observed: {synthetic: {integrator: exact, dt: 0.01}}
+          parameters:
+            system.stiffness: {start: 1000.0}
+            system.damping: {start: 0.1}
+        """))
+    tasks, _ = prepare(experiment, expand_runs(experiment))
+    outcome = fit_one(tasks[1])
+    assert outcome.status == "converged", outcome.message
+    predicted = predicted_fit(INTEGRATORS["implicit_midpoint"](), 0.01, 1.0, 100.0, 0.4)
+    assert outcome.values == pytest.approx(predicted, rel=2e-3)  # where the method's eigenvalue is the motion's
+
+
+def test_data_made_by_a_method_are_predicted_as_that_methods_motion():
+    """Synthetic data stepped by backward Euler at h are backward Euler's motion: fitting them with the same method
+    and h recovers the truth, and the prediction says so (it targets the data method's eigenvalue, not exp(lambda h))."""
+    backward = INTEGRATORS["backward_euler"]()
+    assert predicted_fit(backward, 0.05, 1.0, 100.0, 0.4, (backward, 0.05)) == pytest.approx((100.0, 0.4), rel=1e-9)
+    assert predicted_fit(backward, 0.05, 1.0, 100.0, 0.4)[1] == pytest.approx(-4.54, abs=0.01)
+
+
+def test_observations_past_the_last_step_are_stepped_to_not_extrapolated():
+    """A dt that does not divide the duration: the run takes the steps that reach the last observation."""
+    from simrun.calibration.engine import steps_covering
+
+    assert steps_covering(1.0, 0.3333334, 1.0) == 3  # 3 steps end at 1.0000002 s
+    assert steps_covering(1.0, 0.3, 1.0) == 4  # 3 steps end at 0.9 s: a fourth reaches 1.0 s
+    assert steps_covering(1.0, 0.25, 1.0) == 4

@@ -129,6 +129,16 @@ CASES = [
     ("a stored run of another system", None, lambda csv, h5: cloth_config("system.stretch_stiffness: {start: 8000.0}").replace(
         "{synthetic: {integrator: backward_euler, dt: 0.01}}", json.dumps({"results": str(h5)})),
      ["fit.observed.run", "1 dofs", "27"]),
+    # an error inside one form of `observed` is that form's, in one line (not every member of the union failing)
+    ("a synthetic step <= 0", None, lambda csv, h5: spring_config({"synthetic": {"integrator": "exact", "dt": -0.05}}),
+     ["fit.observed", "synthetic.dt", "greater than 0"]),
+    ("an unknown key of a stored run", None, lambda csv, h5: spring_config({"results": str(h5), "extra": 1}),
+     ["fit.observed", "extra: unknown key", "results, run"]),
+    ("observed as a list", None, lambda csv, h5: spring_config([1, 2]),
+     ["fit.observed", "expected a CSV file's path"]),
+    ("exact sensitivities for a key that needs differences", None,
+     lambda csv, h5: spring_config(csv, "system.x0: {start: 0.9, bounds: [0.0, 2.0]}", "  sensitivities: exact\n"),
+     ["fit.sensitivities", "system.x0", "use auto"]),
 ]
 
 

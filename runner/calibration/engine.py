@@ -147,6 +147,13 @@ def at_times(trajectory: Trajectory, dt: float, times: np.ndarray, tangents: boo
     return spline(times).reshape((times.size,) + shape), spline(times, 1).reshape((times.size,) + shape)
 
 
+def steps_covering(duration: float, dt: float, last_time: float) -> int:
+    """The run's steps (those of dt in the duration), and more if an observation lies past the last of them (by less
+    than dt): a run is never read past its last step, where the interpolant would extrapolate."""
+    steps = max(1, math.floor(duration / dt + 1e-9))
+    return max(steps, math.ceil(last_time / dt - ON_STEP_TOLERANCE))
+
+
 def on_steps(times: np.ndarray, dt: float) -> np.ndarray:
     """The observations whose times are steps of dt (to ON_STEP_TOLERANCE dt): a mask."""
     ratio = times / dt
@@ -172,7 +179,7 @@ class Model:
         self.times = observations.t[self.used]
         self.with_velocity = task.weights == "position_and_velocity"
         self.velocity_scale = observations.velocity_scale if self.with_velocity else 0.0
-        self.steps = 0 if task.integrator is None else max(1, math.floor(task.duration / task.dt + 1e-9))
+        self.steps = 0 if task.integrator is None else steps_covering(task.duration, task.dt, observations.t[-1])
         self.simulations = 0
         observed = [observations.positions[self.used].ravel()]
         if self.with_velocity:
@@ -189,11 +196,19 @@ class Model:
         (observations, q, p) by forward sensitivities for the parameters that have them (None where none); None
         for a run that diverged."""
         task = self.task
-        system = self.system(values)
+        try:
+            system = self.system(values)
+        except ValueError:  # a trial the model refuses (past a bound of its own: k <= 0): as bad as a divergence
+            self.last_diverged = 0
+            return None
         self.simulations += 1
         if task.integrator is None:  # the exact solution
-            exact = system.exact_solution(self.times if times is None else times)
-            return exact[0][:, self.dofs], exact[1][:, self.dofs], None
+            with np.errstate(over="ignore", invalid="ignore"):
+                exact = system.exact_solution(self.times if times is None else times)
+            x, v = exact[0][:, self.dofs], exact[1][:, self.dofs]
+            if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+                return None
+            return x, v, None
         sensitivity, columns = None, []
         if with_jacobian:
             sensitivity, columns = self.sensitivity(system, values)
@@ -308,22 +323,23 @@ def fit_one(task: FitTask) -> FitOutcome:
             return _outcome(task, model, Status.DIVERGED, f"the start diverged at step {model.last_diverged}", nan, nan,
                             None, start_time, "none", 0, 0)
         if task.integrator is None:  # the exact solution: no sensitivities, finite differences throughout
-            result = scipy.optimize.least_squares(
-                lambda values: model.residual_of(model.motion(np.asarray(values, dtype=float))), task.start,
-                bounds=(task.lower, task.upper), method="trf", x_scale="jac", ftol=task.tolerance, xtol=task.tolerance,
-                gtol=task.tolerance, max_nfev=task.max_evaluations)
+            with np.errstate(over="ignore", invalid="ignore"):
+                result = scipy.optimize.least_squares(
+                    lambda values: model.residual_of(model.motion(np.asarray(values, dtype=float))), task.start,
+                    bounds=(task.lower, task.upper), method="trf", x_scale="jac", ftol=task.tolerance, xtol=task.tolerance,
+                    gtol=task.tolerance, max_nfev=task.max_evaluations)
             kinds.add("finite_differences")
         else:
             result = scipy.optimize.least_squares(
                 residual, task.start, jac=jacobian, bounds=(task.lower, task.upper), method="trf", x_scale="jac",
                 ftol=task.tolerance, xtol=task.tolerance, gtol=task.tolerance, max_nfev=task.max_evaluations)
+        values = result.x
+        errors = standard_errors(result.jac, result.fun)
+        final = model.motion(values)
+        shown = model.motion(values, times=task.observations.t) if final is not None else None
     except Exception as error:  # a solver or model failure is a result, not the end of the calibration
         return _outcome(task, model, Status.FAILED, f"{type(error).__name__}: {error}", nan, nan, None, start_time,
                         "none", 0, 0)
-    values = result.x
-    errors = standard_errors(result.jac, result.fun)
-    final = model.motion(values)
-    shown = model.motion(values, times=task.observations.t) if final is not None else None
     if final is None:
         status, message = Status.DIVERGED, f"the result diverged at step {model.last_diverged}"
     elif result.status == 0:

@@ -32,6 +32,7 @@ class Observations:
     source: str
     truth: dict[str, float] = field(default_factory=dict)
     first_line: int | None = None  # the file line of the first observation (a CSV file's), for error messages
+    truth_method: tuple | None = None  # (integrator, dt) that made synthetic data; None: the exact solution, or measured
 
     @property
     def velocity_scale(self) -> float:
@@ -196,7 +197,8 @@ def _synthetic(spec: Synthetic, experiment, dofs: np.ndarray, names: list[str], 
         velocities += (spec.noise / scale if scale > 0 else spec.noise) * generator.standard_normal(velocities.shape)
     overrides = ", ".join(f"{key} = {value}" for key, value in spec.system.items())
     source = f"synthetic: {label}" + (f", {overrides}" if overrides else "") + (f", noise {spec.noise:g} m (seed {spec.seed})" if spec.noise else "")
-    return Observations(t, positions, velocities, dofs, names, source, keys_truth(truth))
+    method = None if spec.integrator == "exact" else (integrator, spec.dt)
+    return Observations(t, positions, velocities, dofs, names, source, keys_truth(truth), truth_method=method)
 
 
 def _integrator(value):

@@ -6,9 +6,9 @@ names no numeric system parameter, a marker out of range) is checked by ``simrun
 from __future__ import annotations
 
 import math
-from typing import Any, Literal, Union
+from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 
 class ParameterSpec(BaseModel):
@@ -72,11 +72,40 @@ class Transfer(BaseModel):
         return values
 
 
+def _observed_source(value: Any):
+    """A CSV path, {results, run} or {synthetic: {...}}, told apart by their shape first, so that an error in one
+    is reported as that one's (one line), not as every member of the union failing."""
+    if isinstance(value, (str, StoredRun)):
+        return value
+    if isinstance(value, dict) and "synthetic" in value:
+        if len(value) != 1:
+            raise ValueError("synthetic: give it alone, as {synthetic: {...}}")
+        synthetic = value["synthetic"]
+        return {"synthetic": synthetic if isinstance(synthetic, Synthetic) else _member(Synthetic, synthetic, "synthetic.")}
+    if isinstance(value, dict) and "results" in value:
+        return _member(StoredRun, value, "")
+    raise ValueError("expected a CSV file's path, {results: FILE.h5, run: RUN_ID} or {synthetic: {...}}")
+
+
+def _member(model: type[BaseModel], value: Any, prefix: str):
+    """``model`` validated from ``value``; its first error as one ValueError line ``prefix + field: message``."""
+    try:
+        return model.model_validate(value)
+    except ValidationError as error:
+        item = error.errors()[0]
+        where = prefix + ".".join(str(part) for part in item["loc"])
+        message = (f"unknown key; allowed: {', '.join(model.model_fields)}" if item["type"] == "extra_forbidden"
+                   else item["msg"].removeprefix("Value error, "))
+        if "input" in item and not isinstance(item["input"], (dict, list)) and item["type"] not in ("missing", "extra_forbidden"):
+            message += f" (got {item['input']!r})"
+        raise ValueError(f"{where.rstrip('.')}: {message}" if where.rstrip(".") else message) from None
+
+
 class FitParams(BaseModel):
     """The ``fit`` block (docs/calibration.md)."""
 
     model_config = ConfigDict(extra="forbid")
-    observed: Union[str, StoredRun, dict[Literal["synthetic"], Synthetic]] = Field(
+    observed: Annotated[Any, BeforeValidator(_observed_source)] = Field(
         description="a CSV file (t, then one column per observed dof), {results: file.h5, run: id}, or {synthetic: {...}}")
     markers: list[int] | None = Field(None, description="observed vertices (every dof when omitted); spring_mass: its one position")
     parameters: dict[str, ParameterSpec] = Field(min_length=1, description="config keys (system.*) with start and bounds")

@@ -22,7 +22,7 @@ import numpy as np
 
 from simrun import __version__
 from simrun.calibration import store as fit_store
-from simrun.calibration.engine import FitTask, at_times, fit_one, on_steps, step_run
+from simrun.calibration.engine import FitTask, Model, at_times, fit_one, on_steps, step_run, steps_covering
 from simrun.calibration.keys import check_parameters, get_value, key_parts, system_at, system_mapping
 from simrun.calibration.observations import load_observations
 from simrun.calibration.predicted import predicted_values
@@ -148,15 +148,29 @@ def prepare(experiment, runs, folders: tuple[Path, ...] = ()) -> tuple[list[FitT
                 raise ConfigError(f"fit.compare: steps, but only {count} observation times are steps of dt = {run.dt:g} s "
                                   f"(fitting {len(keys)} parameters needs more): observe at multiples of every dt, or "
                                   "use compare: interpolated")
+        task = FitTask(fit_id=run.run_id, index=run.index, label=run.integrator_label, integrator=run.integrator,
+                       solver=run.solver, dt=run.dt, duration=run.duration, system=run.system, **shared)
         if fit.sensitivities == "exact":
-            from simrun.integrators.sensitivity import exact_refusal
-
-            reason = exact_refusal(run.system.build(), run.integrator)
-            if reason is not None:
-                raise ConfigError(f"fit.sensitivities: exact, but {run.integrator_label}: {reason}; use auto")
-        tasks.append(FitTask(fit_id=run.run_id, index=run.index, label=run.integrator_label, integrator=run.integrator,
-                             solver=run.solver, dt=run.dt, duration=run.duration, system=run.system, **shared))
+            _check_exact(task)
+        tasks.append(task)
     return tasks, observations
+
+
+def _check_exact(task: FitTask) -> None:
+    """``sensitivities: exact``: the method has forward sensitivities on this system and every parameter a derivative
+    there (at the start); ConfigError naming what would need finite differences otherwise."""
+    from simrun.integrators.sensitivity import exact_refusal
+
+    model = Model(task)
+    system = model.system(task.start)
+    reason = exact_refusal(system, task.integrator)
+    if reason is not None:
+        raise ConfigError(f"fit.sensitivities: exact, but {task.label}: {reason}; use auto")
+    _, columns = model.sensitivity(system, task.start)
+    without = [key for column, key in enumerate(task.keys) if column not in columns]
+    if without:
+        raise ConfigError(f"fit.sensitivities: exact, but {', '.join(without)} does not enter the system linearly "
+                          "(only finite differences follow it); use auto")
 
 
 def fit_and_simulate(task: FitTask, run):
@@ -198,7 +212,10 @@ def _predicted(experiment, tasks: list[FitTask], stored, observations) -> dict[s
     for task in tasks:
         if task.integrator is None or task.fit_id not in set(stored.table["fit_id"]):
             continue
-        predicted[task.fit_id] = predicted_values(task.keys, system_mapping(task.system), task.integrator, task.dt, truth)
+        # synthetic data made by a method are that method's motion: its eigenvalue is what the fits match
+        data_method = observations.truth_method if observations.truth else None
+        predicted[task.fit_id] = predicted_values(task.keys, system_mapping(task.system), task.integrator, task.dt, truth,
+                                                  data_method)
     return predicted
 
 
@@ -226,7 +243,7 @@ def transfer_rows(task: FitTask, values: np.ndarray, steps: list[tuple], solver,
     bound = math.sqrt(energy_factor) * float(np.max(np.abs(observations.positions)))
     rows = []
     for integrator, dt in steps:
-        count = max(1, math.floor(task.duration / dt + 1e-9))
+        count = steps_covering(task.duration, dt, observations.t[-1])
         try:
             trajectory = step_run(system, integrator, solver.build(), dt, count, observations.dofs)
         except Exception as error:  # a transfer that cannot run is a row that says so
@@ -254,10 +271,16 @@ def _transfer(experiment, tasks: list[FitTask], stored, steps: list[tuple], jobs
             work.append((task, values))
     if jobs <= 1 or len(work) <= 1:
         return [row for task, values in work for row in transfer_rows(task, values, steps, experiment.solver, factor)]
-    with concurrent.futures.ProcessPoolExecutor(min(jobs, len(work))) as pool:
+    pool = process_pool(min(jobs, len(work)))  # the project's workers: not forks holding the open results file
+    try:
         chunks = pool.map(transfer_rows, [task for task, _ in work], [values for _, values in work],
                           [steps] * len(work), [experiment.solver] * len(work), [factor] * len(work))
         return [row for chunk in chunks for row in chunk]
+    except BaseException:
+        stop_workers(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 __all__ = ["EXACT_ID", "fit", "fit_and_simulate", "prepare", "transfer_rows"]

@@ -38,13 +38,30 @@ def principal_log(matrix: np.ndarray, target: complex) -> complex:
     return min(logs, key=lambda value: abs(value - target))
 
 
-def predicted_fit(integrator, dt: float, mass: float, stiffness: float, damping: float) -> tuple[float, float]:
-    """(k', d') at which ``integrator`` at step ``dt`` has the eigenvalue exp(lambda h) of the motion with (k, d);
-    (NaN, NaN) where no such parameters exist (the phase per step is past pi, or the root-find does not meet it)."""
+def observed_eigenvalue(mass: float, stiffness: float, damping: float, data_method: tuple | None = None) -> complex:
+    """lambda of the observed motion: the continuous one, or, for data that a method made at its step h_d
+    (``data_method`` = (integrator, h_d)), that method's own, log(mu_d) / h_d."""
+    rate = continuous_eigenvalue(mass, stiffness, damping)
+    if data_method is None:
+        return rate
     from simrun.analysis import amplification_matrix
     from simrun.systems import SpringMassParams
 
-    target = continuous_eigenvalue(mass, stiffness, damping) * dt
+    integrator, step = data_method
+    system = SpringMassParams(mass=mass, stiffness=stiffness, damping=damping).build()
+    with np.errstate(all="ignore"):
+        return principal_log(amplification_matrix(integrator, step, system), rate * step) / step
+
+
+def predicted_fit(integrator, dt: float, mass: float, stiffness: float, damping: float,
+                  data_method: tuple | None = None) -> tuple[float, float]:
+    """(k', d') at which ``integrator`` at step ``dt`` has the eigenvalue exp(lambda h) of the motion with (k, d) (as
+    ``data_method`` made it, if one did: ``observed_eigenvalue``); (NaN, NaN) where no such parameters exist (the
+    phase per step is past pi, or the root-find does not meet it)."""
+    from simrun.analysis import amplification_matrix
+    from simrun.systems import SpringMassParams
+
+    target = observed_eigenvalue(mass, stiffness, damping, data_method) * dt
     if target.imag == 0.0 or target.imag >= math.pi:
         return math.nan, math.nan
     scale = abs(target)
@@ -70,13 +87,15 @@ def predicted_fit(integrator, dt: float, mass: float, stiffness: float, damping:
     return float(result.x[0]), float(result.x[1])
 
 
-def predicted_values(keys: list[str], system_mapping: dict, integrator, dt: float, truth: dict) -> dict[str, float]:
+def predicted_values(keys: list[str], system_mapping: dict, integrator, dt: float, truth: dict,
+                     data_method: tuple | None = None) -> dict[str, float]:
     """The predicted fitted values of a spring fit of stiffness and damping, from the motion's own ``truth``
-    ({key: value}); {} for other systems or other parameters."""
+    ({key: value}) and the method that made the data, if one did; {} for other systems or other parameters."""
     if system_mapping.get("type") != "spring_mass" or sorted(keys) != sorted(KEYS) or not all(key in truth for key in KEYS):
         return {}
-    stiffness, damping = predicted_fit(integrator, dt, float(system_mapping["mass"]), float(truth[KEYS[0]]), float(truth[KEYS[1]]))
+    stiffness, damping = predicted_fit(integrator, dt, float(system_mapping["mass"]), float(truth[KEYS[0]]),
+                                       float(truth[KEYS[1]]), data_method)
     return {KEYS[0]: stiffness, KEYS[1]: damping}
 
 
-__all__ = ["continuous_eigenvalue", "predicted_fit", "predicted_values"]
+__all__ = ["continuous_eigenvalue", "observed_eigenvalue", "predicted_fit", "predicted_values"]

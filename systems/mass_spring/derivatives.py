@@ -28,6 +28,8 @@ def parameter_derivative(system, changed, change: float) -> ParameterDerivative 
     if [term.model for term in system.damping_terms] != [term.model for term in changed.damping_terms]:
         return None  # a damper switched on or off (a zero coefficient drops it): not a linear change
     stiffness_rate = (changed.stiffness - system.stiffness) / change
+    if np.any(stiffness_rate) and any(term.model == "rayleigh" and term.beta != 0.0 for term in system.damping_terms):
+        return None  # Rayleigh's beta K_rest moves with the stiffness too: finite differences follow it
     rates = [(term.model, (moved.coefficient - term.coefficient) / change, (moved.alpha - term.alpha) / change,
               (moved.beta - term.beta) / change) for term, moved in zip(system.damping_terms, changed.damping_terms)]
     rates = [rate for rate in rates if any(rate[1:])]
