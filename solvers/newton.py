@@ -16,6 +16,7 @@ sets a bit of ``SolveStats.safeguards``, which the runner records per step:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,7 @@ import scipy.sparse
 
 from .base import LINEAR_FAILURES, NonlinearSolver
 from .dofs import FreeDofs
+from .lagged import LaggedFactor
 from .line_search import has_value, line_search
 
 SPD_PROJECTIONS = ("none", "clamp", "abs", "eigen", "adaptive")
@@ -32,6 +34,12 @@ SPD_PROJECTIONS = ("none", "clamp", "abs", "eigen", "adaptive")
 EIGEN_FLOOR = 1e-8
 # safeguard bits of SolveStats.safeguards (the runner records them per step; docs/results-format.md)
 SAFEGUARDS = {"line_search": 1, "projected": 2, "regularized": 4, "fallback": 8}
+# solver.refactor: every (a new factorisation at every iteration) | adaptive (solvers/lagged.py)
+REFACTOR_MODES = ("every", "adaptive")
+# adaptive: refactor once an iteration with the lagged matrix cuts the residual by less than this factor: the
+# chord iterations' linear rate against the cost of a factorisation (measured on the hanging 32x32 and 64x64 cloth,
+# backward Euler, dt = 0.01 s, tolerance 1e-9: 0.5 beat 0.1, 0.25 and 0.7; docs/performance.md)
+DEFAULT_REFACTOR_RATE = 0.5
 # adaptive projection: the raw Hessian for the next iteration once the last step's actual decrease of E
 # was at least this fraction of the decrease its quadratic model predicted (the model is trusted: near
 # the solution); the abs-projected Hessian otherwise. 0.75 is the "very successful step" threshold at
@@ -67,6 +75,8 @@ class _NewtonState:
     trusted: bool = False  # adaptive: the last step's quadratic model was trusted (use the raw Hessian)
     safeguards: int = 0  # bits of SAFEGUARDS fired in this solve
     predicted: float = 0.0  # adaptive: the quadratic model's predicted decrease along the last direction
+    previous_residual: float | None = None  # refactor adaptive: the residual at the last direction of this solve
+    lagged: bool = False  # refactor adaptive: the last direction came from a lagged factorisation
 
 
 class Newton(NonlinearSolver):
@@ -95,13 +105,19 @@ class Newton(NonlinearSolver):
     uses_linear_solver = True
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
-                 line_search: str = "backtracking", spd_projection: str = "none", **options):
+                 line_search: str = "backtracking", spd_projection: str = "none", refactor: str = "every",
+                 refactor_rate: float = DEFAULT_REFACTOR_RATE, **options):
         super().__init__(tolerance, max_iterations, linear_solver, **options)
         if spd_projection not in SPD_PROJECTIONS:
             raise ValueError(f"spd_projection must be one of {', '.join(SPD_PROJECTIONS)}, got {spd_projection!r}")
+        if refactor not in REFACTOR_MODES:
+            raise ValueError(f"refactor must be one of {', '.join(REFACTOR_MODES)}, got {refactor!r}")
         self.line_search = line_search
         self.spd_projection = spd_projection
         self.model_is_spd = spd_projection not in ("none", "adaptive")
+        self.refactor = refactor
+        self.refactor_rate = refactor_rate
+        self._lagged: LaggedFactor | None = None  # refactor adaptive: kept across the solves (steps) of a run
 
     # -- the matrix of an iteration --------------------------------------------------------------
     def _projected(self, problem, y, state, mode: str):
@@ -136,6 +152,37 @@ class Newton(NonlinearSolver):
         return _NewtonState(free)
 
     def _direction(self, problem, current, state):
+        if self.refactor == "adaptive" and current.energy is not None:  # a lagged matrix needs the line search's E
+            return self._lagged_direction(problem, current, state)
+        return self._fresh_direction(problem, current, state)
+
+    def _lagged_direction(self, problem, current, state):
+        """The direction of the kept factorisation, while the residual falls by at least ``refactor_rate`` per
+        iteration and the direction descends; else the matrix at the current iterate, factorised and kept."""
+        previous, state.previous_residual = state.previous_residual, current.residual
+        slow = previous is not None and current.residual > self.refactor_rate * previous
+        factor = self._lagged
+        if factor is not None and not slow and factor.fits(state.free):
+            direction = factor.solve(-current.gradient)
+            if np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:
+                state.lagged = True
+                return direction, 1
+        state.lagged = False
+        matrix = self._model_hessian(problem, current.y, state)
+        spd = self.model_is_spd and not (self.spd_projection == "adaptive" and state.trusted)
+        try:
+            factor = LaggedFactor(matrix, state.free, spd)
+            direction = factor.solve(-current.gradient)
+        except (*LINEAR_FAILURES, RuntimeError):  # a singular matrix: the safeguards' directions, nothing kept
+            self._lagged = None
+            return self._safeguarded_direction(problem, current, state)
+        if np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:
+            self._lagged = factor
+            return direction, 1
+        self._lagged = None
+        return self._safeguarded_direction(problem, current, state)
+
+    def _fresh_direction(self, problem, current, state):
         matrix = self._model_hessian(problem, current.y, state)
         spd = self.model_is_spd and not (self.spd_projection == "adaptive" and state.trusted)
         if current.energy is None:  # no value: plain Newton on the residual
@@ -184,6 +231,12 @@ class Newton(NonlinearSolver):
 
     def _advance(self, problem, current, direction, state):
         advance = line_search(problem, state.free, current, direction, self.line_search, within_roundoff=True)
+        if not advance.ok and state.lagged:  # the lagged matrix's direction gains nothing: the current matrix's
+            state.previous_residual = math.inf  # refactors at this iterate
+            fresh, _ = self._lagged_direction(problem, current, state)
+            retried = line_search(problem, state.free, current, fresh, self.line_search, within_roundoff=True)
+            retried.line_search_steps += advance.line_search_steps
+            advance = retried
         if not advance.ok and current.energy is not None and not self.model_is_spd:
             # a descent direction of the raw Hessian along which E does not decrease: the projected one's
             try:
@@ -209,9 +262,10 @@ class ProjectedNewton(Newton):
     name = "projected_newton"
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
-                 line_search: str = "backtracking", spd_projection: str = "clamp", **options):
+                 line_search: str = "backtracking", spd_projection: str = "clamp", refactor: str = "every",
+                 refactor_rate: float = DEFAULT_REFACTOR_RATE, **options):
         super().__init__(tolerance, max_iterations, linear_solver, line_search=line_search,
-                         spd_projection=spd_projection, **options)
+                         spd_projection=spd_projection, refactor=refactor, refactor_rate=refactor_rate, **options)
 
 
 def _mass_of(problem, matrix) -> np.ndarray:

@@ -24,7 +24,7 @@ from .descent import INITIAL_HESSIANS, LBFGS, GradientDescent, JacobiChebyshev
 from .fallback import FallbackChain
 from .line_search import LINE_SEARCHES
 from .linear import LINEAR_SOLVERS
-from .newton import SPD_PROJECTIONS, Newton, ProjectedNewton
+from .newton import DEFAULT_REFACTOR_RATE, REFACTOR_MODES, SPD_PROJECTIONS, Newton, ProjectedNewton
 from .projective import CHEBYSHEV_RHO_AUTO, ProjectiveDynamics
 from .vbd import VBD_SPD_PROJECTIONS, VertexBlockDescent
 
@@ -214,6 +214,8 @@ class SolverParams(BaseModel):
 # -- each solver's own options: the keyword arguments of its constructor beyond the shared ones -----
 LineSearch = Annotated[Literal[LINE_SEARCHES], Field(description="none | backtracking (halve the step until the energy decreases) | armijo (until it decreases enough)")]  # type: ignore[valid-type]
 SpdProjection = Literal[SPD_PROJECTIONS]  # type: ignore[valid-type]
+Refactor = Annotated[Literal[REFACTOR_MODES], Field(description="every (factorise the Newton matrix at every iteration) | adaptive (keep the last factorisation across iterations and steps, and refactor when an iteration cuts the residual by less than refactor_rate or its direction does not descend: solvers/lagged.py)")]  # type: ignore[valid-type]
+RefactorRate = Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False, description="refactor adaptive: the residual reduction per iteration below which the lagged factorisation is renewed")]
 
 
 class NewtonParams(SolverParams):
@@ -223,6 +225,8 @@ class NewtonParams(SolverParams):
 
     type: Literal["newton"] = "newton"
     line_search: LineSearch = "backtracking"
+    refactor: Refactor = "every"
+    refactor_rate: RefactorRate = DEFAULT_REFACTOR_RATE
     spd_projection: SpdProjection = Field("none", description="the Newton matrix: none (raw Hessian; the projected one only where a safeguard needs it) | clamp (the system's own projection) | abs (block eigenvalues mirrored) | eigen (whole-matrix clamp, dense problems) | adaptive (abs while far from the solution, raw once its quadratic model is trusted)")
 
 
@@ -231,6 +235,8 @@ class ProjectedNewtonParams(SolverParams):
 
     type: Literal["projected_newton"] = "projected_newton"
     line_search: LineSearch = "backtracking"
+    refactor: Refactor = "every"
+    refactor_rate: RefactorRate = DEFAULT_REFACTOR_RATE
     spd_projection: SpdProjection = Field("clamp", description="none | clamp (the system's own projection) | abs (block eigenvalues mirrored: Chen et al. 2024) | eigen (whole-matrix eigenvalue clamp for dense problems; clamp for sparse ones) | adaptive (abs while far from the solution, raw once its quadratic model is trusted)")
 
 

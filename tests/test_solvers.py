@@ -480,7 +480,9 @@ FORMER_DEFAULTS = {"tolerance": 1e-10, "tolerance_mode": "residual", "max_iterat
                    "spd_projection": "clamp", "history": 8, "chebyshev_rho": 0.99, "relaxation": 0.9,
                    "linear_solver": "direct", "linear_tolerance": 1e-10, "linear_max_iterations": 1000, "mpcg_start": "zero", "fallback": [],
                    "on_not_converged": "continue", "initial_guess": "start", "initial_hessian": "scalar",
-                   "chebyshev_warmup": 10, "determinant_floor": 1e-20}
+                   "chebyshev_warmup": 10, "determinant_floor": 1e-20,
+                   # issue 18: Newton's lagged factorisation, off by default (a factorisation at every iteration)
+                   "refactor": "every", "refactor_rate": 0.5}
 # issue 16: newton gained a line search (backtracking) and safeguards; its own matrix stays the raw Hessian;
 # the new solvers' own defaults (plain PD and VBD: no Chebyshev; VBD starts from the paper's guess)
 NEW_DEFAULTS = {"newton": {"spd_projection": "none"}, "projective_dynamics": {"chebyshev_rho": 0.0, "relaxation": 1.0},
@@ -575,7 +577,7 @@ def test_newton_refuses_history(tmp_path, capsys):
     assert refused_by_the_command_line(tmp_path, capsys, {"type": "newton", "history": 8}) == (
         "simrun: error: solver.history: newton does not use 'history'; it takes: tolerance, tolerance_mode, initial_guess, "
         "max_iterations, linear_solver, linear_tolerance, linear_max_iterations, mpcg_start, fallback, on_not_converged, "
-        "line_search, spd_projection")
+        "line_search, refactor, refactor_rate, spd_projection")
     with pytest.raises(SolverOptionError, match="^history: newton does not use 'history'; it takes: tolerance, "):
         solver_params(type="newton", history=8)  # from Python, the same line
 

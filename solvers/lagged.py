@@ -1,0 +1,62 @@
+"""A Newton matrix factorised once and kept across iterations and steps (``solver.refactor: adaptive``).
+
+Per iteration of a cloth step, Newton assembles the Hessian and factorises it; the factorisation is the cost
+(docs/performance.md). Newton with a lagged matrix (the chord or "modified Newton" method, Kelley, "Iterative
+Methods for Linear and Nonlinear Equations", SIAM 1995, ch. 5.4; Shamanskii's method) reuses the last
+factorisation for as long as it still pays: each iteration then costs a gradient and two triangular solves, the
+convergence is linear at the rate |I - A_lag^-1 H|, and the solver refactors at the current iterate when that rate
+is worse than ``refactor_rate`` (the residual fell by less than that factor in an iteration), when the lagged
+direction does not descend, or when the free dofs change. Successive steps of a run have nearly the same matrix
+M + s K(x), so one factorisation serves many steps.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
+
+from .dofs import FreeDofs
+from .linear import SPLU_ORDERING, SPLU_SPD_OPTIONS
+
+
+class LaggedFactor:
+    """The factorisation of one Newton matrix restricted to its free dofs; ``solve(rhs)`` -> p with p = 0 on fixed
+    dofs, as a linear solver's."""
+
+    def __init__(self, matrix, free: FreeDofs, spd: bool):
+        self.free = free
+        reduced = free.restrict_matrix(free.filter_matrix(matrix))
+        if scipy.sparse.issparse(reduced):
+            reduced = reduced.tocsr()
+            if not reduced.has_sorted_indices:
+                reduced = reduced.sorted_indices()
+            # CSR arrays read as CSC: the transpose, factored and solved with trans="T" (as the direct solver does)
+            transposed = scipy.sparse.csc_matrix((reduced.data, reduced.indices, reduced.indptr), shape=reduced.shape)
+            factor = None
+            if spd:
+                try:
+                    factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS)
+                except RuntimeError:  # not definite after all: pivot
+                    factor = None
+            if factor is None:
+                factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING)
+            self._solve = lambda rhs: factor.solve(rhs, trans="T")
+        else:
+            lu = scipy.linalg.lu_factor(np.asarray(reduced, dtype=float), check_finite=False)
+            self._solve = lambda rhs: scipy.linalg.lu_solve(lu, rhs, check_finite=False)
+
+    def fits(self, free: FreeDofs) -> bool:
+        """Is it the factorisation of a matrix on these free dofs?"""
+        return free is self.free or (free.size == self.free.size and np.array_equal(free.fixed, self.free.fixed)
+                                     and free.sliding is None and self.free.sliding is None)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        reduced = self.free.restrict(rhs)
+        if reduced.size == 0:
+            return np.zeros_like(rhs)
+        return self.free.extend(self._solve(np.ascontiguousarray(reduced)))
+
+
+__all__ = ["LaggedFactor"]
