@@ -8,6 +8,10 @@ convergence is linear at the rate |I - A_lag^-1 H|, and the solver refactors at 
 is worse than ``refactor_rate`` (the residual fell by less than that factor in an iteration), when the lagged
 direction does not descend, or when the free dofs change. Successive steps of a run have nearly the same matrix
 M + s K(x), so one factorisation serves many steps.
+
+``preconditioned_solve`` uses the kept factorisation as the preconditioner of conjugate gradients on the current
+matrix instead (``solver.refactor: preconditioner``, Newton-Krylov): Newton's directions to a relative residual,
+refactorised when the preconditioned iteration needs too many steps.
 """
 
 from __future__ import annotations
@@ -51,6 +55,26 @@ class LaggedFactor:
         """Is it the factorisation of a matrix on these free dofs?"""
         return free is self.free or (free.size == self.free.size and np.array_equal(free.fixed, self.free.fixed)
                                      and free.sliding is None and self.free.sliding is None)
+
+    def preconditioned_solve(self, matrix, rhs: np.ndarray, tolerance: float, limit: int) -> tuple[np.ndarray | None, int]:
+        """A p = rhs on the free dofs by conjugate gradients (scipy's cg) preconditioned with this factorisation, to
+        |r| <= tolerance |rhs|; (p, iterations), or (None, iterations) when it needs more than ``limit``."""
+        reduced = self.free.restrict(rhs)
+        if reduced.size == 0:
+            return np.zeros_like(rhs), 0
+        operator = self.free.restrict_matrix(self.free.filter_matrix(matrix))
+        count = [0]
+
+        def counted(_):
+            count[0] += 1
+
+        preconditioner = scipy.sparse.linalg.LinearOperator(operator.shape, matvec=lambda vector: self._solve(
+            np.ascontiguousarray(vector)), dtype=float)
+        solution, info = scipy.sparse.linalg.cg(operator, reduced, rtol=tolerance, atol=0.0, maxiter=limit,
+                                                M=preconditioner, callback=counted)
+        if info != 0:
+            return None, count[0]
+        return self.free.extend(solution), count[0]
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         reduced = self.free.restrict(rhs)

@@ -35,7 +35,12 @@ EIGEN_FLOOR = 1e-8
 # safeguard bits of SolveStats.safeguards (the runner records them per step; docs/results-format.md)
 SAFEGUARDS = {"line_search": 1, "projected": 2, "regularized": 4, "fallback": 8}
 # solver.refactor: every (a new factorisation at every iteration) | adaptive (solvers/lagged.py)
-REFACTOR_MODES = ("every", "adaptive")
+REFACTOR_MODES = ("every", "adaptive", "preconditioner")
+# preconditioner: PCG on the current Newton matrix, preconditioned by the kept factorisation, to this relative
+# residual (an inexact Newton direction: Newton then converges linearly at about this rate); a solve that needs more
+# than PRECONDITIONED_ITERATIONS iterations refactorises (the kept matrix has drifted too far from the current one)
+PRECONDITIONED_TOLERANCE = 1e-3
+PRECONDITIONED_ITERATIONS = 15
 # adaptive: refactor once an iteration with the lagged matrix cuts the residual by less than this factor: the
 # chord iterations' linear rate against the cost of a factorisation (measured on the hanging 32x32 and 64x64 cloth,
 # backward Euler, dt = 0.01 s, tolerance 1e-9: 0.5 beat 0.1, 0.25 and 0.7; docs/performance.md)
@@ -154,7 +159,33 @@ class Newton(NonlinearSolver):
     def _direction(self, problem, current, state):
         if self.refactor == "adaptive" and current.energy is not None:  # a lagged matrix needs the line search's E
             return self._lagged_direction(problem, current, state)
+        if self.refactor == "preconditioner" and current.energy is not None:
+            return self._preconditioned_direction(problem, current, state)
         return self._fresh_direction(problem, current, state)
+
+    def _preconditioned_direction(self, problem, current, state):
+        """Newton-Krylov: the current matrix solved by PCG preconditioned with the kept factorisation (a few
+        iterations while the matrix has not moved far from the factored one); the current matrix factorised and kept
+        when PCG needs more than PRECONDITIONED_ITERATIONS, fails, or there is no factorisation yet."""
+        matrix = self._model_hessian(problem, current.y, state)
+        spd = self.model_is_spd and not (self.spd_projection == "adaptive" and state.trusted)
+        factor = self._lagged
+        if factor is not None and factor.fits(state.free):
+            direction, iterations = factor.preconditioned_solve(matrix, -current.gradient, PRECONDITIONED_TOLERANCE,
+                                                                PRECONDITIONED_ITERATIONS)
+            if direction is not None and np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:
+                return direction, iterations
+        try:
+            factor = LaggedFactor(matrix, state.free, spd)
+            direction = factor.solve(-current.gradient)
+        except (*LINEAR_FAILURES, RuntimeError):
+            self._lagged = None
+            return self._safeguarded_direction(problem, current, state)
+        if np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:
+            self._lagged = factor
+            return direction, 1
+        self._lagged = None
+        return self._safeguarded_direction(problem, current, state)
 
     def _lagged_direction(self, problem, current, state):
         """The direction of the kept factorisation, while the residual falls by at least ``refactor_rate`` per

@@ -214,7 +214,7 @@ class SolverParams(BaseModel):
 # -- each solver's own options: the keyword arguments of its constructor beyond the shared ones -----
 LineSearch = Annotated[Literal[LINE_SEARCHES], Field(description="none | backtracking (halve the step until the energy decreases) | armijo (until it decreases enough)")]  # type: ignore[valid-type]
 SpdProjection = Literal[SPD_PROJECTIONS]  # type: ignore[valid-type]
-Refactor = Annotated[Literal[REFACTOR_MODES], Field(description="every (factorise the Newton matrix at every iteration) | adaptive (keep the last factorisation across iterations and steps, and refactor when an iteration cuts the residual by less than refactor_rate or its direction does not descend: solvers/lagged.py)")]  # type: ignore[valid-type]
+Refactor = Annotated[Literal[REFACTOR_MODES], Field(description="every (factorise the Newton matrix at every iteration) | adaptive (keep the last factorisation across iterations and steps, and refactor when an iteration cuts the residual by less than refactor_rate or its direction does not descend: solvers/lagged.py) | preconditioner (PCG on the current matrix preconditioned by the kept factorisation, refactored when PCG needs more than 15 iterations)")]  # type: ignore[valid-type]
 RefactorRate = Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False, description="refactor adaptive: the residual reduction per iteration below which the lagged factorisation is renewed")]
 
 
