@@ -175,17 +175,7 @@ class Newton(NonlinearSolver):
                                                                 PRECONDITIONED_ITERATIONS)
             if direction is not None and np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:
                 return direction, iterations
-        try:
-            factor = LaggedFactor(matrix, state.free, spd)
-            direction = factor.solve(-current.gradient)
-        except (*LINEAR_FAILURES, RuntimeError):
-            self._lagged = None
-            return self._safeguarded_direction(problem, current, state)
-        if np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:
-            self._lagged = factor
-            return direction, 1
-        self._lagged = None
-        return self._safeguarded_direction(problem, current, state)
+        return self._factorised_direction(problem, current, state, matrix, spd)
 
     def _lagged_direction(self, problem, current, state):
         """The direction of the kept factorisation, while the residual falls by at least ``refactor_rate`` per
@@ -201,13 +191,17 @@ class Newton(NonlinearSolver):
         state.lagged = False
         matrix = self._model_hessian(problem, current.y, state)
         spd = self.model_is_spd and not (self.spd_projection == "adaptive" and state.trusted)
+        return self._factorised_direction(problem, current, state, matrix, spd)
+
+    def _factorised_direction(self, problem, current, state, matrix, spd: bool):
+        """The direction of ``matrix`` factorised here, and the factorisation kept for the next iterations; the
+        safeguards' direction (nothing kept) where it is singular or its direction does not descend."""
         try:
             factor = LaggedFactor(matrix, state.free, spd)
             direction = factor.solve(-current.gradient)
-        except (*LINEAR_FAILURES, RuntimeError):  # a singular matrix: the safeguards' directions, nothing kept
-            self._lagged = None
-            return self._safeguarded_direction(problem, current, state)
-        if np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:
+        except (*LINEAR_FAILURES, RuntimeError):
+            factor, direction = None, None
+        if direction is not None and np.all(np.isfinite(direction)) and float(current.gradient @ direction) < 0.0:
             self._lagged = factor
             return direction, 1
         self._lagged = None
