@@ -16,7 +16,6 @@ sets a bit of ``SolveStats.safeguards``, which the runner records per step:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,7 +33,8 @@ SPD_PROJECTIONS = ("none", "clamp", "abs", "eigen", "adaptive")
 EIGEN_FLOOR = 1e-8
 # safeguard bits of SolveStats.safeguards (the runner records them per step; docs/results-format.md)
 SAFEGUARDS = {"line_search": 1, "projected": 2, "regularized": 4, "fallback": 8}
-# solver.refactor: every (a new factorisation at every iteration) | adaptive (solvers/lagged.py)
+# solver.refactor: every (a new factorisation at every iteration) | adaptive (a lagged one) | preconditioner (a lagged one
+# preconditioning PCG on the current matrix): solvers/lagged.py
 REFACTOR_MODES = ("every", "adaptive", "preconditioner")
 # preconditioner: PCG on the current Newton matrix, preconditioned by the kept factorisation, to this relative
 # residual (an inexact Newton direction: Newton then converges linearly at about this rate); a solve that needs more
@@ -122,7 +122,7 @@ class Newton(NonlinearSolver):
         self.model_is_spd = spd_projection not in ("none", "adaptive")
         self.refactor = refactor
         self.refactor_rate = refactor_rate
-        self._lagged: LaggedFactor | None = None  # refactor adaptive: kept across the solves (steps) of a run
+        self._lagged: LaggedFactor | None = None  # refactor adaptive, preconditioner: kept across the solves of a run
 
     # -- the matrix of an iteration --------------------------------------------------------------
     def _projected(self, problem, y, state, mode: str):
@@ -257,8 +257,10 @@ class Newton(NonlinearSolver):
     def _advance(self, problem, current, direction, state):
         advance = line_search(problem, state.free, current, direction, self.line_search, within_roundoff=True)
         if not advance.ok and state.lagged:  # the lagged matrix's direction gains nothing: the current matrix's
-            state.previous_residual = math.inf  # refactors at this iterate
-            fresh, _ = self._lagged_direction(problem, current, state)
+            state.lagged = False
+            matrix = self._model_hessian(problem, current.y, state)
+            spd = self.model_is_spd and not (self.spd_projection == "adaptive" and state.trusted)
+            fresh, _ = self._factorised_direction(problem, current, state, matrix, spd)
             retried = line_search(problem, state.free, current, fresh, self.line_search, within_roundoff=True)
             retried.line_search_steps += advance.line_search_steps
             advance = retried

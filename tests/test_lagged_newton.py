@@ -4,6 +4,7 @@ fewer factorisations, across the steps of a run; bad options are one line."""
 
 from __future__ import annotations
 
+import dataclasses
 import numpy as np
 import pytest
 
@@ -108,3 +109,41 @@ def test_newton_krylov_with_the_lagged_preconditioner_reaches_the_same_solution(
     iterations = int(np.sum(krylov.per_step["newton_iterations"]))
     assert iterations <= 2 * newton_iterations
     assert iterations < int(np.sum(krylov.per_step["linear_iterations"])) <= 15 * iterations
+
+
+def test_a_lagged_direction_the_line_search_cannot_use_is_replaced_by_the_current_matrixs(monkeypatch):
+    """When the line search finds no decrease along the lagged direction, the step is retried along the direction
+    of the matrix at the current iterate, factorised there (not along the lagged one again): in the order of events,
+    every refused search is followed by a factorisation before the next search."""
+    from simrun.solvers import newton
+
+    events: list[str] = []
+    state_of = {"lagged": False}
+    original_search, original_lagged, original_factor = newton.line_search, newton.Newton._lagged_direction, lagged.LaggedFactor.__init__
+
+    def refusing_the_lagged(problem, free, current, direction, *arguments, **keywords):
+        advance = original_search(problem, free, current, direction, *arguments, **keywords)
+        if state_of["lagged"] and events.count("refused") < 3:
+            state_of["lagged"] = False
+            events.append("refused")
+            return dataclasses.replace(advance, ok=False)
+        events.append("search")
+        return advance
+
+    def tracking(solver, problem, current, state):
+        result = original_lagged(solver, problem, current, state)
+        state_of["lagged"] = state.lagged
+        return result
+
+    def factorising(factor, *arguments, **keywords):
+        events.append("factor")
+        original_factor(factor, *arguments, **keywords)
+
+    monkeypatch.setattr(newton, "line_search", refusing_the_lagged)
+    monkeypatch.setattr(newton.Newton, "_lagged_direction", tracking)
+    monkeypatch.setattr(lagged.LaggedFactor, "__init__", factorising)
+    result = simulate(cloth_run("adaptive", steps=4))
+    assert str(result.status) == "ok" and events.count("refused") == 3
+    for number, event in enumerate(events):
+        if event == "refused":
+            assert events[number + 1] == "factor", events[number: number + 3]
