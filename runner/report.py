@@ -287,9 +287,12 @@ def _calibration_section(results: Results) -> str:
             for label, cells in table.rows]
         anchor = (f"; {table.anchor_name}: {table.anchor:g} {table.unit}" if np.isfinite(table.anchor) else "")
         exact = f"; the exact-solution fit: {table.reference.text()}" if table.reference is not None else ""
+        predicted = any(cell is not None and cell.predicted_text() for _, cells in table.rows for cell in cells)
+        explained = (", below it (the predicted value: where the method's own step has the observed eigenvalue)"
+                     if predicted else "")
         parts.append(f"<h3>{_e(table.key)}" + (f" ({_e(table.unit)})" if table.unit else "") + "</h3>"
-                     f'<p class="note">Each cell: the fitted value ± its standard error, below it (the predicted value: '
-                     f"where the method's own step has the observed eigenvalue){_e(anchor + exact)}.</p>" + _table(head, body))
+                     f'<p class="note">Each cell: the fitted value ± its standard error{_e(explained + anchor + exact)}.</p>'
+                     + _table(head, body))
     transfer = calibration.transfer_table(fits)
     if transfer is not None:
         head = [("fitted with", "label"), ("dt (s)", False)] + [(f"{name} at dt = {dt:g} s", False) for name, dt in transfer.targets]
