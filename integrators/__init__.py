@@ -8,7 +8,8 @@ Runge-Kutta method supplies only its ``ButcherTableau``) and an entry in INTEGRA
 in tests/test_integrators.py then step it, and ask for its closed-form spectral radius in CLOSED_FORMS.
 """
 
-from .base import IncrementalPotential, Integrator, SegmentPotential, State
+from .base import IncrementalPotential, Integrator, State
+from .segment import SegmentPotential
 from .euler import BackwardEuler, ForwardEuler, SymplecticEuler
 from .explicit import RK4, ButcherTableau, ExplicitMidpoint, ExplicitRungeKutta, Leapfrog
 from .exponential import ExponentialRosenbrockEuler

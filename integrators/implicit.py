@@ -13,7 +13,8 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from .base import IncrementalPotential, Integrator, SegmentPotential, State, StepPlan, solve_step
+from .base import IncrementalPotential, Integrator, State, StepPlan, solve_step
+from .segment import SegmentPotential
 
 
 class ImplicitMidpoint(Integrator):

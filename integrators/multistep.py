@@ -10,7 +10,8 @@ from typing import ClassVar
 
 from pydantic import Field
 
-from .base import Integrator, SegmentPotential, State, StepPlan, solve_step
+from .base import Integrator, State, StepPlan, solve_step
+from .segment import SegmentPotential
 from .euler import BackwardEuler
 
 # BDF2 increment: u_{n+1} - u_n = HISTORY (u_n - u_{n-1}) + IMPLICIT_WEIGHT h F(u_{n+1})
