@@ -6,6 +6,15 @@ from __future__ import annotations
 from pathlib import Path
 
 
+def add_experiment_options(parser, example: str) -> None:
+    """What `simrun run` and `simrun fit` both take after the config: ``--set`` (``example``: a use of it),
+    ``--output`` and ``--no-plots``."""
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"override a config key, value in YAML (repeatable), e.g. {example}")
+    parser.add_argument("--output", help="output folder (default: the config's `output`, else results/<name>)")
+    parser.add_argument("--no-plots", action="store_true", help="write the results file only")
+
+
 def add_reference_option(parser, default: str = "none") -> None:
     """``--reference METHOD_OR_RUN``: what the error of runs without an exact solution (the cloth) is measured
     against. It always takes a value, so that it never takes the results file for one."""
@@ -62,4 +71,4 @@ def say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-__all__ = ["add_reference_option", "load_results", "say", "writable_output", "writing_file", "writing_folder"]
+__all__ = ["add_experiment_options", "add_reference_option", "load_results", "say", "writable_output", "writing_file", "writing_folder"]

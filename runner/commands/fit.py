@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import sys
 
-EXIT_INTERRUPTED = 130
+from simrun.commands._options import add_experiment_options
+from simrun.commands.run import EXIT_INTERRUPTED  # 128 + SIGINT, as for a run
 
 
 def add_parser(commands) -> None:
@@ -15,10 +16,7 @@ def add_parser(commands) -> None:
                     "once per integrator x dt of the sweep, and write OUTPUT/results.h5 (a `fits` group, and each "
                     "fit's run) and OUTPUT/figures/. See docs/calibration.md.")
     fit.add_argument("config", help="the experiment's YAML file with a fit block, e.g. configs/calibrate_spring.yaml")
-    fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                     help="override a config key, value in YAML (repeatable), e.g. --set fit.observed.synthetic.noise=0")
-    fit.add_argument("--output", help="output folder (default: the config's `output`, else results/<name>)")
-    fit.add_argument("--no-plots", action="store_true", help="write the results file only")
+    add_experiment_options(fit, "--set fit.observed.synthetic.noise=0")
     fit.add_argument("-j", "--jobs", type=int, help="fits at once (default: the number of cores; 1 = serial)")
     fit.add_argument("--force", action="store_true", help="start over even if OUTPUT/results.h5 holds other results")
     fit.add_argument("-q", "--quiet", action="store_true", help="print only errors and the final paths")

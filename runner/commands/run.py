@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from simrun.commands._options import add_experiment_options
 from simrun.workers import EXECUTOR_ALIASES, EXECUTORS
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report Ctrl-C
@@ -14,10 +15,7 @@ def add_parser(commands) -> None:
     run = commands.add_parser("run", help="run an experiment: every run of its sweep, then its figures",
                               description="Run every run of CONFIG's sweep, write OUTPUT/results.h5 and draw OUTPUT/figures/.")
     run.add_argument("config", help="the experiment's YAML file, e.g. configs/quickstart.yaml")
-    run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                     help="override a config key, value in YAML (repeatable), e.g. --set system.stiffness=1000 --set sweep.dt=[0.01,0.02]")
-    run.add_argument("--output", help="output folder (default: the config's `output`, else results/<name>)")
-    run.add_argument("--no-plots", action="store_true", help="write the results file only")
+    add_experiment_options(run, "--set system.stiffness=1000 --set sweep.dt=[0.01,0.02]")
     run.add_argument("-j", "--jobs", type=int, help="runs at once: local processes or Dask workers (default: the number of cores; 1 = serial)")
     run.add_argument("--executor", choices=(*EXECUTORS, *EXECUTOR_ALIASES), default="process",
                      help="process: a process pool on this machine (default; `local` is the same); "
