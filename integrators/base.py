@@ -30,6 +30,8 @@ from simrun.solvers.base import FLOAT64, INITIAL_GUESSES, SMALL_VECTOR, max_norm
 from simrun.systems import System
 from simrun.systems.base import add_keeping_pattern, diagonal_blocks
 
+from .lanes import LaneIncrementalPotential
+
 
 @dataclass(slots=True)  # not frozen: built once per step, and a frozen __init__ is slower (docs/performance.md)
 class State:
@@ -62,6 +64,9 @@ class StepPlan:
     carried: tuple = ()
 
     def problem(self, system: System, state: State, dt: float) -> "IncrementalPotential":
+        if getattr(system, "lane_count", None) is not None:  # many runs stepped together (systems/lanes.py)
+            return LaneIncrementalPotential(system, self.y_tilde, self.scale, self.velocity_origin, self.velocity_divisor,
+                                            self.damping_at, (state.x, state.v, dt), self.fraction)
         return IncrementalPotential(system, self.y_tilde, self.scale, velocity_origin=self.velocity_origin,
                                     velocity_divisor=self.velocity_divisor, damping_at=self.damping_at,
                                     step_start=(state.x, state.v, dt), fraction=self.fraction)

@@ -13,7 +13,8 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from .base import IncrementalPotential, Integrator, State, StepPlan, solve_step
+from .base import Integrator, State, StepPlan, solve_step
+from .euler import BackwardEuler
 from .segment import SegmentPotential
 
 
@@ -200,9 +201,7 @@ class SemiImplicitBackwardEuler(Integrator):
                               "(not symplectic Euler, also called semi-implicit)")
 
     def step(self, system, state, dt, solver):
-        problem = IncrementalPotential(system, state.x + dt * state.v, dt * dt,
-                                       velocity_origin=state.x, velocity_divisor=dt, damping_at=state.x,
-                                       step_start=(state.x, state.v, dt))
+        problem = BackwardEuler().plan(state, dt).problem(system, state, dt)  # y~ = x_n + h v_n, c = 1, D at x_n
         x, stats = solver.newton_step(problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - state.x) / dt), stats
 

@@ -129,6 +129,8 @@ class RecordParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
     every: int | None = Field(None, ge=1, description="record every k-th step (the last step is always recorded)")
     max_samples: int = Field(10_000, ge=2, description="used when `every` is not given: record at most this many samples per run")
+    series: bool = Field(True, description="keep the recorded series (samples, per-step solver counts, frames); false keeps "
+                                          "only the summary's numbers and each run's scalars: a map of thousands of runs")
 
     frames_every: int | None = Field(None, ge=1, description="cloth: keep the vertex positions every k-th step")
     max_frames: int = Field(200, ge=2, description="cloth, when `frames_every` is not given: at most this many frames per run")

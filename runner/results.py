@@ -111,22 +111,39 @@ def wall_time_per_frame(steps: int, dt: float, wall_time: float) -> float:
     return wall_time * FRAME_TIME / simulated if simulated > 0.0 else math.nan
 
 
+# the summary's numbers that come from a run's series; a run recorded without them (record.series: false) stores
+# them as attributes instead
+SERIES_SUMMARY_KEYS = ("max_rel_energy_drift", "final_rel_energy_drift", "mean_newton_iterations", "mean_linear_iterations")
+
+
+def series_summary(attrs, read) -> dict[str, float]:
+    """SERIES_SUMMARY_KEYS of one run: from its attributes where it kept no series, else from ``read(key)`` (its
+    recorded dataset, or an empty array)."""
+    if SERIES_SUMMARY_KEYS[0] in attrs:
+        return {key: float(attrs[key]) for key in SERIES_SUMMARY_KEYS}
+    series = {key: read(key) for key in ("energy", "kinetic_energy", "potential_energy")}
+    max_drift, final_drift = energy_drift(series["energy"], energy_reference(attrs, *series.values())[0])
+    newton, linear = read("newton_iterations"), read("linear_iterations")
+    return {"max_rel_energy_drift": max_drift, "final_rel_energy_drift": final_drift,
+            "mean_newton_iterations": float(newton.mean()) if newton.size else 0.0,
+            "mean_linear_iterations": float(linear.mean()) if linear.size else 0.0}
+
+
 def summary_row(run_id: str, group: h5py.Group) -> tuple:
     """One summary row, computed from a run's group alone (the writer's row, and a resumed file's rebuild)."""
-    attrs = group.attrs
-    series = {key: group[key][()] if key in group else np.empty(0)
-              for key in ("energy", "kinetic_energy", "potential_energy")}
-    max_drift, final_drift = energy_drift(series["energy"], energy_reference(attrs, *series.values())[0])
-    newton = group["newton_iterations"][()]
-    linear = group["linear_iterations"][()]
+    return summary_row_of(run_id, group.attrs, lambda key: group[key][()] if key in group else np.empty(0))
+
+
+def summary_row_of(run_id: str, attrs, read) -> tuple:
+    """One summary row from a run's attributes and ``read(key)``, its datasets (an empty array where it has none)."""
+    series = series_summary(attrs, read)
+    steps, dt, wall_time = int(attrs["steps"]), float(attrs["dt"]), float(attrs["wall_time"])
     return (
-        run_id, _text(attrs["integrator_label"]), float(attrs["dt"]), _text(attrs["status"]), int(attrs["steps"]),
-        max_drift, final_drift, float(attrs.get("final_error", math.nan)),
+        run_id, _text(attrs["integrator_label"]), dt, _text(attrs["status"]), steps,
+        series["max_rel_energy_drift"], series["final_rel_energy_drift"], float(attrs.get("final_error", math.nan)),
         float(attrs.get("error_time", math.nan)), float(attrs.get("error", math.nan)),
-        float(newton.mean()) if newton.size else 0.0, float(linear.mean()) if linear.size else 0.0,
-        float(attrs["wall_time"]),
-        real_time_factor(int(attrs["steps"]), float(attrs["dt"]), float(attrs["wall_time"])),
-        wall_time_per_frame(int(attrs["steps"]), float(attrs["dt"]), float(attrs["wall_time"])),
+        series["mean_newton_iterations"], series["mean_linear_iterations"], wall_time,
+        real_time_factor(steps, dt, wall_time), wall_time_per_frame(steps, dt, wall_time),
     )
 
 

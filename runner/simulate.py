@@ -11,6 +11,7 @@ import numpy as np
 from simrun.config import Run
 from simrun.integrators import State
 from simrun.results import Status
+from simrun.results import series_summary as _series_summary
 from simrun.solvers import EXPLICIT_STEP
 
 
@@ -250,11 +251,21 @@ def simulate(run: Run) -> RunResult:
         model["model_edges"] = system.frame_edges
         if system.frame_triangles is not None:
             model["model_triangles"] = system.frame_triangles
-    return RunResult(
+    result = RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
         per_step={key: value[:steps] for key, value in per_step.items()},
         t_diverged=t_diverged, message=message, attrs=attrs, model=model,
     )
+    if not run.record.series:  # a map: the summary's numbers as attributes, no series
+        result.attrs.update(series_summary(result))
+        result.samples, result.per_step = {}, {}
+    return result
+
+
+def series_summary(result: RunResult) -> dict[str, float]:
+    """The summary's numbers that come from the run's series (results.SERIES_SUMMARY_KEYS), from its RunResult."""
+    empty = np.empty(0)
+    return _series_summary(result.attrs, lambda key: result.samples.get(key, result.per_step.get(key, empty)))
 
 
 def _contact_attrs(per_step: dict[str, np.ndarray], steps: int) -> dict[str, float]:

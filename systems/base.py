@@ -218,6 +218,10 @@ class System(ABC):
     requires_step_filter: bool = False
     has_contact: bool = False  # the runner records per step the smallest contact distance, active contacts, friction work
 
+    # runs of this system may be stepped together as lanes of one array (systems/lanes.py): the class that takes their
+    # built systems, or None (each run is stepped alone)
+    lanes_class: ClassVar[type | None] = None
+
     def off_pattern_hessian(self, x: np.ndarray, project_spd=False):
         """The part of the Hessian outside ``hessian_pattern`` (N/m; contact between vertices no element joins), or
         None; ``hessian`` includes it, ``hessian_data`` does not."""

@@ -7,10 +7,11 @@ from typing import Literal
 
 import numpy as np
 import scipy.linalg
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, model_validator
 
 from .base import ParameterDerivative, System, SystemParams
 from .compliant import anchored_springs
+from .lanes import SpringMassLanes
 
 
 # the roots of m l^2 + d l + k count as distinct when they differ by this fraction of their size: the two-exponential
@@ -27,8 +28,24 @@ class SpringMassParams(SystemParams):
     stiffness: float = Field(100.0, gt=0, allow_inf_nan=False, description="k (N/m)")
     damping: float = Field(0.0, allow_inf_nan=False, description="d (N s/m): q'' + (d/m) q' + (k/m) q = 0; a negative d "
                                                               "pumps energy in (what a calibration can need to match a damped method)")
+    damping_ratio: float | None = Field(None, allow_inf_nan=False,
+                                        description="zeta = d / (2 sqrt(k m)), instead of damping: sets d from k and m "
+                                                    "(a map over (h w, zeta) sweeps it with the stiffness)")
     x0: float = Field(1.0, allow_inf_nan=False, description="initial position (m)")
     v0: float = Field(0.0, allow_inf_nan=False, description="initial velocity (m/s)")
+
+    @model_validator(mode="after")
+    def _one_damping(self):
+        if self.damping_ratio is not None and self.damping != 0.0:
+            raise ValueError("give damping or damping_ratio, not both")
+        return self
+
+    @property
+    def effective_damping(self) -> float:
+        """d (N s/m): ``damping``, or 2 zeta sqrt(k m) where ``damping_ratio`` zeta is given."""
+        if self.damping_ratio is not None:
+            return 2.0 * self.damping_ratio * math.sqrt(self.stiffness * self.mass)
+        return self.damping
 
     @property
     def dof_count(self) -> int:
@@ -40,16 +57,17 @@ class SpringMass(System):
 
     dof_count = 1
     dim = 1
+    lanes_class = SpringMassLanes
 
     def __init__(self, params: SpringMassParams):
         self.params = params
         self.stiffness = params.stiffness
-        self.damping = params.damping
+        self.damping = params.effective_damping
         self.mass = np.array([params.mass])
         self.x0 = np.array([params.x0])
         self.v0 = np.array([params.v0])
         self._hessian = np.array([[params.stiffness]])
-        self._damping = np.array([[params.damping]]) if params.damping != 0 else None
+        self._damping = np.array([[self.damping]]) if self.damping != 0 else None
 
     @property
     def angular_frequency(self) -> float:
@@ -112,9 +130,11 @@ class SpringMass(System):
 
     def parameter_derivative(self, changed, change):
         """k and d enter linearly: d(grad P)/dtheta = (dk/dtheta) q, dD/dtheta = dd/dtheta; None when the change
-        moves the mass or the initial state."""
+        moves the mass or the initial state, or d is set by a damping ratio."""
         if not isinstance(changed, SpringMass) or (changed.params.mass, changed.params.x0, changed.params.v0) != (
                 self.params.mass, self.params.x0, self.params.v0):
+            return None
+        if self.params.damping_ratio is not None:  # d = 2 zeta sqrt(k m) is not linear in k: finite differences
             return None
         stiffness_rate = (changed.stiffness - self.stiffness) / change
         damping_rate = np.array([[(changed.damping - self.damping) / change]])
