@@ -202,12 +202,15 @@ def add_diagonal(matrix, diagonal: np.ndarray, in_place: bool = False):
     return result
 
 
-# round-off of M (y - y~): a few ulps of its largest term
+# round-off of M (y - y~): a few ulps of its largest term, and, where that term is subnormal (a motion damped to 1e-300
+# m and below), a few of the subnormals' fixed spacing, which is then the round-off (relative digits are gone)
 RESIDUAL_ULPS = 64.0 * np.finfo(float).eps
+RESIDUAL_SUBNORMALS = 64.0 * np.finfo(float).smallest_subnormal
 
 
 def residual_floor(mass: np.ndarray, y_tilde: np.ndarray) -> float:
-    """The residual below which the inertia term's own round-off hides further progress: 64 eps |M y~|_inf."""
+    """The residual below which the inertia term's own round-off hides further progress: 64 eps |M y~|_inf, plus 64
+    subnormal spacings."""
     if y_tilde.size <= SMALL_VECTOR and mass.shape == y_tilde.shape:
         # max_norm(mass * y_tilde) over Python floats (the same IEEE products), without the array in between
         largest = 0.0
@@ -217,8 +220,8 @@ def residual_floor(mass: np.ndarray, y_tilde: np.ndarray) -> float:
                 largest = value
             elif value != value:  # NaN, as max_norm propagates it
                 return math.nan
-        return RESIDUAL_ULPS * largest
-    return RESIDUAL_ULPS * max_norm(mass * y_tilde)
+        return RESIDUAL_ULPS * largest + RESIDUAL_SUBNORMALS
+    return RESIDUAL_ULPS * max_norm(mass * y_tilde) + RESIDUAL_SUBNORMALS
 
 
 def constrained_start(system: System, start: np.ndarray, y_tilde: np.ndarray) -> np.ndarray:

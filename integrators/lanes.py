@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-# IncrementalPotential's residual floor: 64 eps |M y~|_inf (integrators/base.py, RESIDUAL_ULPS)
+# IncrementalPotential's residual floor: 64 eps |M y~|_inf + 64 subnormal spacings (integrators/base.py)
 RESIDUAL_ULPS = 64.0 * np.finfo(float).eps
+RESIDUAL_SUBNORMALS = 64.0 * np.finfo(float).smallest_subnormal
 
 
 class LaneIncrementalPotential:
@@ -33,7 +34,8 @@ class LaneIncrementalPotential:
         self.damping_weight = scale / velocity_divisor
         self.quadratic = True
         # per lane: the residual below which the inertia term's own round-off hides further progress
-        self.residual_floor = RESIDUAL_ULPS * np.max(np.abs(system.mass * y_tilde), axis=1)
+        inertia = np.abs(system.mass * y_tilde)
+        self.residual_floor = RESIDUAL_ULPS * (inertia[:, 0] if inertia.shape[1] == 1 else np.max(inertia, axis=1)) + RESIDUAL_SUBNORMALS
 
     def start_point(self, start):
         return start  # lane systems have no prescribed paths, pins or contact

@@ -33,10 +33,12 @@ import numpy as np
 from simrun.integrators import INTEGRATORS, Integrator, State
 from simrun.solvers import solver_params
 from simrun.systems import SpringMassParams
+from simrun.systems.lanes import SpringMassLanes
 
 # The probe's Newton solves a linear problem in one iteration; the tight tolerance only makes the
 # convergence test insist on round-off (the problem's residual floor ends it there).
-PROBE_SOLVER = solver_params(tolerance=1e-12).build()
+PROBE_SOLVER_PARAMS = solver_params(tolerance=1e-12)
+PROBE_SOLVER = PROBE_SOLVER_PARAMS.build()
 # The h w range (and resolution) of the predicted curves: two decades either side of h w = 1.
 HW_RANGE = (1e-2, 1e2)
 POINTS_PER_DECADE = 40
@@ -164,6 +166,33 @@ def amplification_matrix(integrator: Integrator, dt: float, system=None) -> np.n
         new, _ = integrator.step(system, State(0.0, x, v, tuple(aux)), dt, PROBE_SOLVER)
         columns.append(np.concatenate([new.x, new.v, *new.aux]))
     return np.column_stack(columns)
+
+
+def amplification_matrices(integrator: Integrator, hw: np.ndarray, damping_ratio: np.ndarray) -> np.ndarray | None:
+    """The one-step matrices (points, n, n) of the spring q'' + 2 zeta w q' + w^2 q = 0 at many (h w, zeta) at once:
+    ``amplification_matrix`` with the points as lanes of one array (systems/lanes.py), probed by the method's own
+    step on unit states. None for a method that does not step lanes (the caller probes it point by point)."""
+    from simrun.lanes import LANE_INTEGRATORS
+    from simrun.solvers.lanes import LaneNewton
+
+    if integrator.name not in LANE_INTEGRATORS:
+        return None
+    # h = 1 s, so that w (rad/s) is h w; m = 1 kg, k = w^2
+    springs = SpringMassLanes([SpringMassParams(stiffness=value * value, mass=1.0, damping_ratio=ratio).build()
+                               for value, ratio in zip(np.asarray(hw, dtype=float).tolist(),
+                                                       np.asarray(damping_ratio, dtype=float).tolist())])
+    dt = np.ones((springs.lane_count, 1))
+    solver = LaneNewton(PROBE_SOLVER_PARAMS)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        state = integrator.start(springs, State(0.0, springs.x0.copy(), springs.v0.copy()))
+        state, _ = integrator.step(springs, state, dt, solver)
+        sizes = [state.x.shape[1], state.v.shape[1]] + [part.shape[1] for part in state.aux]
+        columns = []
+        for unit in np.eye(sum(sizes)):
+            x, v, *aux = np.split(np.tile(unit, (springs.lane_count, 1)), np.cumsum(sizes)[:-1], axis=1)
+            new, _ = integrator.step(springs, State(0.0, x, v, tuple(aux)), dt, solver)
+            columns.append(np.concatenate([new.x, new.v, *new.aux], axis=1))
+    return np.stack(columns, axis=2)
 
 
 def spectral_radius(matrix: np.ndarray) -> float:

@@ -1,8 +1,9 @@
 """Where runs are simulated: serially, on a local process pool, or on a Dask cluster.
 
-Every executor takes the runs and yields ``(run, result)`` as runs finish; the caller (one writer in
-the main process) commits each result at once. Runs are independent, so the order of completion
-does not change any run's data.
+Every executor takes tasks, a run (``simulate``) or a chunk of runs stepped together as lanes (``simulate_lanes``,
+runner/lanes.py), and yields ``(task, outcome)`` as tasks finish: a RunResult for a run, a LaneBatch for a chunk. The
+caller (one writer in the main process) commits each outcome at once. Runs are independent, so neither the order of
+completion nor the chunk a run was stepped in changes any run's data.
 """
 
 from __future__ import annotations
@@ -13,24 +14,38 @@ from collections.abc import Iterator
 
 from simrun.config import Run
 from simrun.errors import ConfigError
-from simrun.simulate import RunResult, simulate
+from simrun.lanes import lane_chunks, simulate_lanes
+from simrun.simulate import simulate
 from simrun.workers import EXECUTORS, process_pool, stop_workers
 
-__all__ = ["EXECUTORS", "EXECUTOR_FUNCTIONS", "execute", "run_serial", "run_process_pool", "run_dask"]
+__all__ = ["EXECUTORS", "EXECUTOR_FUNCTIONS", "LANE_MODES", "execute", "run_serial", "run_process_pool", "run_dask"]
+
+LANE_MODES = ("auto", "off")  # --lanes: step many small runs of one kind together (auto), or every run alone (off)
 
 
-def run_serial(runs: list[Run]) -> Iterator[tuple[Run, RunResult]]:
-    for run in runs:
-        yield run, simulate(run)
+def _work(task):
+    """The function that simulates a task: simulate_lanes for a chunk (a list of runs), simulate for a run."""
+    return simulate_lanes if isinstance(task, list) else simulate
 
 
-def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResult]]:
-    """A local pool of `jobs` processes; pending runs are cancelled and running ones ended when the
+def _size(task) -> int:
+    return len(task) if isinstance(task, list) else 1
+
+
+def run_serial(tasks: list) -> Iterator[tuple]:
+    for task in tasks:
+        yield task, _work(task)(task)
+
+
+def run_process_pool(tasks: list, jobs: int) -> Iterator[tuple]:
+    """A local pool of `jobs` processes; pending tasks are cancelled and running ones ended when the
     consumer stops early (or Ctrl-C, which the workers ignore, stops it)."""
     pool = process_pool(jobs)
     finished = False
     try:
-        futures = {pool.submit(simulate, run): run for run in runs}
+        # the biggest tasks first (chunks of lanes), so that no worker is left with a long one at the end
+        ordered = sorted(tasks, key=_size, reverse=True)
+        futures = {pool.submit(_work(task), task): task for task in ordered}
         for future in concurrent.futures.as_completed(futures):
             yield futures[future], future.result()
         finished = True
@@ -42,7 +57,7 @@ def run_process_pool(runs: list[Run], jobs: int) -> Iterator[tuple[Run, RunResul
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def run_dask(runs: list[Run], jobs: int, scheduler: str | None) -> Iterator[tuple[Run, RunResult]]:
+def run_dask(tasks: list, jobs: int, scheduler: str | None) -> Iterator[tuple]:
     """Dask: an existing scheduler at `scheduler`, else a local cluster of `jobs` single-threaded workers."""
     try:
         from dask.distributed import Client, LocalCluster, as_completed
@@ -61,8 +76,12 @@ def run_dask(runs: list[Run], jobs: int, scheduler: str | None) -> Iterator[tupl
         raise ConfigError(f"--scheduler: cannot reach the Dask scheduler at {scheduler!r}: {error}") from None
     futures = []
     try:
-        futures = client.map(simulate, runs, key=[f"simrun-{run.run_id}" for run in runs], pure=False)
-        by_key = {future.key: run for future, run in zip(futures, runs)}
+        by_key = {}
+        for task in tasks:
+            key = f"simrun-lanes-{task[0].run_id}" if isinstance(task, list) else f"simrun-{task.run_id}"
+            future = client.submit(_work(task), task, key=key, pure=False)
+            futures.append(future)
+            by_key[future.key] = task
         for future in as_completed(futures):
             yield by_key[future.key], future.result()
     finally:
@@ -72,14 +91,14 @@ def run_dask(runs: list[Run], jobs: int, scheduler: str | None) -> Iterator[tupl
             cluster.close()
 
 
-def run_local(runs: list[Run], jobs: int, scheduler: str | None = None) -> Iterator[tuple[Run, RunResult]]:
-    """This machine: serially for one job or one run, else a pool of ``jobs`` processes."""
-    if jobs <= 1 or len(runs) <= 1:
-        return run_serial(runs)
-    return run_process_pool(runs, min(jobs, len(runs)))
+def run_local(tasks: list, jobs: int, scheduler: str | None = None) -> Iterator[tuple]:
+    """This machine: serially for one job or one task, else a pool of ``jobs`` processes."""
+    if jobs <= 1 or len(tasks) <= 1:
+        return run_serial(tasks)
+    return run_process_pool(tasks, min(jobs, len(tasks)))
 
 
-# executor name -> function(runs, jobs, scheduler) yielding (run, result) as runs finish; the names are
+# executor name -> function(tasks, jobs, scheduler) yielding (task, outcome) as tasks finish; the names are
 # simrun.workers.EXECUTORS, which the command line offers before it imports this module
 EXECUTOR_FUNCTIONS = {
     "process": run_local,
@@ -87,9 +106,13 @@ EXECUTOR_FUNCTIONS = {
 }
 
 
-def execute(runs: list[Run], executor: str = "process", jobs: int = 1,
-            scheduler: str | None = None) -> Iterator[tuple[Run, RunResult]]:
-    """Every run on the named executor; yields (run, result) as each finishes."""
+def execute(runs: list[Run], executor: str = "process", jobs: int = 1, scheduler: str | None = None,
+            lanes: str = "auto") -> Iterator[tuple]:
+    """Every run on the named executor; yields (task, outcome) as each task finishes: (run, RunResult), or, for the
+    runs stepped together as lanes (``lanes`` auto: runner/lanes.py decides which), (list of runs, LaneBatch)."""
     if executor not in EXECUTOR_FUNCTIONS:
         raise ConfigError(f"executor: unknown {executor!r}; valid: " + ", ".join(EXECUTOR_FUNCTIONS))
-    return EXECUTOR_FUNCTIONS[executor](runs, jobs, scheduler)
+    if lanes not in LANE_MODES:
+        raise ConfigError(f"--lanes: unknown {lanes!r}; valid: " + ", ".join(LANE_MODES))
+    chunks, alone = lane_chunks(runs, jobs) if lanes == "auto" else ([], list(runs))
+    return EXECUTOR_FUNCTIONS[executor]([*chunks, *alone], jobs, scheduler)

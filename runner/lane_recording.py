@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from simrun.simulate import DECAY_FLOOR, decay_per_period
+
 PER_STEP_KEYS = ("newton_iterations", "linear_iterations", "line_search_steps", "residual", "solver_index", "safeguards")
 PER_STEP_TYPES = (np.int32, np.int32, np.int32, np.float64, np.int8, np.uint8)
 PER_STEP_FIELDS = ("iterations", "linear_iterations", "line_search_steps", "residual", "solver_index", "safeguards")  # SolveStats
@@ -21,7 +23,8 @@ PER_STEP_FIELDS = ("iterations", "linear_iterations", "line_search_steps", "resi
 class LaneSeries:
     """Every sample (one array per key, samples first while stepping) and every step's solver counts."""
 
-    def __init__(self, layout: dict[str, tuple], sample_rows: int, lanes: int, step_count: int):
+    def __init__(self, layout: dict[str, tuple], sample_rows: int, lanes: int, step_count: int, modal_energy):
+        self.modal_energy = modal_energy  # the lane system's: what the decay per period is measured from
         self.series = {key: np.full((sample_rows, lanes) + shape, np.nan) for key, shape in layout.items()}
         self.per_step = {key: np.zeros((step_count, lanes), dtype=kind) for key, kind in zip(PER_STEP_KEYS, PER_STEP_TYPES)}
         self.counts = np.zeros(lanes, dtype=np.int64)
@@ -70,9 +73,14 @@ class LaneSeries:
                 values[lane, steps[lane]:] = 0
         last = self.counts - 1
         every = np.arange(last.size)
+        energy = self.modal_energy(samples["energy"], samples["positions"], samples["velocities"])
+        usable = np.isfinite(energy) & (energy > DECAY_FLOOR * energy[:, :1])  # NaN past a lane's count: not usable
+        latest = energy.shape[1] - 1 - np.argmax(usable[:, ::-1], axis=1)
+        latest = np.where(usable.any(axis=1), latest, 0)
         return {"samples": samples, "sample_count": self.counts, "per_step": per_step,
                 "last_t": samples["t"][every, last], "last_positions": samples["positions"][every, last],
-                "safeguard_steps": np.count_nonzero(per_step["safeguards"], axis=1)}
+                "safeguard_steps": np.count_nonzero(per_step["safeguards"], axis=1),
+                "decay_energies": (energy[:, 0], energy[every, latest], samples["t"][every, latest])}
 
 
 class LaneSummary:
@@ -80,8 +88,9 @@ class LaneSummary:
     and the last finite energy drift over the samples, the solver iterations summed over the steps, the safeguarded
     steps counted; and the last sample's t and x (the final error)."""
 
-    def __init__(self, energy_scale: np.ndarray, lanes: int, dofs: int):
+    def __init__(self, energy_scale: np.ndarray, lanes: int, dofs: int, modal_energy):
         self.scale = energy_scale
+        self.modal_energy = modal_energy
         self.first_energy: np.ndarray | None = None
         self.max_drift = np.full(lanes, math.nan)
         self.final_drift = np.full(lanes, math.nan)
@@ -90,17 +99,21 @@ class LaneSummary:
         self.safeguard_steps = np.zeros(lanes, dtype=np.int64)
         self.last_t = np.zeros(lanes)
         self.last_positions = np.zeros((lanes, dofs))
+        self.decay_energy = np.full(lanes, math.nan)  # the last sample usable for the decay (simulate._measured_decay)
+        self.decay_t = np.zeros(lanes)
 
     def sample(self, observed: dict, t, dissipated, x, v, running: np.ndarray | None) -> None:
         energy = observed["energy"]
+        modal = self.modal_energy(energy, x, v)
         if self.first_energy is None:  # results.energy_drift: relative to the first (finite) sample, E at t = 0
             self.first_energy = energy.copy()
-        self._add(np.ones(energy.shape, dtype=bool) if running is None else running, energy, t, x)
+            self.first_modal = self.decay_energy = modal
+        self._add(np.ones(energy.shape, dtype=bool) if running is None else running, energy, modal, t, x)
 
     def stop_sample(self, stopping: np.ndarray, observed: dict, t, dissipated, x, v) -> None:
-        self._add(stopping, observed["energy"], t, x)
+        self._add(stopping, observed["energy"], self.modal_energy(observed["energy"], x, v), t, x)
 
-    def _add(self, recorded: np.ndarray, energy: np.ndarray, t, x) -> None:
+    def _add(self, recorded: np.ndarray, energy: np.ndarray, modal: np.ndarray, t, x) -> None:
         """A sample of the ``recorded`` lanes: its drift counts where the energy is finite (results.energy_drift), its t
         and x are the lane's last sample whatever they are (simulate._final_error)."""
         drift = (energy - self.first_energy) / self.scale
@@ -110,6 +123,9 @@ class LaneSummary:
         self.final_drift = np.where(finite, drift, self.final_drift)
         self.last_t = np.where(recorded, t, self.last_t)
         self.last_positions = np.where(recorded[:, None], x, self.last_positions)
+        usable = recorded & np.isfinite(modal) & (modal > DECAY_FLOOR * self.first_modal)
+        self.decay_energy = np.where(usable, modal, self.decay_energy)
+        self.decay_t = np.where(usable, t, self.decay_t)
 
     def solver_step(self, n: int, stats, running) -> None:
         if running is None:
@@ -127,6 +143,7 @@ class LaneSummary:
             linear = np.where(steps > 0, self.linear / np.maximum(steps, 1), 0.0)
         return {"samples": {}, "sample_count": None, "per_step": {}, "last_t": self.last_t,
                 "last_positions": self.last_positions, "safeguard_steps": self.safeguard_steps,
+                "decay_energies": (self.first_modal, self.decay_energy, self.decay_t),
                 "series_summary": {"max_rel_energy_drift": self.max_drift, "final_rel_energy_drift": self.final_drift,
                                    "mean_newton_iterations": newton, "mean_linear_iterations": linear}}
 
@@ -162,3 +179,11 @@ def lane_errors(system, t: np.ndarray, x: np.ndarray, v: np.ndarray, frequency: 
     phase = np.sqrt(np.sum(position_error ** 2, axis=1) + np.sum(velocity_error ** 2, axis=1) / squared_frequency)
     errors = np.where(np.isnan(frequency), np.max(np.abs(position_error), axis=1), phase)
     return np.where(reached, errors, math.nan)
+
+
+def lane_decays(decay_energies, frequencies: np.ndarray) -> list[float]:
+    """simulate._measured_decay per lane, from (V(0), V at the last usable sample, its t), V the modal energy: NaN where
+    V(0) is not positive or no sample after t = 0 is usable."""
+    first, energy, t = (values.tolist() for values in decay_energies)
+    return [decay_per_period(e0, e, time, w) if e0 > 0.0 and time > 0.0 else math.nan
+            for e0, e, time, w in zip(first, energy, t, frequencies.tolist())]

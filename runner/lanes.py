@@ -15,7 +15,6 @@ failure stays one run's result.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -25,10 +24,11 @@ import numpy as np
 from simrun.config import Run
 from simrun.integrators import State
 from simrun.results import Status
-from simrun.lane_recording import LaneSeries, LaneSummary, lane_errors, lane_final_error
+from simrun.lane_recording import LaneSeries, LaneSummary, lane_decays, lane_errors, lane_final_error
 from simrun.simulate import RunResult, simulate
 from simrun.solvers import EXPLICIT_STEP
 from simrun.solvers.lanes import LaneNewton, lane_refusal
+from simrun.store import lane_summary_rows, lane_table
 
 # integrators whose step is elementwise arithmetic of the state and the system's acceleration, kick or incremental
 # potential (StepPlan), and so steps lanes as it steps one run; the others (segment potentials, the exponential
@@ -51,9 +51,10 @@ def lane_key(run: Run):
         return None
     if not run.integrator.explicit and lane_refusal(run.solver) is not None:
         return None
-    solver = "" if run.integrator.explicit else json.dumps(run.solver.model_dump(mode="json"), sort_keys=True)
-    return (run.system.type, run.integrator_label, json.dumps(run.integrator.model_dump(mode="json"), sort_keys=True),
-            solver, run.step_count, run.record.model_dump_json(), run.divergence.model_dump_json())
+    solver = "" if run.integrator.explicit else run.solver.model_dump_json()
+    return (run.system.type, system_class.lanes_class.lane_kind(run.system), run.integrator_label,
+            run.integrator.model_dump_json(), solver, run.step_count, run.record.model_dump_json(),
+            run.divergence.model_dump_json())
 
 
 def lane_chunks(runs: list[Run], jobs: int = 1) -> tuple[list[list[Run]], list[Run]]:
@@ -100,6 +101,8 @@ class LaneBatch:
     per_step: dict[str, np.ndarray] = field(default_factory=dict)  # key -> (lanes, steps), zero past a lane's steps
     error_positions: np.ndarray | None = None  # (lanes, dofs), NaN where the run ended before its error time
     results_alone: list[RunResult] | None = None  # the chunk failed as lanes: its runs, each stepped alone
+    table: tuple | None = None  # (shared attributes, a row per run): store.lane_table, built where the chunk ran
+    summary: np.ndarray | None = None  # the runs' summary rows: store.lane_summary_rows, likewise
 
     @property
     def run_ids(self) -> list[str]:
@@ -158,9 +161,9 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
     if record.series:  # simulate.Recorder's columns, one array per key
         layout = dict(system.observable_layout)
         layout.update(t=(), dissipated_energy=(), positions=(system.dof_count,), velocities=(system.dof_count,))
-        recorder = LaneSeries(layout, step_count // stride + 2, lanes, step_count)
+        recorder = LaneSeries(layout, step_count // stride + 2, lanes, step_count, system.modal_energy)
     else:
-        recorder = LaneSummary(capabilities["energy_scale"], lanes, system.dof_count)
+        recorder = LaneSummary(capabilities["energy_scale"], lanes, system.dof_count, system.modal_energy)
 
     state = State(0.0, system.x0.copy(), system.v0.copy())
     energy0 = system.total_energy(state.x, state.v)
@@ -250,6 +253,7 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
                "first_not_converged_step": first_not_converged, "diverged_step": np.where(diverged, stopped_at, 0),
                "safeguard_steps": kept["safeguard_steps"]}
     columns = {key: values.tolist() for key, values in columns.items()}
+    columns["decay_per_period"] = lane_decays(kept["decay_energies"], capabilities["natural_frequency"])
     capability_lists = {key: values.tolist() for key, values in capabilities.items()}
     summary = {key: values.tolist() for key, values in kept.get("series_summary", {}).items()}
     statuses, attrs = [], []
@@ -269,7 +273,10 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
             lane_attrs["error"] = float(errors[lane])
         lane_attrs.update({key: values[lane] for key, values in summary.items()})
         attrs.append(lane_attrs)
-    return LaneBatch(runs=runs, status=statuses, steps=stopped_at, wall_time=np.full(lanes, wall_time),
-                     t_diverged=t_diverged, message=messages, attrs=attrs, samples=kept["samples"],
-                     sample_count=kept["sample_count"], per_step=kept["per_step"],
-                     error_positions=error_positions if record.series else None)
+    batch = LaneBatch(runs=runs, status=statuses, steps=stopped_at, wall_time=np.full(lanes, wall_time),
+                      t_diverged=t_diverged, message=messages, attrs=attrs, samples=kept["samples"],
+                      sample_count=kept["sample_count"], per_step=kept["per_step"],
+                      error_positions=error_positions if record.series else None)
+    # what the writer stores, made here (in the worker, beside the other chunks) rather than by the one writer
+    batch.table, batch.summary = lane_table(runs, batch), lane_summary_rows(runs, batch)
+    return batch

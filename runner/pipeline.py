@@ -22,7 +22,7 @@ from simrun import __version__
 from simrun.config import load_experiment
 from simrun.sweep import config_hash, expand_runs, resolved_config
 from simrun.errors import ConfigError
-from simrun.executors import EXECUTOR_FUNCTIONS, execute
+from simrun.executors import EXECUTOR_FUNCTIONS, LANE_MODES, execute
 from simrun.lock import FIGURES_NAME, REPORT_NAME, OutputLock, check_writable, filling, write_error
 from simrun.results import RESULTS_NAME, Results, Status, load
 from simrun.store import DEFAULT_MAX_SIZE_GB, admit_size, open_writer
@@ -45,7 +45,7 @@ class Interrupted(KeyboardInterrupt):
 def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: int | None = None,
         executor: str = "process", scheduler: str | None = None, force: bool = False, progress: bool = True,
         figures: bool = True, overrides: list[str] | tuple[str, ...] = (),
-        max_size_gb: float = DEFAULT_MAX_SIZE_GB, command_line: str | None = None) -> Results:
+        max_size_gb: float = DEFAULT_MAX_SIZE_GB, command_line: str | None = None, lanes: str = "auto") -> Results:
     """Run an experiment and return its results (``simrun.results.Results``).
 
     config: a path to a YAML file, YAML text, or a dict of the same content.
@@ -56,7 +56,9 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     config, refuse a changed one). progress: a progress bar on a terminal, else a line per run (False:
     silent). figures: draw them. overrides: ``key.path=value`` assignments, as ``--set``. max_size_gb:
     refuse bigger sweeps. command_line: what started the sweep, stored as provenance (the command line
-    passes its own; default: this call, ``simrun.run('configs/x.yaml', ...)``).
+    passes its own; default: this call, ``simrun.run('configs/x.yaml', ...)``). lanes: "auto" steps many small
+    runs of one kind together as lanes of one array (runner/lanes.py; each run's data is what it would be alone),
+    "off" every run alone.
 
     Raises ConfigError (one line naming the field) before anything is written, and Interrupted
     (a KeyboardInterrupt) on Ctrl-C after committing what finished. The returned results also carry
@@ -67,6 +69,8 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
         raise ConfigError(f"--jobs: must be >= 1, got {jobs}")
     if executor not in EXECUTOR_FUNCTIONS:
         raise ConfigError(f"--executor: unknown {executor!r}; valid: " + ", ".join(EXECUTOR_FUNCTIONS))
+    if lanes not in LANE_MODES:
+        raise ConfigError(f"--lanes: unknown {lanes!r}; valid: " + ", ".join(LANE_MODES))
     experiment, config_text = load_experiment(config, list(overrides))
     runs = expand_runs(experiment)
     output = Path(output) if output is not None else experiment.output_dir
@@ -74,7 +78,8 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     admit_size(runs, output, jobs, max_size_gb)
     say = _printer(progress)
     if command_line is None:
-        command_line = _call_text(config, output=output, jobs=jobs, executor=executor, force=force, overrides=overrides)
+        command_line = _call_text(config, output=output, jobs=jobs, executor=executor, force=force, overrides=overrides,
+                                  lanes=lanes)
 
     path = output / RESULTS_NAME
     ran: Counter[str] = Counter()
@@ -104,13 +109,18 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
                 say(f"resuming: skipped {len(runs) - len(pending)} runs already in {path}; running {len(pending)}")
             view = _Progress(len(pending), progress)
             try:
-                for item, result in execute(pending, executor, jobs, scheduler):
+                for task, outcome in execute(pending, executor, jobs, scheduler, lanes):
+                    chunk = isinstance(task, list)  # runs stepped together as lanes: a LaneBatch
                     try:
-                        writer.write_run(item, result)
+                        writer.write_lanes(task, outcome) if chunk else writer.write_run(task, outcome)
                     except OSError as error:
                         raise write_error("output", path, error) from None
-                    ran[str(result.status)] += 1
-                    view.finished(item, result)
+                    if chunk:
+                        ran.update(str(status) for status in outcome.status)
+                        view.finished_chunk(task, outcome)
+                    else:
+                        ran[str(outcome.status)] += 1
+                        view.finished(task, outcome)
             except KeyboardInterrupt:
                 raise Interrupted(path, len(writer.completed_runs()), len(runs)) from None
             finally:
@@ -147,7 +157,7 @@ def config_file_of(config) -> Path | None:
 def _call_text(config, **keywords) -> str:
     """This call as text, for the provenance: simrun.run('configs/x.yaml', output='results/x', jobs=2)."""
     source = repr(str(config)) if config_file_of(config) is not None else ("<dict>" if isinstance(config, dict) else "<YAML text>")
-    defaults = {"executor": "process", "force": False, "overrides": ()}
+    defaults = {"executor": "process", "force": False, "overrides": (), "lanes": "auto"}
     shown = [f"{key}={str(value)!r}" if isinstance(value, Path) else f"{key}={value!r}" for key, value in keywords.items()
              if key not in defaults or defaults[key] != (tuple(value) if key == "overrides" else value)]
     return f"simrun.run({', '.join([source, *shown])})"
@@ -183,6 +193,24 @@ class _Progress:
             self.bar.write(f"{run.run_id}: {result.status}{detail}", file=sys.stderr)
         self.bar.set_postfix_str(", ".join(filter(None, [left, run.run_id])), refresh=False)
         self.bar.update()
+
+    def finished_chunk(self, runs, batch) -> None:
+        """A chunk of runs stepped together: one line (or one update of the bar) for all of them, and a line per run that
+        did not end ok only when they are few."""
+        self.done += len(runs)
+        if not self.progress:
+            return
+        counts = Counter(str(status) for status in batch.status)
+        left = remaining_text(time.monotonic() - self.start, self.done, self.total)
+        text = (f"{len(runs)} runs of {runs[0].integrator_label} as lanes: "
+                + ", ".join(f"{count} {status}" for status, count in sorted(counts.items()))
+                + f" in {float(batch.wall_time.sum()):.3g} s")
+        if self.bar is None:
+            print(f"[{self.done}/{self.total}] {text}{f'; {left}' if left else ''}", flush=True)
+            return
+        self.bar.write(text, file=sys.stderr)
+        self.bar.set_postfix_str(left or "", refresh=False)
+        self.bar.update(len(runs))
 
     def close(self) -> None:
         if self.bar is not None:

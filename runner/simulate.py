@@ -243,6 +243,9 @@ def simulate(run: Run) -> RunResult:
              "safeguard_steps": int(np.count_nonzero(safeguards[:steps])),
              **(_contact_attrs(per_step, steps) if with_contact else {}),
              **system.capabilities.as_attrs()}
+    oscillator = system.capabilities.oscillator
+    if oscillator is not None:  # the amplitude's decay per period, which the damping map compares with its prediction
+        attrs["decay_per_period"] = _measured_decay(system, samples, oscillator[0])
     if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
         attrs["error_time"], samples["error_positions"], _ = error_state
         attrs["error"] = _error_at(system, *error_state)
@@ -307,6 +310,33 @@ def _path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: flo
         force = force[moving]
     accelerations = system.constraints.path_accelerations(t)
     return float(v[moving] @ (system.mass[moving] * accelerations - force))
+
+
+# energies below this fraction of E(0) are in (or near) the subnormal range, where their digits go: not measured
+DECAY_FLOOR = 1e-250
+
+
+def decay_per_period(energy0: float, energy: float, t: float, frequency: float) -> float:
+    """The amplitude's decay per period 2 pi / w of a linear oscillator, from its modal energy V(t) at one time t > 0:
+    the amplitude goes as sqrt(V), so the factor per period is (V(t)/V(0))^(pi / (w t)); > 1 where it grows."""
+    return math.exp(math.log(energy / energy0) * math.pi / (frequency * t))
+
+
+def _measured_decay(system, samples: dict[str, np.ndarray], frequency: float) -> float:
+    """decay_per_period at the last sample whose modal energy (``System.modal_energy``: the spring's
+    E + d x v / 2, which the exact damped motion loses at the steady rate 2 zeta w) is finite and above DECAY_FLOOR V(0)
+    (NaN when none is, after t = 0): measured over the whole run, so a method's own damping adds to the model's."""
+    energy, t = samples.get("energy"), samples.get("t")
+    if energy is None or energy.size < 2 or "positions" not in samples:
+        return math.nan
+    modal = system.modal_energy(energy, samples["positions"], samples["velocities"])
+    if not modal[0] > 0.0:
+        return math.nan
+    usable = np.flatnonzero(np.isfinite(modal) & (modal > DECAY_FLOOR * modal[0]))
+    last = int(usable[-1]) if usable.size else 0
+    if last == 0:
+        return math.nan
+    return decay_per_period(float(modal[0]), float(modal[last]), float(t[last]), frequency)
 
 
 def _error_at(system, t: float, x: np.ndarray, v: np.ndarray) -> float:

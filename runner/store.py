@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import math
 import os
 import platform
 import shutil
@@ -18,6 +19,7 @@ import socket
 import subprocess
 from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
@@ -26,9 +28,13 @@ from simrun import __version__
 from simrun.config import RecordParams, Run
 from simrun.errors import ConfigError, ResultsFileError
 from simrun.lock import existing_ancestor
-from simrun.results import FORMAT_VERSION, SUMMARY_DTYPE, summary_row
+from simrun.results import (FORMAT_VERSION, LANE_TABLE, LANES_GROUP, OPTIONAL_LANE_COLUMNS, SUMMARY_DTYPE, _text, summary_row,
+                            summary_row_of)
 from simrun.results import load_summary  # noqa: F401  (deprecated alias, one version: simrun.load(path).summary)
 from simrun.simulate import RunResult
+
+if TYPE_CHECKING:
+    from simrun.lanes import LaneBatch
 
 # per-step arrays are mostly constant (0 or 1 iteration): gzip shrinks them by orders of magnitude
 COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
@@ -38,6 +44,7 @@ DEFAULT_MAX_SIZE_GB = 50.0
 # bytes per step of the per-step datasets (int32 x 3, float64, int8) and per sample scalar
 PER_STEP_BYTES = 3 * 4 + 8 + 1
 SAMPLE_SCALARS = 12  # t, energies, dissipated energy, momentum, angular momentum, radius, energy parts
+SCALARS_BYTES = 1024  # a run's attributes and summary row, about
 
 
 def estimate_run_parts(run: Run) -> dict[str, int]:
@@ -45,6 +52,8 @@ def estimate_run_parts(run: Run) -> dict[str, int]:
     ``per_step`` (solver counts of every step: steps = duration / dt), ``samples`` (the recorded
     series: record.every or record.max_samples) and ``frames`` (vertex positions of the systems that
     keep frames: record.frames_every or record.max_frames)."""
+    if not run.record.series:  # the summary row and the run's scalars only
+        return {"per_step": 0, "samples": SCALARS_BYTES, "frames": 0}
     steps = run.step_count
     dof = run.system.dof_count
     samples = steps // run.record.stride(steps) + 2
@@ -166,6 +175,45 @@ def open_writer(path: Path, config_text: str, digest: str, name: str, force: boo
     return ResultsWriter.create(path, config_text, digest, name, **provenance)
 
 
+def lane_summary_rows(runs: list[Run], batch: "LaneBatch") -> np.ndarray:
+    """The summary rows of a chunk's runs (SUMMARY_DTYPE), as ``summary_row`` computes them from each run's group."""
+    rows, empty = [], np.empty(0)
+    for lane, run in enumerate(runs):
+        result = batch.result(lane)
+        attrs = {**result.attrs, "integrator_label": run.integrator_label, "dt": run.dt, "status": str(result.status),
+                 "steps": result.steps, "wall_time": result.wall_time}
+        rows.append(summary_row_of(run.run_id, attrs, lambda key: result.samples.get(key, result.per_step.get(key, empty))))
+    return np.array(rows, dtype=SUMMARY_DTYPE)
+
+
+def lane_table(runs: list[Run], batch: "LaneBatch") -> tuple[dict, np.ndarray]:
+    """A chunk's attributes as the writer stores them: (the attributes its runs share, a table with a row per run and a
+    field per other attribute), each what a run's own group would hold. Built by the worker that stepped the chunk."""
+    first = runs[0]
+    shared = {"system": first.system.type, "integrator": first.integrator.name,
+              "integrator_label": first.integrator_label, "order": first.integrator.order,
+              "explicit": first.integrator.explicit, "solver": json.dumps(first.solver.model_dump(mode="json")),
+              "planned_steps": first.step_count}
+    columns = {"run_id": [run.run_id for run in runs], "index": [run.index for run in runs],
+               "system_params": [json.dumps(run.system.model_dump(mode="json")) for run in runs],
+               "dt": [run.dt for run in runs], "duration": [run.duration for run in runs],
+               "status": [str(status) for status in batch.status], "steps": batch.steps.tolist(),
+               "wall_time": batch.wall_time.tolist(), "params": [json.dumps(run.params) for run in runs],
+               "message": batch.message, "t_diverged": batch.t_diverged.tolist()}
+    for key in dict.fromkeys(key for attrs in batch.attrs for key in attrs):
+        values = [attrs.get(key, math.nan) for attrs in batch.attrs]
+        if isinstance(values[0], np.ndarray):  # array attributes (frame_shape) are the system's: one per chunk
+            shared[key] = values[0]
+        else:
+            columns[key] = values
+    # one table, a row per run and a field per attribute: one dataset however many attributes (each costs a write)
+    table = np.empty(len(runs), dtype=[(key, h5py.string_dtype() if isinstance(values[0], str) else np.asarray(values).dtype)
+                                       for key, values in columns.items()])
+    for key, values in columns.items():
+        table[key] = values
+    return shared, table
+
+
 class ResultsWriter:
     """Writes one experiment's results file; the only place that writes HDF5.
 
@@ -205,15 +253,16 @@ class ResultsWriter:
 
     @classmethod
     def resume(cls, path: Path) -> "ResultsWriter":
-        """Open an existing file for more runs: drop incomplete groups, rebuild the summary from the rest."""
+        """Open an existing file for more runs: drop incomplete groups and lane chunks, rebuild the summary from the rest."""
         writer = cls(h5py.File(path, "a"))
         runs = writer.file["runs"]
         for run_id in [run_id for run_id, group in runs.items() if not group.attrs.get("complete", False)]:
             del runs[run_id]
-        rows = [summary_row(run_id, runs[run_id]) for run_id in sorted(runs, key=lambda key: runs[key].attrs["index"])]
-        del writer.file["summary"]
-        writer.file.create_dataset("summary", data=np.array(rows, dtype=SUMMARY_DTYPE), maxshape=(None,), chunks=True)
-        writer.file.flush()
+        chunks = writer.file.get(LANES_GROUP)
+        if chunks is not None:
+            for name in [name for name, chunk in chunks.items() if not chunk.attrs.get("complete", False)]:
+                del chunks[name]
+        writer._rebuild_summary()
         return writer
 
     def remove_runs(self, run_ids: list[str]) -> None:
@@ -221,13 +270,25 @@ class ResultsWriter:
         runs = self.file["runs"]
         for run_id in run_ids:
             del runs[run_id]
-        rows = [summary_row(run_id, runs[run_id]) for run_id in sorted(runs, key=lambda key: runs[key].attrs["index"])]
+        self._rebuild_summary()
+
+    def _rebuild_summary(self) -> None:
+        """/summary from the runs' groups and the lane chunks' own rows, in sweep order."""
+        runs = self.file["runs"]
+        rows = [(int(runs[run_id].attrs["index"]), summary_row(run_id, runs[run_id])) for run_id in runs]
+        for chunk in self.file.get(LANES_GROUP, {}).values():
+            rows += zip(chunk[LANE_TABLE]["index"].tolist(), chunk["summary"][()].tolist())
+        rows.sort(key=lambda item: item[0])
         del self.file["summary"]
-        self.file.create_dataset("summary", data=np.array(rows, dtype=SUMMARY_DTYPE), maxshape=(None,), chunks=True)
+        self.file.create_dataset("summary", data=np.array([row for _, row in rows], dtype=SUMMARY_DTYPE),
+                                 maxshape=(None,), chunks=True)
         self.file.flush()
 
     def completed_runs(self) -> set[str]:
-        return set(self.file["runs"])
+        done = set(self.file["runs"])
+        for chunk in self.file.get(LANES_GROUP, {}).values():
+            done.update(_text(run_id) for run_id in chunk[LANE_TABLE]["run_id"].tolist())
+        return done
 
     def write_run(self, run: Run, result: RunResult) -> None:
         group = self.file["runs"].create_group(run.run_id)
@@ -262,6 +323,38 @@ class ResultsWriter:
         summary = self.file["summary"]
         summary.resize((summary.shape[0] + 1,))
         summary[-1] = np.array([summary_row(run.run_id, group)], dtype=SUMMARY_DTYPE)[0]
+        self.file.flush()
+
+    def write_lanes(self, runs: list[Run], batch: "LaneBatch") -> None:
+        """A chunk of runs stepped together (runner/lanes.py), committed in one go as one group of /lanes with a column
+        per attribute and a dataset per series, each with a run axis (docs/results-format.md, "Lane chunks"); a
+        chunk that was stepped run by run (it failed as lanes) is written as runs."""
+        if batch.results_alone is not None:
+            for run, result in zip(runs, batch.results_alone):
+                self.write_run(run, result)
+            return
+        first = runs[0]
+        group = self.file.require_group(LANES_GROUP).create_group(f"{first.index:06d}+{len(runs)}")
+        shared, table = batch.table if batch.table is not None else lane_table(runs, batch)
+        columns = table.dtype.names
+        for key, value in shared.items():
+            group.attrs[key] = value
+        group.create_dataset(LANE_TABLE, data=table)
+        group.attrs["optional_columns"] = [key for key in OPTIONAL_LANE_COLUMNS if key in columns]
+        group.attrs["per_step_keys"] = list(batch.per_step)
+        series = group.create_group("series")
+        for key, array in {**batch.samples, **batch.per_step}.items():
+            series.create_dataset(key, data=array, **(COMPRESSION if array.size > 1024 else {}))
+        if batch.sample_count is not None:
+            group.create_dataset("sample_count", data=batch.sample_count)
+        if batch.error_positions is not None:
+            series.create_dataset("error_positions", data=batch.error_positions)
+        rows = batch.summary if batch.summary is not None else lane_summary_rows(runs, batch)
+        group.create_dataset("summary", data=rows)
+        group.attrs["complete"] = True
+        summary = self.file["summary"]
+        summary.resize((summary.shape[0] + len(rows),))
+        summary[-len(rows):] = rows
         self.file.flush()
 
     def close(self) -> None:

@@ -109,7 +109,7 @@ def _worker_context():
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["simrun.simulate"])
+    context.set_forkserver_preload(["simrun.simulate", "simrun.lanes"])
     return context
 
 

@@ -61,6 +61,8 @@ def stacked_solve(blocks: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 def lane_max_norm(array: np.ndarray) -> np.ndarray:
     """|row|_inf per lane, NaN where a row holds a NaN (as max_norm)."""
+    if array.shape[1] == 1:
+        return np.abs(array[:, 0])
     return np.max(np.abs(array), axis=1)
 
 
@@ -82,7 +84,7 @@ class LaneNewton:
         return np.where(floor > threshold, floor, threshold)  # Python's max(threshold, floor), NaN included
 
     def minimize(self, problem, start: np.ndarray):
-        y = start.copy()
+        y = start  # never written to: every update is a new array
         gradient = problem.gradient(y)
         residual = lane_max_norm(gradient)
         threshold = self._threshold(problem, residual)
@@ -90,25 +92,34 @@ class LaneNewton:
         iterations = np.zeros(lanes, dtype=np.int64)
         linear = np.zeros(lanes, dtype=np.int64)
         converged = residual <= threshold
-        active = ~converged & np.isfinite(residual)
+        active = ~converged & (residual < np.inf)  # (residual < inf: finite, as it is never negative)
         count = 0
         while count < self.max_iterations and active.any():
+            everywhere = active.all()  # the common case: every lane iterates, and no mask is applied
             direction = stacked_solve(problem.hessian(y), -gradient)
             linear += active  # a direct solve counts one, also where the direction then ends the lane's solve
             size = lane_max_norm(direction)
-            finite = np.isfinite(size)
-            stalled = finite & (size <= ROUNDOFF_STEP * lane_max_norm(y))  # below y's last bits: converged
-            converged |= active & stalled
-            moving = active & finite & ~stalled
-            moved = moving[:, None]
-            y = np.where(moved, y + direction, y)
-            gradient = np.where(moved, problem.gradient(y), gradient)
-            residual = np.where(moving, lane_max_norm(gradient), residual)
-            iterations += moving
+            stalled = size <= ROUNDOFF_STEP * lane_max_norm(y)  # a direction below y's last bits: converged
+            if stalled.any():
+                converged |= active & stalled
+                moving = active & ~stalled & (size < np.inf)
+            else:
+                moving = active & (size < np.inf)
+            if everywhere and moving.all():
+                y = y + direction
+                gradient = problem.gradient(y)
+                residual = lane_max_norm(gradient)
+                iterations += 1
+            else:
+                y = np.where(moving[:, None], y + direction, y)
+                gradient = np.where(moving[:, None], problem.gradient(y), gradient)
+                residual = np.where(moving, lane_max_norm(gradient), residual)
+                iterations += moving
             count += 1
-            finite_residual = np.isfinite(residual)
-            converged |= moving & finite_residual & (residual <= threshold)
-            active = moving & finite_residual & ~converged
+            finite = residual < np.inf
+            met = moving & finite & (residual <= threshold)
+            converged |= met
+            active = moving & finite & ~met
         zeros = np.zeros(lanes, dtype=np.int64)
         return y, LaneSolveStats(iterations, linear, zeros, residual, converged, zeros, zeros)
 

@@ -65,6 +65,8 @@ class Capabilities:
     dof_count: int
     energy_reference_name: str = "|KE0| + |PE0|"  # what energy_scale is, for axis labels and tables
     vertex_dim: int = 0  # coordinates per vertex of a stored frame (2 or 3); 0 for systems that keep no frames
+    # (w0 rad/s, zeta) of a linear oscillator q'' + 2 zeta w0 q' + w0^2 q = 0, damped or not (the damping map's axes); None
+    oscillator: tuple[float, float] | None = None
 
     def as_attrs(self) -> dict:
         """The capabilities as HDF5 attributes, under the field names: test_frequency (float, NaN for None),
@@ -79,6 +81,8 @@ class Capabilities:
             "dof_count": int(self.dof_count),
             "energy_reference_name": str(self.energy_reference_name),
             "vertex_dim": int(self.vertex_dim),
+            "natural_frequency": math.nan if self.oscillator is None else float(self.oscillator[0]),
+            "damping_ratio": math.nan if self.oscillator is None else float(self.oscillator[1]),
         }
 
 
@@ -481,7 +485,20 @@ class System(ABC):
             dof_count=int(self.dof_count),
             energy_reference_name=self.energy_reference_name,
             vertex_dim=0 if self.records_state_per_sample else int(self.vertex_dim),
+            oscillator=self.oscillator,
         )
+
+    def modal_energy(self, energy: np.ndarray, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The oscillator's modal energy at recorded samples (J): energies (samples,), x and v (samples, dofs); the
+        energy itself by default (exact for the undamped test equation, which keeps it)."""
+        return energy
+
+    @property
+    def oscillator(self) -> tuple[float, float] | None:
+        """(w0 rad/s, zeta) when the system is a linear oscillator q'' + 2 zeta w0 q' + w0^2 q = 0 (or uncoupled copies of
+        one), damped or not: the test equation (test_frequency, 0) by default, else None."""
+        frequency = self.test_frequency
+        return None if frequency is None else (float(frequency), 0.0)
 
 
 class SystemParams(BaseModel):

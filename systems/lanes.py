@@ -39,6 +39,11 @@ class SpringMassLanes:
     dof_count = 1
     dim = 1
 
+    @staticmethod
+    def lane_kind(params) -> bool:
+        """Runs of one kind share a chunk: damped and undamped springs apart, so that neither masks the other's terms."""
+        return params.effective_damping != 0.0
+
     def __init__(self, systems):
         self.systems = list(systems)
         self.lane_count = len(self.systems)
@@ -51,6 +56,8 @@ class SpringMassLanes:
         # SpringMass has no damping matrix at d = 0: its lanes add no damping term (not even d = 0 times a rate)
         self.damped = (self.damping != 0.0).ravel()
         self.is_damped = bool(self.damped.any())
+        self.all_damped = bool(self.damped.all())
+        self.negative_stiffness = -self.stiffness  # SpringMass's -k q, negated once
         self.observable_layout = self.systems[0].observable_layout
 
     def select(self, lanes: np.ndarray) -> "SpringMassLanes":
@@ -59,10 +66,10 @@ class SpringMassLanes:
 
     # -- what the integrators ask ------------------------------------------------------------------
     def acceleration(self, x, v):
-        return (-self.stiffness * x - self.damping * v) / self.mass
+        return (self.negative_stiffness * x - self.damping * v) / self.mass
 
     def kick(self, x, v, dt):
-        return v + dt * ((-self.stiffness * x - self.damping * v) / self.mass)
+        return v + dt * ((self.negative_stiffness * x - self.damping * v) / self.mass)
 
     # -- what the incremental potential asks -------------------------------------------------------
     def gradient(self, x):
@@ -73,12 +80,13 @@ class SpringMassLanes:
         (s k + (s/b) d) + m, where the lane is damped (SpringMass has no D at d = 0)."""
         blocks = scale * self.stiffness
         if damping_weight is not None:
-            blocks = np.where(self.damped[:, None], blocks + damping_weight * self.damping, blocks)
+            damped = blocks + damping_weight * self.damping
+            blocks = damped if self.all_damped else np.where(self.damped[:, None], damped, blocks)
         return (blocks + self.mass)[:, :, None]
 
     def damping_times(self, rate):
         """D r per lane (0 where undamped: that lane's run adds no term)."""
-        return np.where(self.damped[:, None], self.damping * rate, 0.0)
+        return self.damping * rate if self.all_damped else np.where(self.damped[:, None], self.damping * rate, 0.0)
 
     # -- what the runner records -------------------------------------------------------------------
     def observables(self, x, v):
@@ -95,11 +103,12 @@ class SpringMassLanes:
 
     def dissipation(self, mean_velocity):
         """v^T D v per lane (W): the power the damping force takes out at velocity v; 0 where undamped."""
-        return np.where(self.damped, (mean_velocity * (self.damping * mean_velocity))[:, 0], 0.0)
+        power = (mean_velocity * (self.damping * mean_velocity))[:, 0]
+        return power if self.all_damped else np.where(self.damped, power, 0.0)
 
     def capability_columns(self) -> dict[str, np.ndarray]:
-        """The capabilities that differ between lanes, (lanes,) each: test_frequency (NaN where damped), length_scale
-        and energy_scale, as System.capabilities computes them."""
+        """The capabilities that differ between lanes, (lanes,) each: test_frequency (NaN where damped), length_scale,
+        energy_scale, natural_frequency and damping_ratio, as System.capabilities computes them."""
         m, k, d, x0, v0 = (array[:, 0] for array in (self.mass, self.stiffness, self.damping, self.x0, self.v0))
         kinetic = 0.5 * ((m * v0) * v0)
         potential = 0.5 * k * (x0 * x0)
@@ -111,8 +120,18 @@ class SpringMassLanes:
         work = length * np.abs(force)
         work = np.where(np.isfinite(work), work, 0.0)
         energy_scale = np.where(initial > ENERGY_ROUND_OFF * work, initial, np.where(work > 0.0, work, 1.0))
-        frequency = np.where(self.damped, np.nan, np.sqrt(k / m))
-        return {"test_frequency": frequency, "length_scale": length, "energy_scale": energy_scale}
+        natural = np.sqrt(k / m)
+        frequency = np.where(self.damped, np.nan, natural)
+        ratio = d / (2.0 * np.sqrt(k * m))
+        return {"test_frequency": frequency, "length_scale": length, "energy_scale": energy_scale,
+                "natural_frequency": natural, "damping_ratio": ratio}
+
+    def modal_energy(self, energy, x, v):
+        """SpringMass.modal_energy per lane: energy (lanes, ...) with x, v (lanes, ..., 1) at the same samples."""
+        critical = (self.damping >= 2.0 * np.sqrt(self.stiffness * self.mass))[:, 0]
+        half = (0.5 * self.damping)[:, 0].reshape((-1,) + (1,) * (energy.ndim - 1))
+        modal = energy + half * (x[..., 0] * v[..., 0])
+        return np.where(critical.reshape(half.shape), energy, modal)
 
     def exact_states(self, t):
         """(q, v) of every lane's exact solution at its own time t (lanes,): SpringMass.exact_solution's two-exponential

@@ -79,6 +79,19 @@ class SpringMass(System):
         """w = sqrt(k/m) (rad/s) when undamped (d = 0): then this is the test equation itself; None when damped."""
         return math.sqrt(self.stiffness / self.params.mass) if self.damping == 0.0 else None
 
+    @property
+    def oscillator(self) -> tuple[float, float]:
+        """(w0, zeta) = (sqrt(k/m), d / (2 sqrt(k m))), damped or not."""
+        return math.sqrt(self.stiffness / self.params.mass), self.damping / (2.0 * math.sqrt(self.stiffness * self.params.mass))
+
+    def modal_energy(self, energy, x, v):
+        """V = E + d q v / 2 = (m v^2 + d q v + k q^2) / 2 below critical damping: the exact motion loses it at the
+        steady rate dV/dt = -(d/m) V (E itself falls in steps, fastest where v peaks), so V measures a decay per
+        period at any phase; E at and above critical damping, where V is not positive definite."""
+        if self.damping >= 2.0 * math.sqrt(self.stiffness * self.params.mass):
+            return energy
+        return energy + (0.5 * self.damping) * (x[:, 0] * v[:, 0])
+
     def potential_energy(self, x):
         return 0.5 * self.stiffness * float(x[0] * x[0])
 

@@ -21,6 +21,9 @@ def add_parser(commands) -> None:
                      help="process: a process pool on this machine (default; `local` is the same); "
                           "dask: a Dask cluster (pip install 'simrun[dask]')")
     run.add_argument("--scheduler", metavar="ADDRESS", help="with --executor dask: an existing scheduler, e.g. tcp://host:8786 (default: a local cluster)")
+    run.add_argument("--lanes", choices=("auto", "off"), default="auto",
+                     help="auto: step many small runs of one kind (the spring's maps) together as lanes of one array, "
+                          "each run's data what it would be alone (default); off: every run alone")
     run.add_argument("--force", action="store_true", help="start over even if OUTPUT/results.h5 holds other results, removing "
                                                           "its old figures and report first (default: resume an unchanged config)")
     run.add_argument("--max-size", type=float, default=DEFAULT_MAX_SIZE_GB, metavar="GB",
@@ -37,7 +40,7 @@ def handle(args) -> int:
                       executor=EXECUTOR_ALIASES.get(args.executor, args.executor), scheduler=args.scheduler,
                       force=args.force, progress=not args.quiet, figures=not args.no_plots,
                       overrides=args.overrides, max_size_gb=args.max_size,
-                      command_line=getattr(args, "command_line", None))
+                      command_line=getattr(args, "command_line", None), lanes=args.lanes)
     except Interrupted as interrupted:
         print(f"simrun: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED

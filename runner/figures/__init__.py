@@ -21,6 +21,7 @@ from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, RunData, figure_data
 from simrun.figures.calibration import fitted_parameters_vs_dt, observed_vs_fitted, transfer_errors
 from simrun.figures.convergence import convergence, work_precision
+from simrun.figures.damping_map import damping_map
 from simrun.figures.energy import energy_budget, energy_drift_vs_dt, energy_over_time
 from simrun.figures.frames import snapshots
 from simrun.figures.orbits import orbits
@@ -45,6 +46,12 @@ class Figure:
     # what the figure adds for runs on the undamped test equation (h w, predicted limits): the report shows it
     # only for files with such runs
     test_equation_caption: str = ""
+    # drawn from the runs' recorded series (energy, frames): not drawn from a file whose runs kept none (record.series:
+    # false, a map of thousands of runs), whose figures come from the runs' scalars
+    from_series: bool = False
+    # drawn against dt, a panel per setting of the other swept keys: not drawn for a sweep of one dt over more settings
+    # than its panels show (a map, which has its own figure), where it would be single points in the first few panels
+    against_dt: bool = False
 
 
 FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
@@ -54,26 +61,26 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "family of methods when there are many). Look for growth (an explicit method past its stability limit), "
            "decay towards −E₀/E_ref (the damped implicit methods) and a bounded oscillation about 0 (symplectic and "
            "energy-conserving methods). An ✕ ends a run that diverged; a note says which time steps are shown.",
-           "runs with recorded energy"),
+           "runs with recorded energy", from_series=True),
     Figure("energy_drift_vs_dt", energy_drift_vs_dt,
            "The largest energy change max |E − E₀|/E_ref over each run against dt (log-log). Look for the slope (the "
            "drift shrinks like dt^p) and for methods at round-off (energy-conserving on this problem).",
-           "runs with recorded energy"),
+           "runs with recorded energy", from_series=True, against_dt=True),
     Figure("stability_map", stability_map,
            "Integrators × dt (and swept settings), every run a cell, coloured by the largest energy change in decades "
            "on a scale symmetric about 0 (blue: lost, red: gained).",
            "runs with recorded energy",
            test_equation_caption="A black bar in a row marks the predicted stability limit dt = (h w)*/w from the "
-                                 "amplification matrix: cells right of it should be red or diverged (✕), cells left of it not."),
+                                 "amplification matrix: cells right of it should be red or diverged (✕), cells left of it not.", from_series=True),
     Figure("newton_iterations_vs_dt", newton_iterations_vs_dt,
            "Mean (solid) and largest (dotted) solver iterations per step of the implicit methods. Look for the growth "
            "with dt: larger steps start the solver farther from the solution.",
-           "implicit methods"),
+           "implicit methods", from_series=True, against_dt=True),
     Figure("orbits", orbits,
            "Trajectories of a body moving in the x-y plane against the circle through its start (the exact orbit of "
            "circular motion). Look for orbits that spiral out (energy gained), spiral in (energy lost) or stay on a "
            "(slightly deformed) closed curve.",
-           "a planar system (one body in the x-y plane, e.g. circular motion)"),
+           "a planar system (one body in the x-y plane, e.g. circular motion)", from_series=True),
     Figure("artificial_damping", artificial_damping,
            "d_method/w = −2 ln ρ/(h w) against h w (Ascher's damping curves). Lines: predicted from the probed "
            "amplification matrix of each method; markers: measured from each run's energy decay (hollow where the "
@@ -82,6 +89,14 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "parameter.",
            "runs on the undamped test equation (a system that declares a test frequency: spring without damping, "
            "linear circular motion)"),
+    Figure("damping_map", damping_map,
+           "The amplitude's decay per period over the step h w and the damping ratio ζ, a panel per method, every run a "
+           "cell coloured by what it measured (log₁₀ of the factor per period 2π/w: 0 keeps the amplitude, −1 loses 90 % "
+           "of it each period). Solid contours: measured; white dashed: predicted from the method's amplification "
+           "matrix at each point; thick black: the predicted stability boundary ρ = 1; dotted grey: the exact motion's "
+           "e^(−2πζ). Look for measured contours on the predicted ones, and for where a method's decay departs from "
+           "the dotted physics: to the right of it the method's own damping dominates the model's.",
+           "runs of a linear oscillator (the spring) over at least 3 step sizes h w and 2 damping ratios per method"),
     Figure("spectral_radius_and_period", spectral_radius_and_period,
            "Top: the spectral radius ρ(h w); ρ < 1 damps, ρ > 1 grows (a hollow circle marks a stability limit). "
            "Bottom: the relative period error T_h/T − 1 of the principal eigenvalue (up to h w = π), with the periods "
@@ -93,26 +108,26 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "(log-log), with the least-squares slope over the smallest time steps (dashed) in the legend, or why no "
            "slope could be fitted. Look for slopes equal to each method's order; runs at round-off are exact on this "
            "problem, saturated ones (error ~ the length scale) are left out of the fit.",
-           "runs with an exact solution, or a reference (systems without one: --reference)"),
+           "runs with an exact solution, or a reference (systems without one: --reference)", against_dt=True),
     Figure("work_precision", work_precision,
            "The same error against the wall time of each run. Lower left is better: a higher-order or cheaper method "
            "reaches a given accuracy sooner.",
-           "runs with an exact solution, or a reference (systems without one: --reference)"),
+           "runs with an exact solution, or a reference (systems without one: --reference)", against_dt=True),
     Figure("wall_time_per_step_vs_dt", wall_time_per_step_vs_dt,
            "Wall time per step against dt, one line per method (or per swept solver setting), one panel per setting "
            "of the other swept keys. Look for implicit methods getting dearer at large dt (more solver iterations).",
-           "runs that took at least one step"),
+           "runs that took at least one step", against_dt=True),
     Figure("energy_budget", energy_budget,
            "Where the energy goes, at one time step: kinetic and potential energy (each potential term), the work "
            "done by the physical damping and by friction, stacked, over E_ref; the grey gap up to the initial energy "
            "(dashed) is the "
            "integrator's own numerical dissipation, an orange band above it a numerical gain. With damping 0 the gap "
            "is all of the drift; with damping it separates the model's loss from the method's.",
-           "runs with at least two samples"),
+           "runs with at least two samples", from_series=True),
     Figure("snapshots", snapshots,
            "The model at four times of the run (from its stored frames), with the contact colliders drawn in grey "
            "(translucent, beneath the model) where they are at each time; the title names anything not drawn.",
-           "runs that keep frames on a vertex grid (the cloth)", dpi=110),
+           "runs that keep frames on a vertex grid (the cloth)", dpi=110, from_series=True),
     Figure("fitted_parameters_vs_dt", fitted_parameters_vs_dt,
            "Each fitted parameter against dt (log), a line per integrator with its standard errors, the predicted "
            "value (where the method's own step has the observed eigenvalue) dashed in the same colour, the truth (or "
@@ -147,7 +162,11 @@ def render_figures(results: Results | str | Path, reference_errors: dict[str, fl
         return
     with results.opened():  # one file handle for every series the figures read
         data = figure_data(results, reference_errors)
+        kept_series = any(run.stored.datasets for run in data.runs)
+        a_map = len({run.dt for run in data.runs}) == 1 and len(data.sections) > layout.MAX_SUMMARY_PANELS
         for entry in list(FIGURES.values()):
+            if (entry.from_series and not kept_series) or (entry.against_dt and a_map):
+                continue
             drawn = entry.draw(data)
             if drawn is None:
                 continue
