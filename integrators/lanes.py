@@ -41,9 +41,17 @@ class LaneIncrementalPotential:
         return start  # lane systems have no prescribed paths, pins or contact
 
     def gradient(self, y):
-        gradient = self.system.mass * (y - self.y_tilde) + self.scale * self.system.gradient(y)
+        """M (y - y~) + s dP/dy + (s/b) D (y - a), summed in IncrementalPotential.gradient's order (in place: it runs at
+        every iteration of every step)."""
+        gradient = np.subtract(y, self.y_tilde)
+        gradient *= self.system.mass
+        force = self.system.gradient(y)
+        force *= self.scale
+        gradient += force
         if self.damped:
-            gradient += self.damping_weight * self.system.damping_times(y - self.velocity_origin)
+            damping = self.system.damping_times(y - self.velocity_origin)
+            damping *= self.damping_weight
+            gradient += damping
         return gradient
 
     def hessian(self, y):

@@ -23,8 +23,10 @@ PER_STEP_FIELDS = ("iterations", "linear_iterations", "line_search_steps", "resi
 class LaneSeries:
     """Every sample (one array per key, samples first while stepping) and every step's solver counts."""
 
-    def __init__(self, layout: dict[str, tuple], sample_rows: int, lanes: int, step_count: int, modal_energy):
+    def __init__(self, layout: dict[str, tuple], sample_rows: int, lanes: int, step_count: int, modal_energy,
+                 energy_scale: np.ndarray):
         self.modal_energy = modal_energy  # the lane system's: what the decay per period is measured from
+        self.energy_scale = energy_scale  # E_ref per lane: the energy drift's unit
         self.series = {key: np.full((sample_rows, lanes) + shape, np.nan) for key, shape in layout.items()}
         self.per_step = {key: np.zeros((step_count, lanes), dtype=kind) for key, kind in zip(PER_STEP_KEYS, PER_STEP_TYPES)}
         self.counts = np.zeros(lanes, dtype=np.int64)
@@ -54,7 +56,9 @@ class LaneSeries:
 
     def solver_step(self, n: int, stats, running) -> None:
         for key, name in zip(PER_STEP_KEYS, PER_STEP_FIELDS):
-            self.per_step[key][n] = getattr(stats, name)
+            value = getattr(stats, name)
+            if value.flags.writeable or value.any():  # the solver's shared zeros: the record is zero already
+                self.per_step[key][n] = value
 
     def finish(self, steps: np.ndarray) -> dict:
         """The recorded data by lane: samples (lanes, samples, ...) NaN past each lane's count, per-step (lanes, steps)."""
@@ -73,6 +77,7 @@ class LaneSeries:
                 values[lane, steps[lane]:] = 0
         last = self.counts - 1
         every = np.arange(last.size)
+        series_summary = self._series_summary(samples["energy"], per_step, steps)
         energy = self.modal_energy(samples["energy"], samples["positions"], samples["velocities"])
         usable = np.isfinite(energy) & (energy > DECAY_FLOOR * energy[:, :1])  # NaN past a lane's count: not usable
         latest = energy.shape[1] - 1 - np.argmax(usable[:, ::-1], axis=1)
@@ -80,7 +85,25 @@ class LaneSeries:
         return {"samples": samples, "sample_count": self.counts, "per_step": per_step,
                 "last_t": samples["t"][every, last], "last_positions": samples["positions"][every, last],
                 "safeguard_steps": np.count_nonzero(per_step["safeguards"], axis=1),
-                "decay_energies": (energy[:, 0], energy[every, latest], samples["t"][every, latest])}
+                "decay_energies": (energy[:, 0], energy[every, latest], samples["t"][every, latest]),
+                "series_summary": series_summary}
+
+    def _series_summary(self, energy: np.ndarray, per_step: dict, steps: np.ndarray) -> dict[str, np.ndarray]:
+        """results.series_summary for every lane at once: the largest and the last energy drift over the finite samples,
+        relative to the first finite one, and the mean iterations per step (the same operations, lane by lane)."""
+        finite = np.isfinite(energy)
+        every = np.arange(energy.shape[0])
+        first = np.argmax(finite, axis=1)
+        last = energy.shape[1] - 1 - np.argmax(finite[:, ::-1], axis=1)
+        drift = (energy - energy[every, first][:, None]) / self.energy_scale[:, None]
+        some = finite.any(axis=1)
+        largest = np.max(np.where(finite, np.abs(drift), -np.inf), axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = {key: np.where(steps > 0, per_step[key].sum(axis=1, dtype=np.float64) / np.maximum(steps, 1), 0.0)
+                     for key in ("newton_iterations", "linear_iterations")}
+        return {"max_rel_energy_drift": np.where(some, largest, np.nan),
+                "final_rel_energy_drift": np.where(some, drift[every, last], np.nan),
+                "mean_newton_iterations": means["newton_iterations"], "mean_linear_iterations": means["linear_iterations"]}
 
 
 class LaneSummary:

@@ -28,7 +28,7 @@ from simrun.lane_recording import LaneSeries, LaneSummary, lane_decays, lane_err
 from simrun.simulate import RunResult, simulate
 from simrun.solvers import EXPLICIT_STEP
 from simrun.solvers.lanes import LaneNewton, lane_refusal
-from simrun.store import lane_summary_rows, lane_table
+from simrun.store import lane_summary, lane_table
 
 # integrators whose step is elementwise arithmetic of the state and the system's acceleration, kick or incremental
 # potential (StepPlan), and so steps lanes as it steps one run; the others (segment potentials, the exponential
@@ -102,7 +102,7 @@ class LaneBatch:
     error_positions: np.ndarray | None = None  # (lanes, dofs), NaN where the run ended before its error time
     results_alone: list[RunResult] | None = None  # the chunk failed as lanes: its runs, each stepped alone
     table: tuple | None = None  # (shared attributes, a row per run): store.lane_table, built where the chunk ran
-    summary: np.ndarray | None = None  # the runs' summary rows: store.lane_summary_rows, likewise
+    summary: np.ndarray | None = None  # the runs' summary rows: store.lane_summary, likewise
 
     @property
     def run_ids(self) -> list[str]:
@@ -161,7 +161,8 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
     if record.series:  # simulate.Recorder's columns, one array per key
         layout = dict(system.observable_layout)
         layout.update(t=(), dissipated_energy=(), positions=(system.dof_count,), velocities=(system.dof_count,))
-        recorder = LaneSeries(layout, step_count // stride + 2, lanes, step_count, system.modal_energy)
+        recorder = LaneSeries(layout, step_count // stride + 2, lanes, step_count, system.modal_energy,
+                              capabilities["energy_scale"])
     else:
         recorder = LaneSummary(capabilities["energy_scale"], lanes, system.dof_count, system.modal_energy)
 
@@ -170,7 +171,7 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
     energy_bound = np.array([run.divergence.energy_factor for run in runs]) * capabilities["energy_scale"]
     dissipated = np.zeros(lanes)
     damped = system.is_damped
-    running = None  # the lanes still running; None: all of them
+    running = stopped = None  # the lanes still running, and the others; None: all of them, none
     stopped_at = np.full(lanes, step_count, dtype=np.int64)  # steps taken
     diverged = np.zeros(lanes, dtype=bool)
     t_diverged = np.full(lanes, math.nan)
@@ -194,12 +195,13 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
         failing = None
         if stats is not EXPLICIT_STEP:
             recorder.solver_step(n, stats, running)
-            failing = ~stats.converged if running is None else running & ~stats.converged
-            if failing.any():
-                not_converged_steps += failing
-                first_not_converged[failing & (first_not_converged == 0)] = steps
-            else:
-                failing = None
+            if not stats.converged.all():
+                failing = ~stats.converged if running is None else running & ~stats.converged
+                if failing.any():
+                    not_converged_steps += failing
+                    first_not_converged[failing & (first_not_converged == 0)] = steps
+                else:
+                    failing = None
         if steps in error_step_set:
             at_error = error_steps == steps if running is None else (error_steps == steps) & running
             error_times[at_error] = dt_flat[at_error] * steps
@@ -217,9 +219,11 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
             if energy is None:
                 energy = system.total_energy(state.x, state.v)
             # simulate's test, E not finite or |E - E0| > bound, as one comparison that NaN fails
-            within = np.abs(energy - energy0) <= energy_bound
+            change = np.subtract(energy, energy0)
+            within = np.abs(change, out=change) <= energy_bound
             checked = running if regular_check else failing
-            if not (within.all() if checked is None else within[checked].all()):
+            unchecked = None if checked is None else (stopped if checked is running else ~checked)
+            if not (within.all() if unchecked is None else (within | unchecked).all()):  # (all(where=): far slower)
                 escaped = ~within if checked is None else checked & ~within
                 t = dt_flat * steps
                 for lane in np.flatnonzero(escaped).tolist():
@@ -240,6 +244,7 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
                 recorder.stop_sample(stopping, system.observables(state.x, state.v), dt_flat * steps, dissipated,
                                      state.x, state.v)
             running = ~stopping if running is None else running & ~stopping
+            stopped = ~running
             if not running.any():
                 break
     wall_time = (time.perf_counter() - start) / lanes
@@ -255,7 +260,7 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
     columns = {key: values.tolist() for key, values in columns.items()}
     columns["decay_per_period"] = lane_decays(kept["decay_energies"], capabilities["natural_frequency"])
     capability_lists = {key: values.tolist() for key, values in capabilities.items()}
-    summary = {key: values.tolist() for key, values in kept.get("series_summary", {}).items()}
+    summary = {key: values.tolist() for key, values in kept["series_summary"].items()} if not record.series else {}
     statuses, attrs = [], []
     for lane in range(lanes):
         lane_status = Status.DIVERGED if diverged[lane] else Status.OK
@@ -278,5 +283,5 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
                       sample_count=kept["sample_count"], per_step=kept["per_step"],
                       error_positions=error_positions if record.series else None)
     # what the writer stores, made here (in the worker, beside the other chunks) rather than by the one writer
-    batch.table, batch.summary = lane_table(runs, batch), lane_summary_rows(runs, batch)
+    batch.table, batch.summary = lane_table(runs, batch), lane_summary(runs, batch, kept["series_summary"])
     return batch

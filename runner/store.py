@@ -29,7 +29,7 @@ from simrun.config import RecordParams, Run
 from simrun.errors import ConfigError, ResultsFileError
 from simrun.lock import existing_ancestor
 from simrun.results import (FORMAT_VERSION, LANE_TABLE, LANES_GROUP, OPTIONAL_LANE_COLUMNS, SUMMARY_DTYPE, _text, summary_row,
-                            summary_row_of)
+                            real_time_factor, wall_time_per_frame)
 from simrun.results import load_summary  # noqa: F401  (deprecated alias, one version: simrun.load(path).summary)
 from simrun.simulate import RunResult
 
@@ -175,15 +175,25 @@ def open_writer(path: Path, config_text: str, digest: str, name: str, force: boo
     return ResultsWriter.create(path, config_text, digest, name, **provenance)
 
 
-def lane_summary_rows(runs: list[Run], batch: "LaneBatch") -> np.ndarray:
-    """The summary rows of a chunk's runs (SUMMARY_DTYPE), as ``summary_row`` computes them from each run's group."""
-    rows, empty = [], np.empty(0)
-    for lane, run in enumerate(runs):
-        result = batch.result(lane)
-        attrs = {**result.attrs, "integrator_label": run.integrator_label, "dt": run.dt, "status": str(result.status),
-                 "steps": result.steps, "wall_time": result.wall_time}
-        rows.append(summary_row_of(run.run_id, attrs, lambda key: result.samples.get(key, result.per_step.get(key, empty))))
-    return np.array(rows, dtype=SUMMARY_DTYPE)
+def lane_summary(runs: list[Run], batch: "LaneBatch", series: dict[str, np.ndarray]) -> np.ndarray:
+    """The summary rows of a chunk's runs (SUMMARY_DTYPE), as ``summary_row`` computes them from each run's group;
+    ``series``: results.series_summary's numbers per lane."""
+    rows = np.empty(len(runs), dtype=SUMMARY_DTYPE)
+    rows["run_id"] = [run.run_id for run in runs]
+    rows["integrator"] = [run.integrator_label for run in runs]
+    rows["dt"] = [run.dt for run in runs]
+    rows["status"] = [str(status) for status in batch.status]
+    rows["steps"] = batch.steps
+    for key, values in series.items():
+        rows[key] = values
+    for key in ("final_error", "error_time", "error"):
+        rows[key] = [attrs.get(key, math.nan) for attrs in batch.attrs]
+    rows["wall_time"] = batch.wall_time
+    rows["real_time_factor"] = [real_time_factor(steps, run.dt, wall) for steps, run, wall in
+                                zip(batch.steps.tolist(), runs, batch.wall_time.tolist())]
+    rows["wall_time_per_frame"] = [wall_time_per_frame(steps, run.dt, wall) for steps, run, wall in
+                                   zip(batch.steps.tolist(), runs, batch.wall_time.tolist())]
+    return rows
 
 
 def lane_table(runs: list[Run], batch: "LaneBatch") -> tuple[dict, np.ndarray]:
@@ -335,7 +345,7 @@ class ResultsWriter:
             return
         first = runs[0]
         group = self.file.require_group(LANES_GROUP).create_group(f"{first.index:06d}+{len(runs)}")
-        shared, table = batch.table if batch.table is not None else lane_table(runs, batch)
+        shared, table = batch.table
         columns = table.dtype.names
         for key, value in shared.items():
             group.attrs[key] = value
@@ -349,7 +359,7 @@ class ResultsWriter:
             group.create_dataset("sample_count", data=batch.sample_count)
         if batch.error_positions is not None:
             series.create_dataset("error_positions", data=batch.error_positions)
-        rows = batch.summary if batch.summary is not None else lane_summary_rows(runs, batch)
+        rows = batch.summary
         group.create_dataset("summary", data=rows)
         group.attrs["complete"] = True
         summary = self.file["summary"]

@@ -110,6 +110,15 @@ class LaneNewton:
                 gradient = problem.gradient(y)
                 residual = lane_max_norm(gradient)
                 iterations += 1
+                count += 1
+                met = residual <= threshold  # (False where not finite)
+                if met.all():  # the common end: every lane converged in this iteration
+                    converged = met
+                    break
+                finite = residual < np.inf
+                converged |= met
+                active = finite & ~met
+                continue
             else:
                 y = np.where(moving[:, None], y + direction, y)
                 gradient = np.where(moving[:, None], problem.gradient(y), gradient)
@@ -120,13 +129,22 @@ class LaneNewton:
             met = moving & finite & (residual <= threshold)
             converged |= met
             active = moving & finite & ~met
-        zeros = np.zeros(lanes, dtype=np.int64)
+        zeros = self._zeros(lanes)
         return y, LaneSolveStats(iterations, linear, zeros, residual, converged, zeros, zeros)
+
+    def _zeros(self, lanes: int) -> np.ndarray:
+        """The counts a Newton step of a quadratic problem leaves at zero (line search, fallback, safeguards): one
+        read-only array per lane count, which the runner need not copy into its zero-filled records."""
+        zeros = self.__dict__.get("zeros")
+        if zeros is None or zeros.size != lanes:
+            zeros = self.__dict__["zeros"] = np.zeros(lanes, dtype=np.int64)
+            zeros.setflags(write=False)
+        return zeros
 
     def newton_step(self, problem, start: np.ndarray):
         """Exactly one Newton iteration per lane (NonlinearSolver.newton_step)."""
         gradient = problem.gradient(start)
         y = start + stacked_solve(problem.hessian(start), -gradient)
-        ones, zeros = np.ones(y.shape[0], dtype=np.int64), np.zeros(y.shape[0], dtype=np.int64)
+        ones, zeros = np.ones(y.shape[0], dtype=np.int64), self._zeros(y.shape[0])
         return y, LaneSolveStats(ones, ones, zeros, lane_max_norm(problem.gradient(y)), np.ones(y.shape[0], dtype=bool),
                                  zeros, zeros)

@@ -99,7 +99,14 @@ class SpringMassLanes:
                 "momentum": momentum}
 
     def total_energy(self, x, v):
-        return (0.5 * (self.mass * v * v + self.stiffness * x * x))[:, 0]
+        """SpringMass.total_energy, 0.5 ((m v) v + (k x) x), with two temporaries (it runs at every step)."""
+        energy = np.multiply(self.mass, v)
+        energy *= v
+        potential = np.multiply(self.stiffness, x)
+        potential *= x
+        energy += potential
+        energy *= 0.5
+        return energy[:, 0]
 
     def dissipation(self, mean_velocity):
         """v^T D v per lane (W): the power the damping force takes out at velocity v; 0 where undamped."""
