@@ -272,13 +272,17 @@ def parse_yaml(text: str, source: str = "config") -> dict:
 
 
 def apply_override(raw: dict, assignment: str) -> None:
-    """Apply one ``--set key.path=value`` (value parsed as YAML) to the raw config, in place."""
+    """Apply one ``--set key.path=value`` (value parsed as YAML) to the raw config, in place; under ``sweep.`` the rest
+    of the path is one swept key (``sweep.system.stiffness=[10, 100]``)."""
     key, sep, text = assignment.partition("=")
     key = key.strip()
     if not sep or not key or any(not part for part in key.split(".")):
         raise ConfigError(f"--set {assignment}: expected key.path=value, e.g. system.stiffness=1000")
     value = parse_yaml(f"value: {text}", f"--set {key}")["value"]
-    set_path(raw, key.split("."), value, f"--set {key}")
+    parts = key.split(".")
+    if parts[0] == "sweep" and len(parts) > 2:  # a swept key is a dotted path itself: sweep.system.stiffness=[1, 2]
+        parts = ["sweep", ".".join(parts[1:])]
+    set_path(raw, parts, value, f"--set {key}")
 
 
 def set_path(raw: dict, parts: list[str], value: Any, source: str) -> None:

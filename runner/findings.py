@@ -26,6 +26,7 @@ and ``simrun.analysis``; this module only selects, compares and words them.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,7 +69,10 @@ def findings(data: FigureData, rows: list[SummaryRow] | None = None, orders: lis
     orders = order_rows(data) if orders is None else orders
     predictions = predictions_for(data) if test_equation_runs(data) else {}
     several = len(data.groups) > 1
-    result = _stability(data, rows, predictions, several)
+    from simrun.findings_map import map_findings  # here, not above: it builds on Finding
+
+    result = map_findings(data)  # a map answers its question first
+    result += _stability(data, rows, predictions, several)
     result += contact_findings(rows, several)
     result += _largest_dt(data, several)
     result += _damping(data, predictions, several)
@@ -80,7 +84,28 @@ def findings(data: FigureData, rows: list[SummaryRow] | None = None, orders: lis
     if not predictions:
         result += _energy(data, rows, several)
     result += _not_measured(data, orders, several)
-    return result
+    return _at_most_per_kind(result)
+
+
+# findings of one kind beyond this many are counted, not listed: a map (10^4 runs over hundreds of settings) would
+# otherwise say the same of every setting
+MAX_PER_KIND = 8
+
+
+def _at_most_per_kind(found: list[Finding]) -> list[Finding]:
+    kept, counts, left = [], Counter(), Counter()
+    anchors = {}
+    for finding in found:
+        counts[finding.topic] += 1
+        if counts[finding.topic] <= MAX_PER_KIND:
+            kept.append(finding)
+        else:
+            left[finding.topic] += 1
+            anchors.setdefault(finding.topic, finding.link_anchor)
+    for kind, count in left.items():
+        kept.append(Finding(f"… and {count} more {kind} findings like the ones above, one per setting of the swept "
+                            "keys: the tables and figures below show every run.", anchors[kind], {"more": count}, kind))
+    return kept
 
 
 # -- wording ----------------------------------------------------------------------------------------
@@ -92,7 +117,13 @@ def _dts(values: list[float]) -> str:
     return ", ".join(f"{value:g}" for value in values) + " s"
 
 
+# a sentence names at most this many items (a map has hundreds of settings alike): the first ones, and how many more
+MAX_NAMED = 12
+
+
 def _and(items: list[str]) -> str:
+    if len(items) > MAX_NAMED:
+        return ", ".join(items[:MAX_NAMED]) + f" and {len(items) - MAX_NAMED} more"
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
@@ -198,7 +229,10 @@ def _said_once(items: list[tuple[str, str, str, dict]]) -> list[Finding]:
             who, evidence = members[0]
         else:
             who = _and([name for name, _ in members])
-            evidence = {"integrators": [item["integrator"] for _, item in members], "each": [item for _, item in members]}
+            evidence = {"integrators": [item["integrator"] for _, item in members],
+                        "each": [item for _, item in members[:MAX_NAMED]]}  # the first ones, as the sentence names them
+            if len(members) > MAX_NAMED:
+                evidence["more"] = len(members) - MAX_NAMED
         result.append(Finding(f"{who}: {what}.", anchor, evidence, "stability"))
     return result
 

@@ -64,7 +64,9 @@ class LaneSeries:
         """The recorded data by lane: samples (lanes, samples, ...) NaN past each lane's count, per-step (lanes, steps)."""
         samples = {key: np.ascontiguousarray(np.moveaxis(values, 0, 1)) for key, values in self.series.items()}
         samples = {"t": samples.pop("t"), **samples}
-        short = np.flatnonzero(self.counts < self.row).tolist()  # lanes that stopped: their rows past the stop go
+        # lanes that stopped: their rows past the stop go, and a stop off the regular cadence takes its own row back
+        # (a lane may stop with as many rows as the others, or one more, when the loop ended with it)
+        short = np.flatnonzero((self.counts < self.row) | self.off_cadence).tolist()
         for lane in short:
             count = self.counts[lane]
             for key, values in samples.items():

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from simrun.figures import frames as frame_figures
-from simrun.figures import CALIBRATION, FIGURES, Figure, FigureData, figure_data
+from simrun.figures import CALIBRATION, FIGURES, Figure, FigureData, figure_data, figures_for
 from simrun.findings import Finding, drift_text, findings
 from simrun.reference import REFERENCE_RTOL, reference_errors
 from simrun.results import FRAME_TIME, Results, Status, load
@@ -136,7 +136,7 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
 
 def _render(data: FigureData):
     """(registry entry, name, matplotlib Figure) for every figure the file supports; the snapshots as one grid."""
-    for entry in FIGURES.values():
+    for entry in figures_for(data):
         if entry.name == "snapshots":
             grid = frame_figures.snapshot_grid(data)
             if grid is not None:
@@ -244,7 +244,7 @@ def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
             + "".join(f"<th>dt = {_e(dt_names.get(dt, f'{dt:g}'))} s" + (f"<br><span class=\"sub\">h w = {_e(', '.join(sorted(hw[dt])))}</span>"
                                                 if dt in hw else "") + "</th>" for dt in dts))
     body = []
-    for group, label in keys:
+    for group, label in keys[:MAX_RUN_ROWS]:
         line = (f'<td class="text">{_e(group)}</td>' if several else "") + f'<td class="text">{_e(label)}</td>'
         for dt in dts:
             row = cells.get((group, label, dt))
@@ -265,7 +265,9 @@ def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
             if errors else f"the largest energy change max |E − E0| / E_ref ({energy_reference_text(rows)})")
     note = (f'<h3>Error and cost at each dt</h3><p class="note">Each cell: {_e(what)}; below it the wall time of the '
             "whole run and its real-time factor (simulated over wall time, > 1x faster than real time). Stopped runs "
-            "show their status and the step at which they stopped.</p>")
+            "show their status and the step at which they stopped."
+            + (f" The first {MAX_RUN_ROWS:,} of {len(keys):,} rows, in sweep order." if len(keys) > MAX_RUN_ROWS else "")
+            + "</p>")
     return note + f'<div class="box"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
 
 
@@ -307,6 +309,11 @@ def _calibration_section(results: Results) -> str:
 
 
 # -- the tables ------------------------------------------------------------------------------------
+# the Runs table shows at most this many rows (a map of 10^4 runs would make a page of megabytes); the findings and
+# the figures use every run
+MAX_RUN_ROWS = 1000
+
+
 def _summary_section(rows: list[SummaryRow]) -> str:
     """The runs, one row each; a column every run leaves empty (NaN, zero or not applicable) is left out."""
     def finite(value) -> bool:
@@ -348,9 +355,11 @@ def _summary_section(rows: list[SummaryRow]) -> str:
         ("difference", False, _difference_cell, any(np.isfinite(row.damping_difference) for row in rows)),
     ]
     columns = [column for column in columns if column[3]]
-    body = [[cell(row) for _, _, cell, _ in columns] for row in rows]
+    body = [[cell(row) for _, _, cell, _ in columns] for row in rows[:MAX_RUN_ROWS]]
     shown = {heading for heading, _, _, _ in columns}
-    notes = [f"drift: |E − E0| / E_ref (the largest over the run, and at its end), {energy_reference_text(rows)}"]
+    notes = [f"the first {MAX_RUN_ROWS:,} of {len(rows):,} runs, in sweep order (every run: simrun show RESULTS --csv)"
+             ] if len(rows) > MAX_RUN_ROWS else []
+    notes += [f"drift: |E − E0| / E_ref (the largest over the run, and at its end), {energy_reference_text(rows)}"]
     if "error (m)" in shown:
         reference = any(row.error_from_reference for row in rows)
         notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
@@ -413,7 +422,10 @@ def _orders_section(rows: list[OrderRow], reference_note: str, when: str) -> str
                                                            ("observed order", False), ("fitted over", False), ("", "wrap")]
     body = [([_e(row.group)] if several else []) + [_e(row.integrator), str(row.declared),
             "–" if not np.isfinite(row.observed) else f"{row.observed:.2f}", _e(row.dt_range), _verdict(row.verdict)]
-            for row in rows]
+            for row in rows[:MAX_RUN_ROWS]]
+    if len(rows) > MAX_RUN_ROWS:
+        note += f'<p class="note">The first {MAX_RUN_ROWS:,} of {len(rows):,} rows, in sweep order.</p>'
+
     explain = ('<p class="note">Slope of log(error) against log(dt), the error measured at a fixed time'
                + (f" ({_e(when)}, record.error_time)" if when else "")
                + ", over the consecutive smallest time steps whose error lies between round-off (1e-10 of the length "

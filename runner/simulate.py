@@ -245,7 +245,8 @@ def simulate(run: Run) -> RunResult:
              **system.capabilities.as_attrs()}
     oscillator = system.capabilities.oscillator
     if oscillator is not None:  # the amplitude's decay per period, which the damping map compares with its prediction
-        attrs["decay_per_period"] = _measured_decay(system, samples, oscillator[0])
+        with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN or inf, silently
+            attrs["decay_per_period"] = _measured_decay(system, samples, oscillator[0])
     if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
         attrs["error_time"], samples["error_positions"], _ = error_state
         attrs["error"] = _error_at(system, *error_state)

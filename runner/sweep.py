@@ -141,18 +141,21 @@ def _check_method_fits(resolved: Experiment, integrator: Integrator, systems: di
     the integrator's problems on it (projective dynamics on squared-length springs, VBD on forces sampled along
     the step, ...), is refused in one line before any run starts."""
     kind = integrator.problem_kind
+    # the solvers' classes decide whether any of them can refuse: most sweeps build no solver here (a map has 10^4 runs)
+    classes = [SOLVERS[name] for name in resolved.solver.chain_names()] if kind is not None else []
+    if kind == "newton_step" and not classes[0].takes_newton_step:  # the chain's first solver takes the step
+        raise ConfigError(f"solver.type: {classes[0].name} iterates on the incremental potential, and {integrator.label} "
+                          "takes exactly one Newton step (with the linear solver): use newton or projected_newton")
+    can_refuse = kind != "newton_step" and any(cls.refusal is not NonlinearSolver.refusal for cls in classes)
+    contact = getattr(resolved.system, "contact", None)
+    with_contact = contact is not None and contact.active
+    if not can_refuse and type(integrator).refusal is Integrator.refusal and not with_contact:
+        return  # nothing here refuses anything: no system to build
     chain = []
     if kind is not None:
         solver = resolved.solver.build()
         chain = list(getattr(solver, "solvers", (solver,)))
-    if kind == "newton_step" and not type(chain[0]).takes_newton_step:  # the chain's first solver takes the step
-        raise ConfigError(f"solver.type: {chain[0].name} iterates on the incremental potential, and {integrator.label} "
-                          "takes exactly one Newton step (with the linear solver): use newton or projected_newton")
     refusing = [member for member in chain if type(member).refusal is not NonlinearSolver.refusal] if kind != "newton_step" else []
-    contact = getattr(resolved.system, "contact", None)
-    with_contact = contact is not None and contact.active
-    if not refusing and type(integrator).refusal is Integrator.refusal and not with_contact:
-        return  # nothing here refuses anything: no system to build
     key = json.dumps(resolved.system.model_dump(mode="json"), sort_keys=True)
     if key not in systems:
         systems[key] = resolved.system.build()

@@ -49,6 +49,9 @@ SHORT = {
     "cloth_drop": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
     "penalty_vs_ipc": [*CLOTH, "duration=0.04"],
     # calibrations (`simrun fit`): every integrator at two steps, observations every 10 ms of a short motion
+    # the map: every integrator at 4 step sizes h w x 3 damping ratios (its sweep has 100 x 60)
+    "damping_map": ["duration=1.0", "sweep.system.stiffness={logspace: [0.0, 6.0, 4]}",
+                    "sweep.system.damping_ratio=[0.0, 0.3, 1.0]"],
     "calibrate_spring": ["duration=1.0", "sweep.dt=[0.01,0.05]", "fit.observed.synthetic.dt=0.01",
                          "fit.transfer.dt=[0.01]", "fit.max_evaluations=20"],
     "calibrate_cloth": [*CLOTH, "duration=0.1", "sweep.dt=[0.01,0.02]", "fit.observed.synthetic.dt=0.002",
@@ -58,6 +61,7 @@ DEFAULT_SHORT = ["duration=0.1"]  # a config added without an entry above: at le
 
 # figure name -> which runs it draws (default: every run) and whether it tells the swept settings apart
 THEORY = {"artificial_damping", "spectral_radius_and_period"}  # per integrator, in h w: no settings
+MAPS = {"damping_map"}  # per integrator over (h w, zeta): the settings are its axes, every run a cell
 
 
 def draws(name: str, run) -> bool:
@@ -67,6 +71,8 @@ def draws(name: str, run) -> bool:
         return not run.status.stopped and np.isfinite(run.error)
     if name in THEORY:
         return run.frequency is not None
+    if name in MAPS:
+        return np.isfinite(run.stored.attrs.get("natural_frequency", np.nan))
     if name == "orbits":
         return run.stored.planar
     if name.startswith("frames_"):  # one snapshot figure per run
@@ -109,7 +115,7 @@ def test_every_figure_names_every_integrator_and_swept_value(config, tmp_path):
                 drawn = [run for run in runs if draws(name, run)]
                 words = "\n".join(texts(figure))
                 wanted = {run.label for run in drawn}
-                if entry.name not in THEORY:
+                if entry.name not in THEORY | MAPS:
                     wanted |= {format_value(value) for run in drawn for value in run.stored.swept.values()}
                 absent = sorted(value for value in wanted if not named(value, words))
                 if absent and not PART_SHOWN.search(words):

@@ -150,6 +150,15 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
 )}
 
 
+def figures_for(data: FigureData) -> list[Figure]:
+    """The registered figures to try on ``data``: all, but those drawn from series when no run kept any, and those
+    drawn against dt when the file is a map (one dt, more settings than a figure's panels show)."""
+    kept_series = any(run.stored.datasets for run in data.runs)
+    a_map = len({run.dt for run in data.runs}) == 1 and len(data.sections) > layout.MAX_SUMMARY_PANELS
+    return [entry for entry in FIGURES.values()
+            if not ((entry.from_series and not kept_series) or (entry.against_dt and a_map))]
+
+
 def render_figures(results: Results | str | Path, reference_errors: dict[str, float] | None = None
                    ) -> Iterator[tuple[Figure, str, object]]:
     """Yield (registry entry, file name, matplotlib Figure) for every figure the file supports; the caller closes each.
@@ -162,11 +171,7 @@ def render_figures(results: Results | str | Path, reference_errors: dict[str, fl
         return
     with results.opened():  # one file handle for every series the figures read
         data = figure_data(results, reference_errors)
-        kept_series = any(run.stored.datasets for run in data.runs)
-        a_map = len({run.dt for run in data.runs}) == 1 and len(data.sections) > layout.MAX_SUMMARY_PANELS
-        for entry in list(FIGURES.values()):
-            if (entry.from_series and not kept_series) or (entry.against_dt and a_map):
-                continue
+        for entry in figures_for(data):
             drawn = entry.draw(data)
             if drawn is None:
                 continue
@@ -190,4 +195,5 @@ def draw_figures(results: Results | str | Path, out_dir: str | Path,
     return written
 
 
-__all__ = ["CALIBRATION", "FIGURES", "Figure", "FigureData", "RunData", "draw_figures", "figure_data", "render_figures"]
+__all__ = ["CALIBRATION", "FIGURES", "Figure", "FigureData", "RunData", "draw_figures", "figure_data", "figures_for",
+           "render_figures"]

@@ -298,10 +298,14 @@ def figure_data(results: Results, reference_errors: dict[str, float] | None = No
 def _lay_out(data: FigureData) -> None:
     """Sections, series and families of ``data`` (see FigureData)."""
     values: dict[str, list] = {}  # swept key -> its values, both in config order
+    seen: dict[str, set] = {}
     for run in data.runs:
         for key, value in run.stored.swept.items():
-            if value not in values.setdefault(key, []):
-                values[key].append(value)
+            known = seen.setdefault(key, set())
+            marker = json.dumps(value, sort_keys=True) if isinstance(value, (list, dict)) else value  # (lists: unhashable)
+            if marker not in known:
+                known.add(marker)
+                values.setdefault(key, []).append(value)
     keys = list(values)
     line_keys = []
     if keys:
