@@ -2,7 +2,8 @@
 
 Every figure is a ratio against a reference measured in the same process in the same run; the
 target column is issue 8's bound on that ratio (or on the absolute time it names), and the absolute
-times are printed for information. ``SIMRUN_BENCH_QUICK=1`` skips the end-to-end damping_curves run.
+times are printed for information. ``SIMRUN_BENCH_QUICK=1`` skips the end-to-end runs of damping_curves and of the
+damping map.
 """
 
 from __future__ import annotations
@@ -13,11 +14,11 @@ import numpy as np
 import scipy
 
 from . import (calibration, cloth_explicit, cloth_iteration, cloth_newton, contact, graphics_solvers, lagged_newton,
-               mass_spring_paths, parallel_sweep, small_steps)
+               lanes, mass_spring_paths, parallel_sweep, small_steps)
 
 # cloth_iteration last: its cholesky part loads CHOLMOD, which holds numpy's BLAS at one thread
-BENCHMARKS = (small_steps, cloth_newton, lagged_newton, cloth_explicit, mass_spring_paths, graphics_solvers, contact,
-              calibration, parallel_sweep, cloth_iteration)
+BENCHMARKS = (small_steps, lanes, cloth_newton, lagged_newton, cloth_explicit, mass_spring_paths, graphics_solvers,
+              contact, calibration, parallel_sweep, cloth_iteration)
 
 
 def main() -> None:

@@ -55,4 +55,4 @@ def _rows(resolution: int, scene: str, modes: tuple[str, ...]) -> list[tuple[str
 def rows() -> list[tuple[str, float, str, str]]:
     sizes = [32, 64] if os.environ.get("SIMRUN_BENCH_QUICK") else [32, 64, 128]
     hanging = [row for size in sizes for row in _rows(size, "hanging", ("adaptive", "preconditioner"))]
-    return hanging + [row for size in (32, 64) for row in _rows(size, "sphere", ("adaptive",))]
+    return hanging + [row for size in (32, 64) for row in _rows(size, "sphere", ("adaptive", "preconditioner"))]

@@ -10,7 +10,7 @@ as a bare numpy loop here, and the damping map end to end.
   subnormal handling rather than the lanes. The damping map sweeps into that range; its own row measures it.
 - ``simrun configs/damping_map.yaml -j 2`` in a fresh process, figures included: wall time (target < 20 s), the
   peak of the summed resident memory of simrun and its workers (target < 1 GB, sampled from /proc every 20 ms), and
-  the size of the results file.
+  the size of the results file. ``SIMRUN_BENCH_QUICK=1`` skips it.
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ def _map_rows() -> list[tuple[str, float, str, str]]:
 
 
 def rows() -> list[tuple[str, float, str, str]]:
-    return _lane_rows() + _map_rows()
+    return _lane_rows() + ([] if os.environ.get("SIMRUN_BENCH_QUICK") else _map_rows())
 
 
 if __name__ == "__main__":

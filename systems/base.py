@@ -38,7 +38,7 @@ from __future__ import annotations
 import functools
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from collections.abc import Callable
 from typing import ClassVar
 
@@ -67,6 +67,11 @@ class Capabilities:
     vertex_dim: int = 0  # coordinates per vertex of a stored frame (2 or 3); 0 for systems that keep no frames
     # (w0 rad/s, zeta) of a linear oscillator q'' + 2 zeta w0 q' + w0^2 q = 0, damped or not (the damping map's axes); None
     oscillator: tuple[float, float] | None = None
+
+    @classmethod
+    def attribute_names(cls) -> set[str]:
+        """The names ``as_attrs`` stores: the fields', the oscillator's two (natural_frequency, damping_ratio) for it."""
+        return {field.name for field in fields(cls)} - {"oscillator"} | {"natural_frequency", "damping_ratio"}
 
     def as_attrs(self) -> dict:
         """The capabilities as HDF5 attributes, under the field names: test_frequency (float, NaN for None),

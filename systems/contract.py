@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse
@@ -330,7 +330,7 @@ def check_capabilities(system: System) -> Check:
             x[2:], v[2:] = 0.0, 0.0
             if system.force(x, v)[2:].any():
                 problems.append("planar, but the force at an in-plane state leaves the x-y plane")
-    if set(capabilities.as_attrs()) != {field.name for field in fields(Capabilities)}:
+    if set(capabilities.as_attrs()) != Capabilities.attribute_names():
         problems.append("as_attrs() does not name exactly the fields of Capabilities")
     frequency = "none" if capabilities.test_frequency is None else f"{capabilities.test_frequency:.6g} rad/s"
     return _verdict("capabilities", f"length_scale {capabilities.length_scale:.3g} m, energy_scale "

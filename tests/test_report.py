@@ -130,7 +130,7 @@ def test_report_is_one_self_contained_html_page(orders, orders_report):
     assert len(images) == len(embedded)
     # a spring with implicit methods and exact errors: every figure but the orbits
     calibration = {name for name, entry in FIGURES.items() if entry.needs == CALIBRATION}  # files of `simrun fit`
-    assert embedded == set(FIGURES) - calibration - {"orbits", "snapshots"}
+    assert embedded == set(FIGURES) - calibration - {"orbits", "snapshots", "damping_map"}  # (a map: tests/test_lanes.py)
     text = " ".join(" ".join(part) for part in page.sections.values())
     for caption in (FIGURES[name].caption for name in embedded):
         assert caption.split(".")[0] in text
@@ -358,7 +358,8 @@ def test_captions_drop_what_holds_only_on_the_test_equation():
     report adds for files with runs on the test equation (the theory figures are drawn only for those)."""
     from simrun.report import caption
 
-    theory = {"artificial_damping", "spectral_radius_and_period"}
+    # and the damping map, drawn only for oscillators, whose natural frequency w gives its h w axis
+    theory = {"artificial_damping", "spectral_radius_and_period", "damping_map"}
     for name, entry in FIGURES.items():
         assert caption(entry, False) == entry.caption
         assert caption(entry, True).startswith(entry.caption)

@@ -226,10 +226,10 @@ def test_format1_energy_scale_is_a_fallback(path):
 # -- format 2 ------------------------------------------------------------------------------------------
 def test_format2_stores_the_capabilities_the_system_declares(format2_system):
     with h5py.File(format2_system, "r") as file:
-        assert file.attrs["format_version"] == 2
+        assert file.attrs["format_version"] == FORMAT_VERSION  # 3 keeps what 2 stored
         stored = {run_id: dict(group.attrs) for run_id, group in file["runs"].items()}
     results = load(format2_system)
-    assert results.format_version == 2
+    assert results.format_version == FORMAT_VERSION
     assert list(results.runs) == list(stored)
     for run_id, run in results.runs.items():
         assert set(CAPABILITY_KEYS) <= set(stored[run_id])
@@ -394,7 +394,7 @@ def test_config_is_the_stored_yaml(source, request):
 def test_provenance_of_a_file_written_now(diverging):
     provenance = load(diverging).provenance
     assert "config" not in provenance
-    assert provenance["format_version"] == 2
+    assert provenance["format_version"] == FORMAT_VERSION
     assert provenance["simrun_version"] == simrun.__version__
     experiment, _ = load_experiment(DIVERGING)
     assert provenance["config_hash"] == config_hash(experiment)

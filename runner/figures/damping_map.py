@@ -27,6 +27,9 @@ MIN_HW, MIN_ZETA = 3, 2
 # of its own
 FLOOR_DECADES = -4.0
 GROWTH_COLOUR = "#d62728"
+# a "growth" below this many decades per period is round-off of a kept amplitude (the implicit midpoint rule's
+# undamped runs measure 1 + 1e-14), drawn as 0
+GROWTH_ROUNDOFF = 1e-6
 CONTOUR_LEVELS = (-3.0, -2.0, -1.0, -0.3, -0.1, -0.03, -0.01)
 DECIMALS = 9  # h w and zeta are told apart to this many significant digits (a grid of floats)
 
@@ -64,7 +67,8 @@ def damping_map(data: FigureData):
         integrator = integrator_from_params(run.integrator, run.integrator_params)
         grid_hw, grid_zeta = np.meshgrid(hw, zeta)
         matrices = amplification_matrices(integrator, grid_hw.ravel(), grid_zeta.ravel())
-        image = ax.pcolormesh(_edges(hw, log=True), _edges(zeta, log=False), np.maximum(measured, FLOOR_DECADES),
+        shown = np.where((measured > 0.0) & (measured <= GROWTH_ROUNDOFF), 0.0, np.maximum(measured, FLOOR_DECADES))
+        image = ax.pcolormesh(_edges(hw, log=True), _edges(zeta, log=False), shown,
                               norm=norm, cmap=cmap, shading="flat", rasterized=True)
         finite = np.isfinite(measured)
         if finite.sum() >= 4 and np.ptp(measured[finite]) > 0:
