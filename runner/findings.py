@@ -93,18 +93,18 @@ MAX_PER_KIND = 8
 
 
 def _at_most_per_kind(found: list[Finding]) -> list[Finding]:
-    kept, counts, left = [], Counter(), Counter()
-    anchors = {}
+    """The first MAX_PER_KIND findings of each topic, in reading order, each topic's count of the rest after them."""
+    counts = Counter(finding.topic for finding in found)
+    kept, seen = [], Counter()
     for finding in found:
-        counts[finding.topic] += 1
-        if counts[finding.topic] <= MAX_PER_KIND:
+        seen[finding.topic] += 1
+        if seen[finding.topic] <= MAX_PER_KIND:
             kept.append(finding)
-        else:
-            left[finding.topic] += 1
-            anchors.setdefault(finding.topic, finding.link_anchor)
-    for kind, count in left.items():
-        kept.append(Finding(f"… and {count} more {kind} findings like the ones above, one per setting of the swept "
-                            "keys: the tables and figures below show every run.", anchors[kind], {"more": count}, kind))
+        if seen[finding.topic] == MAX_PER_KIND and counts[finding.topic] > MAX_PER_KIND:
+            left = counts[finding.topic] - MAX_PER_KIND
+            kept.append(Finding(f"… and {left} more {finding.topic} findings of this kind, for other settings of the "
+                                "swept keys: the tables and figures show every run.", finding.link_anchor, {"more": left},
+                                finding.topic))
     return kept
 
 

@@ -29,6 +29,7 @@ class LaneSeries:
         self.energy_scale = energy_scale  # E_ref per lane: the energy drift's unit
         self.series = {key: np.full((sample_rows, lanes) + shape, np.nan) for key, shape in layout.items()}
         self.per_step = {key: np.zeros((step_count, lanes), dtype=kind) for key, kind in zip(PER_STEP_KEYS, PER_STEP_TYPES)}
+        self.per_step_count = step_count
         self.counts = np.zeros(lanes, dtype=np.int64)
         self.row = 0  # the next regular sample's row
         self.stop_rows: dict[str, np.ndarray] | None = None  # samples of lanes that stopped off the regular cadence
@@ -74,7 +75,7 @@ class LaneSeries:
                 if self.off_cadence[lane]:
                     values[lane, count - 1] = self.stop_rows[key][0, lane]
         per_step = {key: np.ascontiguousarray(values.T) for key, values in self.per_step.items()}
-        for lane in short:
+        for lane in np.flatnonzero(steps < self.per_step_count).tolist():  # stopped lanes were stepped on, unrecorded
             for values in per_step.values():
                 values[lane, steps[lane]:] = 0
         last = self.counts - 1
@@ -130,7 +131,7 @@ class LaneSummary:
     def sample(self, observed: dict, t, dissipated, x, v, running: np.ndarray | None) -> None:
         energy = observed["energy"]
         modal = self.modal_energy(energy, x, v)
-        if self.first_energy is None:  # results.energy_drift: relative to the first (finite) sample, E at t = 0
+        if self.first_energy is None:  # results.energy_drift: relative to the first finite sample, E at t = 0 (finite: x0 is)
             self.first_energy = energy.copy()
             self.first_modal = self.decay_energy = modal
         self._add(np.ones(energy.shape, dtype=bool) if running is None else running, energy, modal, t, x)

@@ -47,12 +47,14 @@ def lane_key(run: Run):
     divergence settings), or None when this run is stepped alone (its system or method has no lane form, or its
     solver options are ones the batched Newton does not reproduce)."""
     system_class = run.system.system_class
-    if system_class.lanes_class is None or run.integrator.name not in LANE_INTEGRATORS:
+    # declared by the class itself: a subclass (a plug-in's nonlinear spring) has physics its parent's lanes lack
+    lanes_class = vars(system_class).get("lanes_class")
+    if lanes_class is None or run.integrator.name not in LANE_INTEGRATORS:
         return None
     if not run.integrator.explicit and lane_refusal(run.solver) is not None:
         return None
     solver = "" if run.integrator.explicit else run.solver.model_dump_json()
-    return (run.system.type, system_class.lanes_class.lane_kind(run.system), run.integrator_label,
+    return (run.system.type, lanes_class.lane_kind(run.system), run.integrator_label,
             run.integrator.model_dump_json(), solver, run.step_count, run.record.model_dump_json(),
             run.divergence.model_dump_json())
 

@@ -195,8 +195,8 @@ class _Progress:
         self.bar.update()
 
     def finished_chunk(self, runs, batch) -> None:
-        """A chunk of runs stepped together: one line (or one update of the bar) for all of them, and a line per run that
-        did not end ok only when they are few."""
+        """A chunk of runs stepped together: one line (or one update of the bar) for all of them, with their statuses
+        counted (a map's chunk holds thousands of runs: its runs that did not end ok are in the summary)."""
         self.done += len(runs)
         if not self.progress:
             return

@@ -425,7 +425,6 @@ def _orders_section(rows: list[OrderRow], reference_note: str, when: str) -> str
             for row in rows[:MAX_RUN_ROWS]]
     if len(rows) > MAX_RUN_ROWS:
         note += f'<p class="note">The first {MAX_RUN_ROWS:,} of {len(rows):,} rows, in sweep order.</p>'
-
     explain = ('<p class="note">Slope of log(error) against log(dt), the error measured at a fixed time'
                + (f" ({_e(when)}, record.error_time)" if when else "")
                + ", over the consecutive smallest time steps whose error lies between round-off (1e-10 of the length "

@@ -41,8 +41,10 @@ RESULTS_NAME = "results.h5"
 # dataset per series with a run axis (format 3); the reader gives them as it gives the runs of /runs
 LANES_GROUP = "lanes"
 LANE_TABLE = "runs"  # a chunk's table: a row per run, a field per attribute
-# attributes a run has only sometimes, stored in a chunk's columns as NaN where the run has none
-OPTIONAL_LANE_COLUMNS = ("t_diverged", "error_time", "error")
+# attributes a run has only sometimes, stored in a chunk's columns as NaN where the run has none; `error` is there
+# exactly when `error_time` is (and may itself be NaN: no exact solution, or one that overflowed)
+OPTIONAL_LANE_COLUMNS = ("t_diverged", "error_time")
+WITH_ERROR_TIME = ("error",)
 
 
 class Status(str, enum.Enum):
@@ -552,18 +554,25 @@ class _LaneAttrs(Mapping):
     def __init__(self, shared: dict, columns: dict[str, list], optional: frozenset, row: int):
         self._shared, self._columns, self._optional, self._row = shared, columns, optional, row
 
+    def _absent(self, key) -> bool:
+        if key in WITH_ERROR_TIME:
+            key = "error_time"
+        if key not in self._optional:
+            return False
+        value = self._columns[key][self._row] if key in self._columns else math.nan
+        return value != value
+
     def __getitem__(self, key):
         if key in self._columns:
-            value = self._columns[key][self._row]
-            if key in self._optional and value != value:
+            if self._absent(key):
                 raise KeyError(key)
-            return value
+            return self._columns[key][self._row]
         return self._shared[key]
 
     def __iter__(self):
         yield from self._shared
-        for key, values in self._columns.items():
-            if not (key in self._optional and values[self._row] != values[self._row]):
+        for key in self._columns:
+            if not self._absent(key):
                 yield key
 
     def __len__(self) -> int:

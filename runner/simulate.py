@@ -245,7 +245,7 @@ def simulate(run: Run) -> RunResult:
              **system.capabilities.as_attrs()}
     oscillator = system.capabilities.oscillator
     if oscillator is not None:  # the amplitude's decay per period, which the damping map compares with its prediction
-        with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN or inf, silently
+        with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN (or a growth, inf)
             attrs["decay_per_period"] = _measured_decay(system, samples, oscillator[0])
     if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
         attrs["error_time"], samples["error_positions"], _ = error_state
@@ -315,12 +315,14 @@ def _path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: flo
 
 # energies below this fraction of E(0) are in (or near) the subnormal range, where their digits go: not measured
 DECAY_FLOOR = 1e-250
+MAX_EXPONENT = math.log(np.finfo(float).max)
 
 
 def decay_per_period(energy0: float, energy: float, t: float, frequency: float) -> float:
     """The amplitude's decay per period 2 pi / w of a linear oscillator, from its modal energy V(t) at one time t > 0:
     the amplitude goes as sqrt(V), so the factor per period is (V(t)/V(0))^(pi / (w t)); > 1 where it grows."""
-    return math.exp(math.log(energy / energy0) * math.pi / (frequency * t))
+    exponent = math.log(energy / energy0) * math.pi / (frequency * t)
+    return math.inf if exponent > MAX_EXPONENT else math.exp(exponent)  # (math.exp raises beyond it)
 
 
 def _measured_decay(system, samples: dict[str, np.ndarray], frequency: float) -> float:

@@ -297,7 +297,8 @@ class ResultsWriter:
     def completed_runs(self) -> set[str]:
         done = set(self.file["runs"])
         for chunk in self.file.get(LANES_GROUP, {}).values():
-            done.update(_text(run_id) for run_id in chunk[LANE_TABLE]["run_id"].tolist())
+            if chunk.attrs.get("complete", False):  # (a write interrupted by Ctrl-C left the others)
+                done.update(_text(run_id) for run_id in chunk[LANE_TABLE]["run_id"].tolist())
         return done
 
     def write_run(self, run: Run, result: RunResult) -> None:

@@ -228,7 +228,8 @@ class System(ABC):
     has_contact: bool = False  # the runner records per step the smallest contact distance, active contacts, friction work
 
     # runs of this system may be stepped together as lanes of one array (systems/lanes.py): the class that takes their
-    # built systems, or None (each run is stepped alone)
+    # built systems, or None (each run is stepped alone); read from the class's own body, never inherited (a subclass
+    # changes the physics that the lane class repeats)
     lanes_class: ClassVar[type | None] = None
 
     def off_pattern_hessian(self, x: np.ndarray, project_spd=False):

@@ -8,11 +8,13 @@ whole cost. Lanes step them together: the state has shape (lanes, dofs), each la
 the implicit steps' problems are ``integrators.lanes.LaneIncrementalPotential``, solved by
 ``solvers.lanes.LaneNewton`` (a batched Newton with per-lane convergence).
 
-A system joins by naming a lane class (``System.lanes_class``) that takes its built systems and offers, with a
-leading lane axis, what the runner and the integrators ask of one: ``mass`` (lanes, dofs), ``x0``, ``v0``,
-``acceleration``, ``kick``, ``gradient``, ``hessian`` ((lanes, dofs, dofs) blocks), ``damping_times`` (D r per
-lane), ``write_observables`` (one row per lane), ``total_energy`` and ``dissipation`` (lanes,). Every lane's
-numbers are those of its run stepped alone, operation for operation (tests/test_lanes.py holds them to that).
+A system joins by naming a lane class (``System.lanes_class``, in its own class body: a subclass is not stepped by
+its parent's lanes) that takes its built systems and offers, with a leading lane axis, what the runner and the
+integrators ask of one: ``mass`` (lanes, dofs), ``x0``, ``v0``, ``acceleration``, ``kick``, ``gradient``,
+``hessian_blocks`` ((lanes, dofs, dofs)), ``damping_times`` (D r per lane), ``observables``, ``total_energy``,
+``dissipation``, ``modal_energy`` (lanes,), the capabilities that differ between lanes (``capability_columns``),
+``exact_states`` where the system has an exact solution, and ``lane_kind`` (runs of one kind share a chunk). Every
+lane's numbers are those of its run stepped alone, operation for operation (tests/test_lanes.py holds them to that).
 Only systems whose incremental potential is quadratic (one Newton step is its minimiser) take lanes: a
 batched line search is not offered.
 """
@@ -59,10 +61,6 @@ class SpringMassLanes:
         self.all_damped = bool(self.damped.all())
         self.negative_stiffness = -self.stiffness  # SpringMass's -k q, negated once
         self.observable_layout = self.systems[0].observable_layout
-
-    def select(self, lanes: np.ndarray) -> "SpringMassLanes":
-        """The lanes at these indices, as a lane system of their own (the runner drops lanes that stopped)."""
-        return SpringMassLanes([self.systems[index] for index in lanes])
 
     # -- what the integrators ask ------------------------------------------------------------------
     def acceleration(self, x, v):

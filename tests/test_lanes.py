@@ -694,3 +694,59 @@ def test_the_damping_map_draws_a_panel_per_method_of_a_map(tmp_path):
     one_ratio = {**config, "sweep": {**config["sweep"], "system.damping_ratio": [0.1]}}
     single = run_quietly(one_ratio, tmp_path / "one", jobs=1)
     assert "damping_map" not in rendered(single)
+
+
+# -- found in review: each failed before its fix -------------------------------------------------------------------
+def test_the_summary_of_a_lane_that_stopped_on_a_sample_counts_only_its_own_steps():
+    """A lane stopped on a sampled step while others stopped later between samples (the loop then broke): the steps its
+    chunk took after it must not enter its mean iterations (the per-step rows past its steps are zero)."""
+    runs = spring_runs(["backward_euler"], stiffnesses=tuple(np.geomspace(1.0, 1e4, 40).tolist()), ratios=(-1.0,), duration=2.0,
+                       record={"every": 10}, divergence={"check_every": 5})
+    batch = simulate_lanes(runs)
+    assert batch.results_alone is None
+    stopped = [int(steps) for steps in batch.steps if steps < runs[0].step_count]
+    assert len(set(stopped)) > 1  # lanes stopped at different steps
+    for lane, run in enumerate(runs):
+        alone = simulate(run)
+        assert batch.summary["mean_newton_iterations"][lane] == float(np.mean(alone.per_step["newton_iterations"]))
+        assert batch.summary["mean_linear_iterations"][lane] == float(np.mean(alone.per_step["linear_iterations"]))
+        assert not batch.per_step["newton_iterations"][lane, alone.steps:].any()
+
+
+def test_a_subclass_of_the_spring_is_not_stepped_by_the_springs_lanes():
+    """A plug-in that subclasses SpringMass changes its physics: the spring's lane class would step the parent's."""
+    from simrun.systems.spring_mass import SpringMass
+
+    class CubicSpring(SpringMass):
+        def acceleration(self, x, v):
+            return super().acceleration(x, v) + 10.0 * x ** 3
+
+    class CubicParams(SpringMassParams):
+        pass
+
+    CubicParams.system_class = CubicSpring
+    (run,) = spring_runs(["symplectic_euler"], stiffnesses=(1.0,), ratios=(0.0,))
+    assert lane_key(run) is not None
+    assert lane_key(run.model_copy(update={"system": CubicParams(**run.system.model_dump())})) is None
+
+
+def test_a_strongly_pumped_run_measures_an_infinite_growth_instead_of_raising():
+    """decay_per_period beyond the largest float: inf, alone and in lanes (math.exp would raise OverflowError)."""
+    runs = spring_runs(["rk4"], stiffnesses=(1.0, 4.0), ratios=(-300.0,), duration=0.5,
+                       system={"type": "spring_mass", "x0": 1.0, "v0": 0.0})
+    for run, lane in zip(runs, simulate_lanes(runs).results()):
+        alone = simulate(run)
+        assert alone.attrs["decay_per_period"] == math.inf
+        assert_same_result(lane, alone)
+
+
+def test_a_nan_error_at_the_error_time_is_stored_by_lanes_as_by_runs(tmp_path):
+    """A run that reached its error time whose exact solution overflowed has error = NaN: a chunk keeps the attribute."""
+    config = spring_config(["backward_euler"], stiffnesses=tuple(np.geomspace(0.8e8, 1.2e8, MIN_LANES).tolist()), ratios=(-0.5,),
+                           record={"error_time": 0.5})
+    alone = run_quietly(config, tmp_path / "off", lanes="off")
+    together = run_quietly(config, tmp_path / "auto", lanes="auto")
+    with h5py.File(tmp_path / "auto" / RESULTS_NAME, "r") as file:
+        assert LANES_GROUP in file
+    assert any("error" in run.attrs and math.isnan(run.attrs["error"]) for run in alone.runs.values())
+    assert_same_results(alone, together)

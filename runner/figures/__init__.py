@@ -92,9 +92,9 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
     Figure("damping_map", damping_map,
            "The amplitude's decay per period over the step h w and the damping ratio ζ, a panel per method, every run a "
            "cell coloured by what it measured (log₁₀ of the factor per period 2π/w: 0 keeps the amplitude, −1 loses 90 % "
-           "of it each period). Solid contours: measured; white dashed: predicted from the method's amplification "
-           "matrix at each point; thick black: the predicted stability boundary ρ = 1; dotted grey: the exact motion's "
-           "e^(−2πζ). Look for measured contours on the predicted ones, and for where a method's decay departs from "
+           "of it each period; red: growth, hatched: diverged). White contours: measured; black dashed: predicted from "
+           "the method's amplification matrix at each point; thick red: the predicted stability boundary ρ = 1; orange "
+           "dots: the exact motion's e^(−2πζ). Look for measured contours on the predicted ones, and for where a method's decay departs from "
            "the dotted physics: to the right of it the method's own damping dominates the model's.",
            "runs of a linear oscillator (the spring) over at least 3 step sizes h w and 2 damping ratios per method"),
     Figure("spectral_radius_and_period", spectral_radius_and_period,

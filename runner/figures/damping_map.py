@@ -1,11 +1,12 @@
 """The damping map: the amplitude's decay per period over (h w, zeta) for each method, measured against predicted.
 
 Runs of a linear oscillator (a system that declares one: the spring, damped or not, with ``natural_frequency`` w
-and ``damping_ratio`` zeta) carry the decay per period they measured (``decay_per_period``: (E(t)/E(0))^(pi/(w t))
-at their last usable sample). One panel per method: the measured decay as colour (log10, one scale for all
-panels), its contours (solid) over the predicted ones (dashed) from the method's amplification matrix at every
-point (probed with the points as lanes: analysis.amplification_matrices), the predicted stability boundary
-rho = 1 (thick), and the physical decay e^(-2 pi zeta) of the exact motion (dotted, zeta < 1) for reference.
+and ``damping_ratio`` zeta) carry the decay per period they measured (``decay_per_period``: (V(t)/V(0))^(pi/(w t))
+at their last usable sample, V the modal energy). One panel per method: the measured decay as colour (log10, one
+scale for all panels; growth red, diverged cells hatched), its contours (white) over the predicted ones (black
+dashed) from the method's amplification matrix at every point (probed with the points as lanes:
+analysis.amplification_matrices), the predicted stability boundary rho = 1 (thick red), and the physical decay
+e^(-2 pi zeta) of the exact motion (orange dots, zeta < 1) for reference.
 Each run is a cell; the panel title counts the cells a run did not fill (missing, failed) and the diverged ones.
 """
 
