@@ -59,7 +59,8 @@ def expand_runs(experiment: Experiment) -> list[Run]:
                 if dt > resolved.duration:
                     raise ConfigError(f"sweep.dt: {dt:g} is longer than duration {resolved.duration:g}; a step must fit in the run")
                 index = len(runs)
-                runs.append(Run(
+                # every part is validated already (the resolved experiment): a map builds 10^4 runs here
+                runs.append(Run.model_construct(
                     run_id=_run_id(index, labels[number], dt, used), index=index, system=resolved.system,
                     integrator=integrator, solver=resolved.solver, dt=float(dt), duration=resolved.duration,
                     record=resolved.record, divergence=resolved.divergence, swept=used, label=labels[number],
