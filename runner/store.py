@@ -28,8 +28,9 @@ from simrun import __version__
 from simrun.config import RecordParams, Run
 from simrun.errors import ConfigError, ResultsFileError
 from simrun.lock import existing_ancestor
-from simrun.results import (FORMAT_VERSION, LANE_TABLE, LANES_GROUP, OPTIONAL_LANE_COLUMNS, SUMMARY_DTYPE, _text, summary_row,
-                            real_time_factor, wall_time_per_frame)
+from simrun.results import (FORMAT_VERSION, LANE_TABLE, LANES_GROUP, SUMMARY_DTYPE, _text, real_time_factor, summary_row,
+                            wall_time_per_frame)
+from simrun.results_lanes import OPTIONAL_LANE_COLUMNS
 from simrun.results import load_summary  # noqa: F401  (deprecated alias, one version: simrun.load(path).summary)
 from simrun.simulate import RunResult
 
