@@ -5,6 +5,8 @@ as a bare numpy loop here, and the damping map end to end.
   ``simulate_lanes`` (the stepping loop's wall time: the integrator's own step, the batched Newton, the energy check
   of every step, a sample every 10 steps), over the bare loop on the same arrays: symplectic Euler's kick and drift;
   backward Euler as one Newton iteration and its residual test per step (the step of a linear problem). Target <= 3.
+  A second reference adds to the bare loop what a run records besides its update, also inline: the damping's energy
+  budget and the divergence test of every step (what simulate and the lanes do for every run's numbers).
   The runs stay stable (h w <= 1) and their energies far above the subnormal range (E >= 1e-44 E0): an energy that
   underflows costs each operation a microcode assist (about 100 cycles), in both loops, and would time the CPU's
   subnormal handling rather than the lanes. The damping map sweeps into that range; its own row measures it.
@@ -81,15 +83,53 @@ def _bare_backward_euler(m, k, d) -> float:
     return time.perf_counter() - start
 
 
+def _bare_bookkeeping(step):
+    """``step`` (a bare loop) with what a run records besides its update, inline too: the damping's energy budget
+    (h v_bar d v_bar per step) and the divergence test of every step (E and |E - E0| <= bound)."""
+    def loop(m, k, d) -> float:
+        x, v = np.ones_like(m), np.zeros_like(m)
+        dissipated = np.zeros_like(m)
+        energy0 = 0.5 * (m * v * v + k * x * x)
+        bound = 1e6 * energy0
+        start = time.perf_counter()
+        for _ in range(STEPS):
+            x_new, v_new = step(m, k, d, x, v)
+            mean = 0.5 * (v + v_new)
+            dissipated += DT * (mean * (d * mean))
+            x, v = x_new, v_new
+            np.all(np.abs(0.5 * (m * v * v + k * x * x) - energy0) <= bound)
+        return time.perf_counter() - start
+    return loop
+
+
+def _symplectic_euler_step(m, k, d, x, v):
+    v = v + DT * ((-k * x - d * v) / m)
+    return x + DT * v, v
+
+
+def _backward_euler_step(m, k, d, x, v):
+    scale, weight = DT * DT, DT
+    predictor = x + DT * v
+    gradient = m * (x - predictor) + scale * (k * x)
+    y = x - gradient / (scale * k + weight * d + m)
+    residual = m * (y - predictor) + scale * (k * y) + weight * (d * (y - x))
+    np.all(np.abs(residual) <= 1e-10 * np.abs(gradient))
+    return y, (y - x) / DT
+
+
 def _lane_rows() -> list[tuple[str, float, str, str]]:
     rows = []
-    for integrator, bare in (("symplectic_euler", _bare_symplectic_euler), ("backward_euler", _bare_backward_euler)):
+    for integrator, bare, step in (("symplectic_euler", _bare_symplectic_euler, _symplectic_euler_step),
+                                   ("backward_euler", _bare_backward_euler, _backward_euler_step)):
         runs = _runs(integrator)
         reference = min(bare(*_arrays(runs)) for _ in range(3))
         stepping = min(float(simulate_lanes(runs).wall_time.sum()) for _ in range(2))
+        with_bookkeeping = min(_bare_bookkeeping(step)(*_arrays(runs)) for _ in range(3))
         rows.append((f"lanes: {len(runs):,} spring runs x {STEPS} steps, {integrator} / bare numpy loop",
                      stepping / reference, "<= 3",
                      f"{1e6 * stepping / STEPS:.0f} us per step of all runs against {1e6 * reference / STEPS:.0f} us"))
+        rows.append((f"lanes: the same / bare loop with the run's energy budget and divergence test",
+                     stepping / with_bookkeeping, "-", f"against {1e6 * with_bookkeeping / STEPS:.0f} us"))
     return rows
 
 
