@@ -128,7 +128,7 @@ def _lane_rows() -> list[tuple[str, float, str, str]]:
         rows.append((f"lanes: {len(runs):,} spring runs x {STEPS} steps, {integrator} / bare numpy loop",
                      stepping / reference, "<= 3",
                      f"{1e6 * stepping / STEPS:.0f} us per step of all runs against {1e6 * reference / STEPS:.0f} us"))
-        rows.append((f"lanes: the same / bare loop with the run's energy budget and divergence test",
+        rows.append(("lanes: the same / bare loop with the run's energy budget and divergence test",
                      stepping / with_bookkeeping, "-", f"against {1e6 * with_bookkeeping / STEPS:.0f} us"))
     return rows
 
