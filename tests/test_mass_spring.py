@@ -188,6 +188,33 @@ def test_damping_matrix_is_the_lecture_force_and_symmetric_psd(damping, model, l
     assert np.max(np.abs(combined - parts)) <= 1e-14 * np.max(np.abs(parts))
 
 
+@pytest.mark.parametrize("law", sorted(SPRING_LAWS))
+@pytest.mark.parametrize("model", sorted(DAMPED_MODELS))
+@pytest.mark.parametrize("damping", sorted(DAMPING_MODELS))
+def test_a_damped_step_has_the_finite_difference_gradient_and_hessian(damping, model, law):
+    """Backward Euler's step problem with each damping model, E(y) = 1/2 |y - y~|_M^2 + h^2 [P(y) + (y - x_n)^T D
+    (y - x_n) / (2 h)], D taken at x_n: its gradient against central differences of E, its Hessian against central
+    differences of the gradient (FD_TOLERANCE), so that every damping model's matrix enters the step consistently."""
+    system = build(**DAMPED_MODELS[model], spring_law=law, mass={"total": 0.3}, damping=[DAMPING_TERMS[damping]])
+    x = deformed(system, seed=5, scale=0.03)
+    v = np.random.default_rng(6).standard_normal(system.dof_count)
+    h = 0.01
+    problem = IncrementalPotential(system, x + h * v, h * h, velocity_origin=x, velocity_divisor=h, damping_at=x,
+                                   step_start=(x, v, h))
+    y = x + h * v + 1e-3 * np.random.default_rng(7).standard_normal(system.dof_count)
+    basis = np.eye(system.dof_count)
+    fd_gradient = np.array([(problem.value(y + FD_STEP * e) - problem.value(y - FD_STEP * e)) / (2 * FD_STEP)
+                            for e in basis])
+    free = np.ones(system.dof_count, dtype=bool)
+    free[system.fixed_dofs] = False  # the problem's gradient is zero there (pinned vertices do not move)
+    assert relative_max_error(problem.gradient(y)[free], fd_gradient[free]) < FD_TOLERANCE
+    hessian = problem.hessian(y)
+    hessian = hessian.toarray() if hasattr(hessian, "toarray") else hessian
+    fd_hessian = np.array([(problem.gradient(y + FD_STEP * e) - problem.gradient(y - FD_STEP * e)) / (2 * FD_STEP)
+                           for e in basis]).T
+    assert relative_max_error(hessian[np.ix_(free, free)], fd_hessian[np.ix_(free, free)]) < FD_TOLERANCE
+
+
 # ==================================================================================================
 # 2. Two vertices and one spring are the spring_mass test equation
 # ==================================================================================================
