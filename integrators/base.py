@@ -67,9 +67,11 @@ class StepPlan:
         if getattr(system, "lane_count", None) is not None:  # many runs stepped together (systems/lanes.py)
             return LaneIncrementalPotential(system, self.y_tilde, self.scale, self.velocity_origin, self.velocity_divisor,
                                             self.damping_at, (state.x, state.v, dt), self.fraction)
-        return IncrementalPotential(system, self.y_tilde, self.scale, velocity_origin=self.velocity_origin,
-                                    velocity_divisor=self.velocity_divisor, damping_at=self.damping_at,
-                                    step_start=(state.x, state.v, dt), fraction=self.fraction)
+        problem = IncrementalPotential(system, self.y_tilde, self.scale, velocity_origin=self.velocity_origin,
+                                       velocity_divisor=self.velocity_divisor, damping_at=self.damping_at,
+                                       step_start=(state.x, state.v, dt), fraction=self.fraction)
+        problem.prescribed = on_paths(system, state, dt, self.fraction)
+        return problem
 
 
 class Integrator(BaseModel):
@@ -224,14 +226,28 @@ def residual_floor(mass: np.ndarray, y_tilde: np.ndarray) -> float:
     return RESIDUAL_ULPS * max_norm(mass * y_tilde) + RESIDUAL_SUBNORMALS
 
 
-def constrained_start(system: System, start: np.ndarray, y_tilde: np.ndarray) -> np.ndarray:
+def on_paths(system: System, state: State, dt: float, fraction: float = 1.0) -> np.ndarray | None:
+    """The unknown of a step on the dofs of prescribed paths (None without any): where it puts x_{n+1} on the path,
+    x_n + theta (p(t + h) - x_n) for an unknown at t_n + theta h. (y~ extrapolates them along their velocity: off a
+    curved path by O(h^2), which costs the neighbours' motion and the energy budget an order.)"""
+    constraints = system.constraints
+    if constraints is None or not constraints.moving_dofs.size:
+        return None
+    moving = constraints.moving_dofs
+    positions, _ = constraints.path(state.t + dt)
+    return state.x[moving] + fraction * (positions - state.x[moving])
+
+
+def constrained_start(system: System, start: np.ndarray, y_tilde: np.ndarray, prescribed: np.ndarray | None = None
+                      ) -> np.ndarray:
     """S start + (I - S) y~ on the vertices of prescribed paths (the only ones where y~ and start differ
-    on a filtered component: pinned and sliding vertices have no velocity along it)."""
+    on a filtered component: pinned and sliding vertices have no velocity along it); ``prescribed``: the values
+    the unknown takes there instead of y~ (the step's problem knows the path: ``StepPlan.problem``)."""
     constraints = system.constraints
     if constraints is None or not constraints.moving_dofs.size:
         return start
     start = start.copy()
-    start[constraints.moving_dofs] = y_tilde[constraints.moving_dofs]
+    start[constraints.moving_dofs] = y_tilde[constraints.moving_dofs] if prescribed is None else prescribed
     return start
 
 
@@ -335,6 +351,7 @@ class IncrementalPotential:
             self.relags = system.contact.friction_relags if self.friction is not None else 0
         self.quadratic = self.quadratic and self.friction is None and not system.has_contact
         self.requires_step_filter = system.requires_step_filter
+        self.prescribed = None  # the unknown on the prescribed paths' dofs (StepPlan.problem sets it), else y~ there
 
     def value(self, y: np.ndarray) -> float:
         offset = y - self.y_tilde
@@ -389,7 +406,7 @@ class IncrementalPotential:
         constant velocity: its exact position)."""
         if self.requires_step_filter:  # IPC: begin where no moving collider has overtaken a vertex
             start = self.system.contact_start(start)
-        return constrained_start(self.system, start, self.y_tilde)
+        return constrained_start(self.system, start, self.y_tilde, self.prescribed)
 
     def direction_guess(self, y: np.ndarray) -> np.ndarray:
         """An estimate of the first Newton step from y: the step to the inertial predictor, y~ - y."""

@@ -13,7 +13,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from .base import Integrator, State, StepPlan, solve_step
+from .base import Integrator, State, StepPlan, on_paths, solve_step
 from .euler import BackwardEuler
 from .segment import SegmentPotential
 
@@ -247,5 +247,6 @@ class AverageVectorField(Integrator):
                                    nodes=nodes, weights=0.5 * weights, dt=dt,
                                    velocity_origin=state.x + half * state.v, velocity_divisor=half,
                                    damping_at=[state.x + (s * dt) * state.v for s in nodes])  # each node's point to O(h^2)
+        problem.prescribed = on_paths(system, state, dt)
         x, stats = solve_step(solver, problem, problem.start_point(state.x))
         return State(state.t + dt, x, 2.0 * (x - state.x) / dt - state.v), stats

@@ -10,7 +10,7 @@ from typing import ClassVar
 
 from pydantic import Field
 
-from .base import Integrator, State, StepPlan, solve_step
+from .base import Integrator, State, StepPlan, on_paths, solve_step
 from .segment import SegmentPotential
 from .euler import BackwardEuler
 
@@ -97,5 +97,6 @@ class BDF2MidpointMix(Integrator):
                                    weights=(theta * implicit_weight * kappa, (1.0 - theta) * kappa), dt=dt,
                                    velocity_origin=origin, velocity_divisor=divisor,
                                    damping_at=[state.x + dt * state.v, state.x + (0.5 * dt) * state.v])
+        problem.prescribed = on_paths(system, state, dt)
         x, stats = solve_step(solver, problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - origin) / divisor, (state.x, state.v)), stats

@@ -122,9 +122,11 @@ class SegmentPotential:
             self.sliding.apply(gradient)
         return gradient
 
+    prescribed = None  # the unknown x_{n+1} on the prescribed paths' dofs (base.on_paths), set by the method
+
     def start_point(self, start: np.ndarray) -> np.ndarray:
         """As ``IncrementalPotential.start_point``."""
-        return constrained_start(self.system, start, self.y_tilde)
+        return constrained_start(self.system, start, self.y_tilde, self.prescribed)
 
     def direction_guess(self, y: np.ndarray) -> np.ndarray:
         return self.y_tilde - y
