@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from simrun.findings import Finding
-from simrun.figures.damping_map import FLOOR_DECADES, _is_map, _map_points
+from simrun.figures.damping_map import FLOOR_DECADES, exact_decades, map_cells, predicted_decades
 from simrun.results import Status
 
 # "noticeably more": the method keeps at most 90 % of the amplitude the exact motion keeps per period
@@ -23,20 +23,11 @@ NOTICEABLE = -math.log10(0.9)
 UNDERDAMPED = 0.9
 
 
-def exact_decades(zeta: np.ndarray) -> np.ndarray:
-    """log10 of the exact motion's amplitude factor per period 2 pi / w, for damping ratios zeta >= 0."""
-    zeta = np.asarray(zeta, dtype=float)
-    slow = np.where(zeta < 1.0, zeta, zeta - np.sqrt(np.maximum(zeta * zeta - 1.0, 0.0)))
-    return -2.0 * math.pi * slow / math.log(10.0)
-
-
 def map_findings(data) -> list[Finding]:
-    points = _map_points(data)
-    labels = [label for label in data.labels if label in points and _is_map(points[label])]
+    points = map_cells(data)
+    labels = list(points)
     if not labels:
         return []
-    from simrun.analysis import amplification_matrices, integrator_from_params
-
     parts, evidence = [], {}
     for label in labels:
         cells = [cell for cell in points[label] if 0.0 <= cell[1] < UNDERDAMPED]
@@ -49,8 +40,6 @@ def map_findings(data) -> list[Finding]:
         kept = np.isfinite(measured) & np.array([cell[3] is Status.OK for cell in cells])
         excess = exact_decades(zeta) - measured  # decades per period the method takes beyond the physics
         noticeable = kept & (excess >= NOTICEABLE)
-        run = next(run for run in data.runs if run.label == label)
-        matrices = amplification_matrices(integrator_from_params(run.integrator, run.integrator_params), hw, zeta)
         item = {"cells": int(kept.sum())}
         if noticeable.any():
             first = int(np.argmin(np.where(noticeable, hw, np.inf)))
@@ -58,10 +47,8 @@ def map_findings(data) -> list[Finding]:
             text = f"{label} from h w = {hw[first]:.3g} (at ζ = {zeta[first]:.3g})"
         else:
             text = f"{label} nowhere in the map"
-        if matrices is not None:
-            rho = np.max(np.abs(np.linalg.eigvals(matrices)), axis=1)
-            with np.errstate(divide="ignore"):
-                predicted = np.log10(rho) * 2.0 * math.pi / hw
+        predicted = predicted_decades(data, label, hw, zeta)
+        if predicted is not None:
             # the cells whose decay is resolved (above the colour floor) and that stayed bounded
             compared = kept & np.isfinite(predicted) & (predicted > FLOOR_DECADES) & (measured > FLOOR_DECADES)
             if compared.any():

@@ -36,11 +36,10 @@ DECIMALS = 9  # h w and zeta are told apart to this many significant digits (a g
 
 
 def damping_map(data: FigureData):
-    points = _map_points(data)
-    labels = [label for label in data.labels if label in points and _is_map(points[label])]
+    points = map_cells(data)
+    labels = list(points)
     if not labels:
         return None
-    from simrun.analysis import amplification_matrices, integrator_from_params
 
     rows = layout.wrap(labels, columns=3)
     figure, axes = layout.panel_grid(rows, sharex=True, sharey=True, panel_size=(4.6, 3.6), legend_width=1.2)
@@ -64,10 +63,8 @@ def damping_map(data: FigureData):
                 continue
             measured[row, column] = math.log10(decay)
             diverged[row, column] = status is Status.DIVERGED
-        run = next(run for run in data.runs if run.label == label)
-        integrator = integrator_from_params(run.integrator, run.integrator_params)
         grid_hw, grid_zeta = np.meshgrid(hw, zeta)
-        matrices = amplification_matrices(integrator, grid_hw.ravel(), grid_zeta.ravel())
+        predicted = predicted_decades(data, label, grid_hw.ravel(), grid_zeta.ravel())
         shown = np.where((measured > 0.0) & (measured <= GROWTH_ROUNDOFF), 0.0, np.maximum(measured, FLOOR_DECADES))
         image = ax.pcolormesh(_edges(hw, log=True), _edges(zeta, log=False), shown,
                               norm=norm, cmap=cmap, shading="flat", rasterized=True)
@@ -75,17 +72,15 @@ def damping_map(data: FigureData):
         if finite.sum() >= 4 and np.ptp(measured[finite]) > 0:
             ax.contour(grid_hw, grid_zeta, np.where(finite, measured, np.nan), levels=CONTOUR_LEVELS, colors="w",
                        linewidths=0.8)
-        if matrices is not None:
-            rho = np.max(np.abs(np.linalg.eigvals(matrices)), axis=1).reshape(grid_hw.shape)
-            with np.errstate(divide="ignore"):
-                predicted = np.log10(rho) * (2.0 * math.pi / grid_hw)  # log10 of rho^(2 pi / (h w))
+        if predicted is not None:
+            predicted = predicted.reshape(grid_hw.shape)
             ax.contour(grid_hw, grid_zeta, np.clip(predicted, FLOOR_DECADES * 2, None), levels=CONTOUR_LEVELS,
                        colors="k", linewidths=1.0, linestyles="--")
-            if np.any(rho > 1.0 + 1e-9) and np.any(rho < 1.0):
-                ax.contour(grid_hw, grid_zeta, rho, levels=[1.0 + 1e-9], colors=GROWTH_COLOUR, linewidths=2.6)
+            if np.any(predicted > 1e-9) and np.any(predicted < 0.0):  # rho = 1 between: the boundary
+                ax.contour(grid_hw, grid_zeta, predicted, levels=[1e-9], colors=GROWTH_COLOUR, linewidths=2.6)
         else:
             notes.append(f"{label}: no lane form to probe its amplification matrix; predicted contours not drawn")
-        exact = np.where(grid_zeta < 1.0, -2.0 * math.pi * grid_zeta / math.log(10.0), np.nan)
+        exact = np.where(grid_zeta < 1.0, exact_decades(grid_zeta), np.nan)
         if np.isfinite(exact).sum() >= 4 and np.ptp(exact[np.isfinite(exact)]) > 0:
             ax.contour(grid_hw, grid_zeta, exact, levels=CONTOUR_LEVELS, colors="orange", linewidths=1.3, linestyles=":")
         if diverged.any():
@@ -112,8 +107,9 @@ def damping_map(data: FigureData):
     return figure
 
 
-def _map_points(data: FigureData) -> dict[str, list[tuple[float, float, float, Status]]]:
-    """label -> [(h w, zeta, measured decay per period, status)] over the runs that declare an oscillator."""
+def map_cells(data: FigureData) -> dict[str, list[tuple[float, float, float, Status]]]:
+    """label -> [(h w, zeta, measured decay per period, status)], in label order, for the labels whose runs of a
+    linear oscillator (``natural_frequency``, ``damping_ratio``) span a map: MIN_HW values of h w, MIN_ZETA of zeta."""
     points: dict[str, list] = {}
     for run in data.runs:
         attrs = run.stored.attrs
@@ -122,11 +118,30 @@ def _map_points(data: FigureData) -> dict[str, list[tuple[float, float, float, S
             continue
         points.setdefault(run.label, []).append((_rounded(run.dt * frequency), _rounded(ratio),
                                                  float(attrs.get("decay_per_period", math.nan)), run.status))
-    return points
+    return {label: points[label] for label in data.labels if label in points
+            and len({cell[0] for cell in points[label]}) >= MIN_HW and len({cell[1] for cell in points[label]}) >= MIN_ZETA}
 
 
-def _is_map(cells: list) -> bool:
-    return len({cell[0] for cell in cells}) >= MIN_HW and len({cell[1] for cell in cells}) >= MIN_ZETA
+def predicted_decades(data: FigureData, label: str, hw: np.ndarray, zeta: np.ndarray) -> np.ndarray | None:
+    """log10 of the predicted amplitude factor per period, rho(A)^(2 pi / (h w)), of the method of ``label`` at each
+    (h w, zeta), A probed with the points as lanes; None for a method without a lane form."""
+    from simrun.analysis import amplification_matrices, integrator_from_params
+
+    run = next(run for run in data.runs if run.label == label)
+    matrices = amplification_matrices(integrator_from_params(run.integrator, run.integrator_params), hw, zeta)
+    if matrices is None:
+        return None
+    rho = np.max(np.abs(np.linalg.eigvals(matrices)), axis=1)
+    with np.errstate(divide="ignore"):
+        return np.log10(rho) * (2.0 * math.pi / np.asarray(hw))
+
+
+def exact_decades(zeta) -> np.ndarray:
+    """log10 of the exact motion's amplitude factor per period 2 pi / w, for damping ratios zeta >= 0: e^(-2 pi zeta)
+    below critical damping, its slow mode's e^(-2 pi (zeta - sqrt(zeta^2 - 1))) above."""
+    zeta = np.asarray(zeta, dtype=float)
+    slow = np.where(zeta < 1.0, zeta, zeta - np.sqrt(np.maximum(zeta * zeta - 1.0, 0.0)))
+    return -2.0 * math.pi * slow / math.log(10.0)
 
 
 def _axis_values(cells: list, axis: int) -> np.ndarray:
