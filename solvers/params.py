@@ -266,7 +266,7 @@ class JacobiChebyshevParams(SolverParams):
     spd_projection: Literal["none", "clamp", "eigen"] = Field("clamp", description="the Hessian whose diagonal is D: none (raw) | clamp (the system's own projection) | eigen (as clamp: a diagonal has no whole-matrix clamp)")
 
 
-# chebyshev_rho of projective dynamics: a number, or "auto" (estimated from the warm-up). A named alias, so
+# chebyshev_rho of projective dynamics: a number, or "auto" (computed: the linearised iteration's spectral radius). A named alias, so
 # that the schema and its readers see one type rather than a union of a bounded float and a literal.
 ChebyshevRho = TypeAliasType("ChebyshevRho", Union[float, Literal[CHEBYSHEV_RHO_AUTO]])  # type: ignore[valid-type]
 
@@ -275,7 +275,7 @@ class ProjectiveDynamicsParams(SolverParams):
     """Projective dynamics (Hookean springs, incremental potentials) with optional Chebyshev acceleration."""
 
     type: Literal["projective_dynamics"] = "projective_dynamics"
-    chebyshev_rho: ChebyshevRho = Field(0.0, description="estimated spectral radius rho of the PD iteration (dimensionless, [0, 1)): 0 plain PD | a number | auto (estimated from the update norms of the warm-up)")
+    chebyshev_rho: ChebyshevRho = Field(0.0, description="estimated spectral radius rho of the PD iteration (dimensionless, [0, 1)): 0 plain PD | a number | auto (computed once per run: 1 - gamma lambda_min of H v = lambda A v, by Lanczos)")
     chebyshev_warmup: int = Field(10, ge=1, le=10000, description="plain PD iterations of each solve before the Chebyshev acceleration starts (Wang 2015's S)")
     relaxation: float = Field(1.0, gt=0, le=1, allow_inf_nan=False, description="under-relaxation gamma of each global step (dimensionless; 1: the plain PD step)")
 
