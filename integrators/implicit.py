@@ -184,6 +184,8 @@ class SemiImplicitBackwardEuler(Integrator):
     """Backward Euler with exactly one Newton iteration started at x_n (Baraff & Witkin 1998):
     (M + h D + h^2 K(x_n)) v_{n+1} = M v_n - h dP/dx(x_n),  x_{n+1} = x_n + h v_{n+1},
     i.e. one Newton step on backward Euler's incremental potential (y~ = x_n + h v_n, c = 1) from y = x_n.
+    The solver's ``initial_guess`` moves where that one step starts (``inertial``: linearised at x_n + h v_n,
+    ``predictor``: at y~, the same point here); ``start``, the default, is Baraff & Witkin's x_n.
 
     First order. Identical to backward Euler on linear problems (artificial damping 1/(1 + (h w)^2)
     per step in energy, unconditionally stable there); on nonlinear ones it is a linearly implicit

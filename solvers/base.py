@@ -368,9 +368,11 @@ class NonlinearSolver(ABC):
         return current.y, stats, best, test
 
     def newton_step(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
-        """Exactly one Newton iteration from ``start`` (the semi-implicit methods): no convergence test.
+        """Exactly one Newton iteration from ``start`` (the semi-implicit methods), or from the configured
+        ``initial_guess`` where it is not ``start`` (``starting_point``): no convergence test.
 
         Uses the solver's linear solver and Hessian (projected for projected Newton, raw otherwise)."""
+        start = self.starting_point(problem, start)
         free = _free_dofs(start.size, problem.fixed_dofs, getattr(problem, "sliding", None))
         gradient = free.zero_fixed(np.array(problem.gradient(start), dtype=float))
         guess = {}

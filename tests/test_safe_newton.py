@@ -207,6 +207,29 @@ def test_initial_guesses_are_what_their_definitions_give(method, fraction):
     assert np.array_equal(problem.initial_guess("predictor"), problem.y_tilde)
 
 
+
+@pytest.mark.parametrize("guess", ["start", "inertial", "predictor"])
+def test_semi_implicit_backward_euler_takes_its_one_newton_step_from_the_configured_guess(guess):
+    """semi_implicit_backward_euler is one Newton step on backward Euler's incremental potential: from x_n
+    (Baraff & Witkin, ``start``) or from the solver's initial_guess. On a stretched, moving cloth the step
+    equals y0 - H(y0)^-1 g(y0) computed by hand from that guess, and the guesses give different steps."""
+    from simrun.integrators import INTEGRATORS, State
+    system = ClothParams(resolution=(4, 4), pinned=[]).build()
+    rng = np.random.default_rng(7)
+    x, v, dt = 1.05 * system.x0 + 0.01 * rng.standard_normal(system.dof_count), rng.standard_normal(system.dof_count), 0.01
+    problem, _ = captured_problem("backward_euler", system, x, v, dt)
+    start = problem.initial_guess(guess)
+    hessian = problem.hessian(start)
+    dense = hessian.toarray() if hasattr(hessian, "toarray") else np.asarray(hessian)
+    expected = start - scipy.linalg.solve(dense, problem.gradient(start))
+    state, stats = INTEGRATORS["semi_implicit_backward_euler"]().step(
+        system, State(0.0, x, v), dt, solver_params(initial_guess=guess).build())
+    assert stats.iterations == 1
+    assert np.allclose(state.x, expected, rtol=0, atol=1e-12)
+    if guess != "start":
+        from_x_n, _ = INTEGRATORS["semi_implicit_backward_euler"]().step(system, State(0.0, x, v), dt, solver_params().build())
+        assert np.abs(from_x_n.x - state.x).max() > 1e-9  # a nonlinear step: where it is linearised matters
+
 def test_the_adaptive_guess_of_a_free_fall_is_the_backward_euler_step():
     """A cloth at rest shape in free fall: no spring force, so a = g and backward Euler's y* = x + h v + h^2 g,
     exactly the adaptive guess y~ + h^2 a~: the solve from it needs no iteration."""
