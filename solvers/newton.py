@@ -11,7 +11,7 @@ sets a bit of ``SolveStats.safeguards``, which the runner records per step:
 - ``regularized`` (bit 4): the projected solve failed too; M (or the diagonal) was added, with a factor of
   10 more each time, until the solve gave a descent direction (Nocedal & Wright, "Numerical
   Optimization", sec. 3.4, "modified Newton");
-- ``fallback`` (bit 8): set by a FallbackChain when a later solver of the chain finished the step.
+- ``fallback`` (bit 8): set by a FallbackChain when a later solver of the chain took the step over (converged or not: the step's status says which; ``solver_index`` which solver).
 """
 
 from __future__ import annotations
