@@ -118,7 +118,9 @@ def _methods_at(setting: dict, dt: float, at: list[SummaryRow], runs: dict, pref
             told.append(f"with {', '.join(linear)}, the fastest of {len(variants[name])}"
                         + (" that converged" if _trust(row) == 0 and any(_trust(other) for other in variants[name]) else ""))
         if row.not_converged_steps:
-            told.append(f"{row.not_converged_steps}/{row.steps} steps at max_iterations"
+            budget = runs[row.run_id].stored.solver.get("time_budget")
+            limit = f"its time budget of {1e3 * budget:.3g} ms" if budget else "max_iterations"
+            told.append(f"{row.not_converged_steps}/{row.steps} steps at {limit}"
                         + (", accepted" if row.status == Status.OK else ""))
         return "".join(f"; {note}" for note in told)
 

@@ -380,7 +380,7 @@ def _summary_section(rows: list[SummaryRow]) -> str:
                      "the run stays ok)")
     if "safeguards" in shown:
         notes.append("safeguards: steps where a solver safeguard fired (the line search cut the step, the Hessian was "
-                     "SPD-projected or regularised, or a fallback solver finished the step)")
+                     "SPD-projected or regularised, or a fallback solver took the step over)")
     if "d/w measured" in shown or "d/w predicted" in shown:
         notes.append("d/w: the artificial damping d_method/w = −2 ln ρ/(h w), measured from the decay of ln E(t) of runs "
                      "on the undamped test equation and predicted from the probed amplification matrix at the run's h w; "

@@ -236,7 +236,8 @@ def simulate(run: Run) -> RunResult:
     if status is Status.OK and not_converged_steps and not accept_not_converged:
         status = Status.NOT_CONVERGED
         if not message:
-            message = f"{not_converged_steps} of {steps} steps did not converge within max_iterations"
+            limits = "max_iterations" + (" or time_budget" if getattr(run.solver, "time_budget", None) else "")
+            message = f"{not_converged_steps} of {steps} steps did not converge within {limits}"
     samples = recorder.result()
     attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps,
              "first_not_converged_step": first_not_converged, "diverged_step": diverged_step,

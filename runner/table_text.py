@@ -151,7 +151,7 @@ def format_table(rows: list[SummaryRow], name: str = "", wide: bool = False, wid
     if any(column.key == "status" for column in columns) and any(_status_text(row) != row.status for row in rows):
         notes.append("status@n: the first step that diverged or did not converge")
     if any(column.key == "not_converged" for column in columns):
-        notes.append("not conv.: steps that used up max_iterations"
+        notes.append("not conv.: steps that used up max_iterations (or their solver's time_budget)"
                      + (" (an ok run accepted them: on_not_converged accept)" if any(row.accepted for row in rows) else ""))
     if any(column.key == "safeguards" for column in columns):
         notes.append("safeguards: steps where the solver cut a step by line search, projected or regularised the "

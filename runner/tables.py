@@ -66,7 +66,7 @@ class SummaryRow:
     predicted_damping: float  # d_method / w from the amplification matrix at this h w
     real_time_factor: float = math.nan  # steps dt / wall_time: > 1 faster than real time
     wall_time_per_frame: float = math.nan  # s of wall time per FRAME_TIME (1/60 s) of simulated time
-    not_converged_steps: int = 0  # steps whose solver used up max_iterations (accepted ones too)
+    not_converged_steps: int = 0  # steps whose solver used up max_iterations or its time budget (accepted ones too)
     accepted: bool = False  # solver.on_not_converged is accept: such steps leave the run ok
     first_not_converged_step: int = 0  # 1-based; 0: none (or not recorded, files before it)
     diverged_step: int = 0  # 1-based step at which the energy left the bound; 0: none (or not recorded)

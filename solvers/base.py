@@ -27,6 +27,7 @@ and the optional ``callback(y, gradient)`` after the start and every iteration.
 from __future__ import annotations
 
 import math
+import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Callable, ClassVar, NamedTuple, Protocol
@@ -238,7 +239,9 @@ class NonlinearSolver(ABC):
     ``velocity``; initial_guess: where ``minimize`` starts (``start``: the point the integrator gives,
     x_n; ``inertial``, ``predictor``, ``adaptive``: the problem's ``initial_guess(kind)``, see
     integrators/base.py); callback(y, gradient), called after the start and every iteration (tests
-    record histories with it).
+    record histories with it); time_budget: seconds of wall time per solve (its start, factorisations
+    included, to the end of an iteration), after which the solve stops unconverged (None: no limit;
+    real-time practice: a frame's budget, see ``on_not_converged: accept``).
     """
 
     name: ClassVar[str]
@@ -251,7 +254,8 @@ class NonlinearSolver(ABC):
     filters_steps: ClassVar[bool] = False
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver: str | LinearSolver = "direct",
-                 *, tolerance_mode: str = "residual", initial_guess: str = "start", callback: Callable | None = None):
+                 *, tolerance_mode: str = "residual", initial_guess: str = "start", callback: Callable | None = None,
+                 time_budget: float | None = None):
         if tolerance_mode not in TOLERANCE_MODES:
             raise ValueError(f"tolerance_mode must be one of {', '.join(TOLERANCE_MODES)}, got {tolerance_mode!r}")
         if tolerance_mode in STEP_MODES and not self.supports_step_test:
@@ -262,6 +266,9 @@ class NonlinearSolver(ABC):
         self.linear_solver = LINEAR_SOLVERS[linear_solver]() if isinstance(linear_solver, str) else linear_solver
         self.tolerance_mode = tolerance_mode
         self.callback = callback
+        if time_budget is not None and not time_budget > 0.0:
+            raise ValueError(f"time_budget must be a positive number of seconds, got {time_budget!r}")
+        self.time_budget = time_budget
 
     # -- public ------------------------------------------------------------------------------
     def minimize(self, problem: NonlinearProblem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
@@ -303,6 +310,7 @@ class NonlinearSolver(ABC):
 
     def _run(self, problem, start: np.ndarray, test: ConvergenceTest | None):
         """The iteration: (y, SolveStats, best y, test), what ``Outcome`` holds (``minimize`` needs no Outcome)."""
+        deadline = None if self.time_budget is None else time.perf_counter() + self.time_budget
         free = _free_dofs(start.size, problem.fixed_dofs, getattr(problem, "sliding", None))
         callback = self.callback
         y = _own_copy(start)
@@ -362,6 +370,8 @@ class NonlinearSolver(ABC):
                     break
                 if residual <= test.threshold or final:  # test.residual_met, or the step test met
                     converged = True
+                    break
+                if deadline is not None and time.perf_counter() >= deadline:  # the frame's time is spent
                     break
         stats = SolveStats(iterations, linear_iterations, line_search_steps, current.residual, bool(converged),
                            0, self._safeguards(state))

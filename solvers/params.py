@@ -14,7 +14,7 @@ both at the bottom of this module.
 from __future__ import annotations
 
 import difflib
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal, Optional, Union
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, ValidationError, field_validator, model_validator
 from typing_extensions import TypeAliasType
@@ -218,6 +218,11 @@ Refactor = Annotated[Literal[REFACTOR_MODES], Field(description="every (factoris
 RefactorRate = Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False, description="refactor adaptive: the residual reduction per iteration below which the lagged factorisation is renewed")]
 
 
+# The real-time solvers' budget (not Newton's: a sweep of solver.type keeps its Newton runs converged, the reference
+# the budgeted ones are measured against)
+TimeBudget = Annotated[Optional[float], Field(gt=0, allow_inf_nan=False, description="seconds of wall time per step's solve (factorisations included) after which it stops, unconverged: a frame's budget, as real-time practice sets it (with on_not_converged: accept the run stays ok); null: no limit. The iterations it buys depend on the machine and its load, so budgeted runs do not repeat bit for bit")]
+
+
 class NewtonParams(SolverParams):
     """Newton with the raw Hessian, a line search, and safeguards where the raw direction does not descend.
 
@@ -247,6 +252,7 @@ class LBFGSParams(SolverParams):
     line_search: LineSearch = "backtracking"
     history: int = Field(8, ge=1, le=1000, description="number of (s, dg) pairs kept")
     initial_hessian: Literal[INITIAL_HESSIANS] = Field("scalar", description="H_0 of the two-loop recursion: scalar ((s^T dg / dg^T dg) I) | rest (A^{-1}, A = M + h^2 K_r the rest-shape matrix, factorised once per run: Liu, Bouaziz & Kavan 2017) | scaled_rest ((s^T dg / dg^T A^{-1} dg) A^{-1}) | step (the SPD-projected Hessian at the step's start, factorised once per step); rest and scaled_rest need a system with a rest stiffness")  # type: ignore[valid-type]
+    time_budget: TimeBudget = None
 
 
 class GradientDescentParams(SolverParams):
@@ -254,6 +260,7 @@ class GradientDescentParams(SolverParams):
 
     type: Literal["gradient_descent"] = "gradient_descent"
     line_search: LineSearch = "backtracking"
+    time_budget: TimeBudget = None
 
 
 class JacobiChebyshevParams(SolverParams):
@@ -264,6 +271,7 @@ class JacobiChebyshevParams(SolverParams):
     chebyshev_rho: float = Field(0.99, ge=0, lt=1, allow_inf_nan=False, description="estimated spectral radius rho of the Jacobi iteration")
     relaxation: float = Field(0.9, gt=0, le=1, allow_inf_nan=False, description="under-relaxation gamma of each Jacobi step (halved when a plain step raises the energy)")
     spd_projection: Literal["none", "clamp", "eigen"] = Field("clamp", description="the Hessian whose diagonal is D: none (raw) | clamp (the system's own projection) | eigen (as clamp: a diagonal has no whole-matrix clamp)")
+    time_budget: TimeBudget = None
 
 
 # chebyshev_rho of projective dynamics: a number, or "auto" (computed: the linearised iteration's spectral radius). A named alias, so
@@ -278,6 +286,7 @@ class ProjectiveDynamicsParams(SolverParams):
     chebyshev_rho: ChebyshevRho = Field(0.0, description="estimated spectral radius rho of the PD iteration (dimensionless, [0, 1)): 0 plain PD | a number | auto (computed once per run: 1 - gamma lambda_min of H v = lambda A v, by Lanczos)")
     chebyshev_warmup: int = Field(10, ge=1, le=10000, description="plain PD iterations of each solve before the Chebyshev acceleration starts (Wang 2015's S)")
     relaxation: float = Field(1.0, gt=0, le=1, allow_inf_nan=False, description="under-relaxation gamma of each global step (dimensionless; 1: the plain PD step)")
+    time_budget: TimeBudget = None
 
     @field_validator("chebyshev_rho", mode="before")
     @classmethod
@@ -297,6 +306,7 @@ class VBDParams(SolverParams):
     spd_projection: Literal[VBD_SPD_PROJECTIONS] = Field("clamp", description="each vertex block M_i + s K_i + (s/b) D_ii with the system's element blocks projected: clamp (negative eigenvalues set to 0) | abs (mirrored)")  # type: ignore[valid-type]
     chebyshev_rho: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False, description="estimated spectral radius rho of the sweep (dimensionless): 0 no acceleration; else Chebyshev's y_{k+1} = omega (y^ - y_{k-1}) + y_{k-1}, restarted where it raises the energy (one energy evaluation per sweep)")
     determinant_floor: float = Field(1e-20, ge=0, lt=1, allow_inf_nan=False, description="skip a vertex in a sweep where |det H_i| <= determinant_floor |H_i|_F^d (dimensionless; the paper's small-determinant skip)")
+    time_budget: TimeBudget = None
 
 
 # config name -> solver class, and -> its parameter model: the one place where a new solver is made known

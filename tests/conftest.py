@@ -59,12 +59,14 @@ class Capture:
 
 
 def step_problem(system, x=None, v=None, dt=0.01, integrator="backward_euler"):
-    """The problem (and start) that one step of ``integrator`` (a name) from (x, v) hands its solver (default:
-    the system's initial state)."""
+    """The problem (and start) that the first step of ``integrator`` (a name) from (x, v) hands its solver (default:
+    the system's initial state), after the method's ``start`` (Newmark's and generalized-alpha's initial
+    acceleration); BDF2's first step is backward Euler's."""
     capture = Capture()
     x = system.x0 if x is None else x
     v = system.v0 if v is None else v
-    INTEGRATORS[integrator]().step(system, State(0.0, x, v), dt, capture)
+    method = INTEGRATORS[integrator]()
+    method.step(system, method.start(system, State(0.0, x, v)), dt, capture)
     return capture.problem, capture.start
 
 

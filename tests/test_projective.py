@@ -490,3 +490,36 @@ def test_pd_with_spring_damping_is_exact_and_refactorises_per_step(monkeypatch):
         assert np.abs(y - reference).max() < 1e-8
         state, _ = INTEGRATORS["backward_euler"]().step(system, state, 0.01, Newton(tolerance=1e-14))
     assert len(calls) == 3
+
+
+class _Clock:
+    """A stand-in for the time module whose perf_counter advances by ``tick`` seconds per call."""
+
+    def __init__(self, tick: float):
+        self.now, self.tick = 0.0, tick
+
+    def perf_counter(self) -> float:
+        self.now += self.tick
+        return self.now
+
+
+@pytest.mark.parametrize("solver_type", ["projective_dynamics", "lbfgs", "vbd"])
+def test_a_time_budget_stops_the_solve_after_the_iteration_that_spends_it(monkeypatch, solver_type):
+    """time_budget: the solve reads the clock at its start and after every iteration, and stops unconverged after
+    the first iteration that ends at or past the budget. With a clock that advances 1 ms per reading and a
+    budget of 5.5 ms, readings 2..7 follow iterations 1..6 (at 1..6 ms past the start): the 6th is the last.
+    Without the budget the same solve converges, in more iterations."""
+    import simrun.solvers.base as base
+    system = cloth_hang(resolution=(6, 6))
+    problem, start = step_problem(system, dt=0.02)
+    monkeypatch.setattr(base, "time", _Clock(1e-3))
+    _, budgeted = solver_params(type=solver_type, tolerance=1e-8, max_iterations=100000, time_budget=5.5e-3).build().minimize(problem, start)
+    assert (budgeted.iterations, budgeted.converged) == (6, False)
+    _, unlimited = solver_params(type=solver_type, tolerance=1e-8, max_iterations=100000).build().minimize(problem, start)
+    assert unlimited.converged and unlimited.iterations > 6
+
+
+def test_newton_the_reference_takes_no_time_budget():
+    """A sweep of solver.type with a time budget keeps Newton converged (the reference): Newton refuses the key."""
+    with pytest.raises(SolverOptionError, match="newton does not use 'time_budget'"):
+        solver_params(type="newton", time_budget=0.01)

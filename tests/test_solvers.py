@@ -482,7 +482,9 @@ FORMER_DEFAULTS = {"tolerance": 1e-10, "tolerance_mode": "residual", "max_iterat
                    "on_not_converged": "continue", "initial_guess": "start", "initial_hessian": "scalar",
                    "chebyshev_warmup": 10, "determinant_floor": 1e-20,
                    # issue 18: Newton's lagged factorisation, off by default (a factorisation at every iteration)
-                   "refactor": "every", "refactor_rate": 0.5}
+                   "refactor": "every", "refactor_rate": 0.5,
+                   # a frame's wall-time budget for the real-time solvers, off by default (not newton's: the reference)
+                   "time_budget": None}
 # issue 16: newton gained a line search (backtracking) and safeguards; its own matrix stays the raw Hessian;
 # the new solvers' own defaults (plain PD and VBD: no Chebyshev; VBD starts from the paper's guess)
 NEW_DEFAULTS = {"newton": {"spd_projection": "none"}, "projective_dynamics": {"chebyshev_rho": 0.0, "relaxation": 1.0},
@@ -504,7 +506,10 @@ def option_value(option: str):
 
 
 def other_value(info):
-    """A valid value of an own option other than its default: another choice, half the float, one more."""
+    """A valid value of an own option other than its default: another choice, half the float, one more; for an
+    optional number off by default (time_budget), a positive one."""
+    if info.default is None:
+        return 0.01
     choices = typing.get_args(info.annotation)
     if choices:
         return next(choice for choice in choices if choice != info.default)
@@ -544,12 +549,16 @@ def test_every_solver_has_a_parameter_model_under_its_name():
 
 @pytest.mark.parametrize("name", list(SOLVER_PARAMS))
 def test_a_solver_model_holds_exactly_the_arguments_of_its_constructor(name):
-    """Its own fields are the constructor's arguments beyond NonlinearSolver's; build() passes every field
-    but type, fallback and on_not_converged, with the linear solver built from the linear_* fields."""
+    """Its own fields are the constructor's arguments beyond NonlinearSolver's, and NonlinearSolver's time_budget
+    where the model offers it (the real-time solvers; not the Newton family, whose runs stay the converged
+    reference); build() passes every field but type, fallback and on_not_converged, with the linear solver built
+    from the linear_* fields."""
     model = SOLVER_PARAMS[name]
-    assert set(model.own_fields()) == constructor_parameters(SOLVERS[name]) - constructor_parameters(NonlinearSolver)
+    budgeted = {"time_budget"} & set(model.model_fields)
+    assert budgeted == ({"time_budget"} if name not in ("newton", "projected_newton") else set())
+    assert set(model.own_fields()) == constructor_parameters(SOLVERS[name]) - constructor_parameters(NonlinearSolver) | budgeted
     arguments = model(linear_solver="cg", linear_tolerance=1e-4, linear_max_iterations=9).constructor_arguments()
-    assert set(arguments) == constructor_parameters(SOLVERS[name]) - {"callback"}
+    assert set(arguments) == constructor_parameters(SOLVERS[name]) - {"callback"} - ({"time_budget"} - budgeted)
     linear = arguments["linear_solver"]
     assert type(linear) is LINEAR_SOLVERS["cg"] and (linear.tolerance, linear.max_iterations) == (1e-4, 9)
     assert type(model().build()) is SOLVERS[name]
@@ -644,9 +653,10 @@ def test_a_fallback_chain_is_built_with_each_solvers_own_options():
     assert (jacobi.line_search, jacobi.rho, jacobi.relaxation, jacobi.spd_projection) == ("backtracking", 0.5, 0.25, "none")
     assert descent.line_search == "none"
     assert params.model_dump(mode="json")["fallback"] == [
-        {"type": "lbfgs", "line_search": "backtracking", "history": 8, "initial_hessian": "scalar"},
-        {"type": "jacobi_chebyshev", "line_search": "backtracking", "chebyshev_rho": 0.5, "relaxation": 0.25, "spd_projection": "none"},
-        {"type": "gradient_descent", "line_search": "none"}]
+        {"type": "lbfgs", "line_search": "backtracking", "history": 8, "initial_hessian": "scalar", "time_budget": None},
+        {"type": "jacobi_chebyshev", "line_search": "backtracking", "chebyshev_rho": 0.5, "relaxation": 0.25, "spd_projection": "none",
+         "time_budget": None},
+        {"type": "gradient_descent", "line_search": "none", "time_budget": None}]
 
 
 def test_runs_keep_the_solvers_own_options_through_the_sweep():
