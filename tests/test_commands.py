@@ -359,18 +359,18 @@ def test_one_error_of_a_union_is_one_line(tmp_path, capsys):
 # -- 11. a swept solver key that a run does not use does not multiply it -----------------------------------
 def test_solver_comparison_runs_each_first_order_solver_once_per_dt():
     """2 Newton-type solvers x 6 linear solvers x 3 dt + 5 solvers without a linear solve (3 first-order ones,
-    projective dynamics, vbd) x 3 dt = 51 runs, not 126."""
+    projective dynamics, vbd) x 3 dt, L-BFGS twice (its swept initial_hessian) = 54 runs, not 252."""
     experiment, _ = load_experiment(ROOT / "configs" / "solver_comparison.yaml")
     runs = expand_runs(experiment)
-    assert len(runs) == 2 * 6 * 3 + 5 * 3 == 51
-    assert len({run.run_id for run in runs}) == 51 and [run.index for run in runs] == list(range(51))
+    assert len(runs) == 2 * 6 * 3 + (5 + 1) * 3 == 54
+    assert len({run.run_id for run in runs}) == 54 and [run.index for run in runs] == list(range(54))
     for run in runs:
         newton_type = run.solver.type in ("newton", "projected_newton")
         assert ("solver.linear_solver" in run.run_id) == newton_type == ("solver.linear_solver" in run.swept), run.run_id
         if not newton_type:
             assert run.solver.linear_solver == "direct"  # the first value of the sweep
-    assert {(run.solver.type, run.dt) for run in runs if run.solver.type == "lbfgs"} == {
-        ("lbfgs", dt) for dt in experiment.sweep["dt"]}
+    assert {(run.solver.initial_hessian, run.dt) for run in runs if run.solver.type == "lbfgs"} == {
+        (initial_hessian, dt) for initial_hessian in ("scalar", "rest") for dt in experiment.sweep["dt"]}
 
 
 @pytest.mark.parametrize("integrator, fallback, runs", [
