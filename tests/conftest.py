@@ -11,7 +11,7 @@ from simrun.config import validate_experiment
 from simrun.integrators import INTEGRATORS, State
 from simrun.sweep import expand_runs
 from simrun.simulate import simulate
-from simrun.solvers import LINEAR_SOLVERS, SolveStats
+from simrun.solvers import LINEAR_SOLVERS, SolveStats, solver_params
 
 # CI installs the optional CHOLMOD solver and sets this, so a broken install fails instead of skipping
 REQUIRE_OPTIONAL_SOLVERS = os.environ.get("SIMRUN_REQUIRE_CHOLMOD") == "1"
@@ -67,6 +67,20 @@ def step_problem(system, x=None, v=None, dt=0.01, integrator="backward_euler"):
     v = system.v0 if v is None else v
     method = INTEGRATORS[integrator]()
     method.step(system, method.start(system, State(0.0, x, v)), dt, capture)
+    return capture.problem, capture.start
+
+
+def own_step_problem(system, name: str, x, v, dt: float, warmup_steps: int = 0):
+    """The problem (and start) of ``name``'s own step: after the method's ``start`` and ``warmup_steps`` Newton-solved
+    steps from (x, v) (BDF2 needs one: its first step is backward Euler's), the next step's, captured."""
+    integrator = INTEGRATORS[name]()
+    state = integrator.start(system, State(0.0, x, v))
+    newton = solver_params(type="newton", tolerance=1e-12, max_iterations=50).build()
+    for _ in range(warmup_steps):
+        state, stats = integrator.step(system, state, dt, newton)
+        assert stats.converged
+    capture = Capture()
+    integrator.step(system, state, dt, capture)
     return capture.problem, capture.start
 
 

@@ -29,11 +29,11 @@ import scipy.sparse
 import yaml
 
 import simrun.solvers.newton as newton_module
-from conftest import Capture, run_one, step_problem, stretched_cloth_state
+from conftest import own_step_problem, run_one, step_problem, stretched_cloth_state
 from test_projective import CONSTRAINED, LINE_DIRECTION, PLANE_NORMAL, assert_reaches_the_newton_step, cloth_hang
 from test_safe_newton import ConvexQuartic
 from test_solver_integrators import CLOTH as INTEGRATOR_CLOTH, DT as INTEGRATOR_DT, WARMUP_STEPS, expected_scale
-from simrun.integrators import INTEGRATORS, State
+from simrun.integrators import INTEGRATORS
 from simrun.results import RESULTS_NAME
 from simrun.solvers import ProjectiveDynamics, solver_params
 from simrun.solvers.newton import ADAPTIVE_TRUST, SAFEGUARDS, project_eigen
@@ -64,22 +64,14 @@ def recording_hessian(problem) -> tuple[list, list]:
 
 
 def integrator_step(system, name: str, x, v, dt: float):
-    """The problem (and start) of ``name``'s own step from (x, v). conftest's ``step_problem`` steps from a bare State,
-    which Newmark and generalized-alpha cannot (their ``start`` computes the initial acceleration) and which makes
-    BDF2's step its first, backward Euler's; so, as tests/test_solver_integrators.py does: the integrator's ``start``,
-    WARMUP_STEPS Newton steps (BDF2: one), then the step captured. Asserts the step's scale c h^2 (BDF2: 4/9 h^2)."""
-    integrator = INTEGRATORS[name]()
-    state = integrator.start(system, State(0.0, x, v))
-    newton = solver_params(type="newton", tolerance=1e-12, max_iterations=50).build()
-    for _ in range(WARMUP_STEPS.get(name, 0)):
-        state, stats = integrator.step(system, state, dt, newton)
-        assert stats.converged
-    capture = Capture()
-    integrator.step(system, state, dt, capture)
-    scale = expected_scale(integrator)  # c h^2 at tests/test_solver_integrators.py's DT
+    """The problem (and start) of ``name``'s own step from (x, v), as tests/test_solver_integrators.py takes it: the
+    integrator's ``start``, WARMUP_STEPS Newton steps (BDF2: one, since its first step is backward Euler's), then
+    the step captured. Asserts the step's scale c h^2 (BDF2: 4/9 h^2)."""
+    problem, start = own_step_problem(system, name, x, v, dt, WARMUP_STEPS.get(name, 0))
+    scale = expected_scale(INTEGRATORS[name]())  # c h^2 at tests/test_solver_integrators.py's DT
     if scale is not None:
-        assert capture.problem.scale == pytest.approx(scale * (dt / INTEGRATOR_DT) ** 2, rel=1e-14), "the method's own step"
-    return capture.problem, capture.start
+        assert problem.scale == pytest.approx(scale * (dt / INTEGRATOR_DT) ** 2, rel=1e-14), "the method's own step"
+    return problem, start
 
 
 # ==================================================================================================

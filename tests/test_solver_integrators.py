@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import scipy.sparse
 
-from conftest import Capture, stretched_cloth_state
+from conftest import own_step_problem, stretched_cloth_state
 from simrun.cli import main
-from simrun.integrators import INTEGRATORS, State
+from simrun.integrators import INTEGRATORS
 from simrun.solvers import solver_params
 from simrun.systems import ClothParams
 
@@ -59,14 +59,7 @@ def integrator_step(request):
     name = request.param
     system = ClothParams(**CLOTH).build()
     integrator = INTEGRATORS[name]()
-    state = integrator.start(system, State(0.0, *stretched_cloth_state(system)))
-    newton = solver_params(type="newton", tolerance=1e-12, max_iterations=50).build()
-    for _ in range(WARMUP_STEPS.get(name, 0)):
-        state, stats = integrator.step(system, state, DT, newton)
-        assert stats.converged
-    capture = Capture()
-    integrator.step(system, state, DT, capture)
-    problem, start = capture.problem, capture.start
+    problem, start = own_step_problem(system, name, *stretched_cloth_state(system), DT, WARMUP_STEPS.get(name, 0))
     if expected_scale(integrator) is not None:  # the method's own step is captured (BDF2's, not the first BE step)
         assert problem.scale == pytest.approx(expected_scale(integrator), rel=1e-14)
     reference, stats = solver_params(type="newton", tolerance=1e-14, max_iterations=50).build().minimize(problem, start)
