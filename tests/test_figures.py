@@ -32,7 +32,8 @@ TEST_EQUATION = {"artificial_damping", "spectral_radius_and_period"}
 # the calibration's figures need a file of `simrun fit` (tests/test_calibration_figures.py)
 CALIBRATION_FIGURES = {name for name, entry in FIGURES.items() if entry.needs == CALIBRATION}
 MAPS = {"damping_map"}  # a sweep over h w and the damping ratio: tests/test_lanes.py draws it
-ALWAYS = set(FIGURES) - TEST_EQUATION - CALIBRATION_FIGURES - MAPS - {"orbits", "snapshots"}
+SOLVER_SWEEPS = {"cost_vs_accuracy"}  # drawn where solver.type is swept
+ALWAYS = set(FIGURES) - TEST_EQUATION - CALIBRATION_FIGURES - MAPS - SOLVER_SWEEPS - {"orbits", "snapshots"}
 EULERS = ["forward_euler", "symplectic_euler", "backward_euler"]
 SPRING = {"system": {"type": "spring_mass", "stiffness": 100.0}, "integrators": EULERS,
           "duration": 2.0, "sweep": {"dt": [0.01, 0.05, 0.25]}}

@@ -23,7 +23,9 @@ from simrun.cli import main
 from simrun.figures import figure_data, render_figures
 from simrun.figures._data import format_value
 from simrun.reference import reference_errors
+from simrun.findings_cost import solver_cost
 from simrun.results import load
+from simrun.tables import summary_rows
 
 CONFIGS = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
 CLOTH = ["system.resolution=[4,4]"]
@@ -64,7 +66,9 @@ THEORY = {"artificial_damping", "spectral_radius_and_period"}  # per integrator,
 MAPS = {"damping_map"}  # per integrator over (h w, zeta): the settings are its axes, every run a cell
 
 
-def draws(name: str, run) -> bool:
+def draws(name: str, run, cost_runs: set) -> bool:
+    if name == "cost_vs_accuracy":  # the runs of the cost findings
+        return run.run_id in cost_runs
     if name == "newton_iterations_vs_dt":
         return not run.explicit and run.newton_iterations.size > 0
     if name in ("convergence", "work_precision"):
@@ -106,13 +110,16 @@ def test_every_figure_names_every_integrator_and_swept_value(config, tmp_path):
     results = load(output / "results.h5")
     # systems without an exact solution: errors against a reference, so that convergence is drawn (and checked) too
     errors = reference_errors(results, "dop853")
-    runs = figure_data(results, errors).runs
+    data = figure_data(results, errors)
+    runs = data.runs
+    cost_runs = {method["run_id"] for finding in solver_cost(data, summary_rows(data)) if "methods" in finding.evidence
+                 for method in finding.evidence["methods"].values()}
     missing = {}
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no figure may warn
         for entry, name, figure in render_figures(results, errors or None):
             try:
-                drawn = [run for run in runs if draws(name, run)]
+                drawn = [run for run in runs if draws(name, run, cost_runs)]
                 words = "\n".join(texts(figure))
                 wanted = {run.label for run in drawn}
                 if entry.name not in THEORY | MAPS:

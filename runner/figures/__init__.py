@@ -21,6 +21,7 @@ from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, RunData, figure_data
 from simrun.figures.calibration import fitted_parameters_vs_dt, observed_vs_fitted, transfer_errors
 from simrun.figures.convergence import convergence, work_precision
+from simrun.figures.cost import cost_vs_accuracy
 from simrun.figures.damping_map import damping_map
 from simrun.figures.energy import energy_budget, energy_drift_vs_dt, energy_over_time
 from simrun.figures.frames import snapshots
@@ -113,6 +114,13 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "The same error against the wall time of each run. Lower left is better: a higher-order or cheaper method "
            "reaches a given accuracy sooner.",
            "runs with an exact solution, or a reference (systems without one: --reference)", against_dt=True),
+    Figure("cost_vs_accuracy", cost_vs_accuracy,
+           "What each method buys for its wall time per 1/60 s frame (the dotted line: real time), at the dt the "
+           "methods share: left, the distance max |x − x_ref| of its positions from the fastest Newton run whose every "
+           "step converged (★, drawn at the floor: distance 0), at the error time; right, its largest energy change, "
+           "the artificial damping (or gain) it adds. The runs and numbers are the report's cost findings'. Look for "
+           "the methods below and left of the others, and for the distance a real-time budget leaves.",
+           "a sweep of solver.type with two methods at one dt, one of them implicit"),
     Figure("wall_time_per_step_vs_dt", wall_time_per_step_vs_dt,
            "Wall time per step against dt, one line per method (or per swept solver setting), one panel per setting "
            "of the other swept keys. Look for implicit methods getting dearer at large dt (more solver iterations).",
