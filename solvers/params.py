@@ -174,6 +174,10 @@ class SolverParams(BaseModel):
             raise SolverOptionError(("tolerance",), f"in {self.tolerance_mode} mode the tolerance is a fraction of the first "
                                     f"{'residual' if self.tolerance_mode == 'residual' else 'step'}: it must be < 1 (got {self.tolerance:g})")
         chain = self.chain_names()
+        budgeted = [entry["type"] for entry in [vars(self), *self.fallback] if entry.get("time_budget") is not None]
+        if budgeted and len(chain) > 1:
+            raise SolverOptionError(("fallback",), f"a time budget ({', '.join(budgeted)}) ends a solve when its time is spent, "
+                                    "and a fallback would then run past it: give time_budget or fallback, not both")
         if len(set(chain)) != len(chain):
             raise SolverOptionError(("fallback",), f"each solver may appear once in the chain {chain}; a repeat would redo the same attempt")
         if self.tolerance_mode in STEP_MODES:
@@ -283,7 +287,7 @@ class ProjectiveDynamicsParams(SolverParams):
     """Projective dynamics (Hookean springs, incremental potentials) with optional Chebyshev acceleration."""
 
     type: Literal["projective_dynamics"] = "projective_dynamics"
-    chebyshev_rho: ChebyshevRho = Field(0.0, description="estimated spectral radius rho of the PD iteration (dimensionless, [0, 1)): 0 plain PD | a number | auto (computed once per run: 1 - gamma lambda_min of H v = lambda A v, by Lanczos)")
+    chebyshev_rho: ChebyshevRho = Field(0.0, description="estimated spectral radius rho of the PD iteration (dimensionless, [0, 1)): 0 plain PD | a number | auto (computed once per run: 1 - gamma lambda_min of H v = lambda A v, by LAPACK up to 200 free dofs, else Lanczos)")
     chebyshev_warmup: int = Field(10, ge=1, le=10000, description="plain PD iterations of each solve before the Chebyshev acceleration starts (Wang 2015's S)")
     relaxation: float = Field(1.0, gt=0, le=1, allow_inf_nan=False, description="under-relaxation gamma of each global step (dimensionless; 1: the plain PD step)")
     time_budget: TimeBudget = None

@@ -523,3 +523,26 @@ def test_newton_the_reference_takes_no_time_budget():
     """A sweep of solver.type with a time budget keeps Newton converged (the reference): Newton refuses the key."""
     with pytest.raises(SolverOptionError, match="newton does not use 'time_budget'"):
         solver_params(type="newton", time_budget=0.01)
+
+
+@pytest.mark.parametrize("relaxation", [1.0, 0.7])
+def test_where_the_hessian_is_the_rest_matrix_the_radius_is_one_minus_gamma(relaxation):
+    """A problem whose Hessian equals A (a linear one, as Hookean springs of zero rest length would give): PD's
+    iteration matrix is (1 - gamma) I, so rho = 1 - gamma exactly; on the Lanczos path too (426 free dofs), where
+    ARPACK cannot start from A - H = 0."""
+    system = cloth_hang()
+    problem, start = step_problem(system, dt=0.02)
+    problem.hessian = lambda y, project_spd=False: problem.rest_hessian()
+    free = FreeDofs(system.dof_count, system.fixed_dofs)
+    assert free.count > projective.AUTO_DENSE_LIMIT
+    factor = projective.RestFactor()
+    factor.prepare(problem, free, "projective_dynamics")
+    assert factor.iteration_radius(problem, start, free, relaxation) == pytest.approx(1.0 - relaxation, abs=1e-15)
+
+
+def test_a_time_budget_and_a_fallback_are_refused_together():
+    """A budgeted solve ends when its time is spent; a fallback would then run past the budget on every step."""
+    for options in ({"type": "projective_dynamics", "time_budget": 0.002, "fallback": ["newton"]},
+                    {"type": "newton", "fallback": [{"type": "lbfgs", "time_budget": 0.002}]}):
+        with pytest.raises(SolverOptionError, match="give time_budget or fallback, not both"):
+            solver_params(**options)
