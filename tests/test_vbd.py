@@ -89,6 +89,30 @@ def test_mass_spring_blocks_are_the_diagonal_blocks_of_the_gradient_and_hessian(
         assert np.abs(changes - System.vertex_energy_changes(system, x, colour, steps)).max() <= 1e-12 * energy
 
 
+
+@pytest.mark.parametrize("isolated", [False, True])
+def test_the_incidences_of_a_vertex_set_sum_to_each_vertex(isolated):
+    """IncidentSprings.summing adds each vertex's incidences: by np.add.reduceat over the incidences sorted by vertex,
+    or, where a vertex of the set has none (a free particle), through a sparse matrix of ones (reduceat has no empty
+    sum). Both give, per vertex, the sum over the springs at it, in their order: checked against a loop."""
+    from types import SimpleNamespace
+    from simrun.systems.mass_spring.blocks import VertexBlocks
+    first, second = np.array([0, 1, 2, 0, 3]), np.array([1, 2, 3, 2, 1])  # vertex 4 has no spring
+    system = SimpleNamespace(vertex_count=5, dim=3, first=first, second=second, stiffness=np.arange(1.0, 6.0),
+                             rest_length=np.ones(5), rest_length_squared=np.ones(5), identity=np.eye(3),
+                             vertex_masses=np.ones(5), gravity=np.zeros(3))
+    vertices = np.array([4, 0, 2]) if isolated else np.array([0, 2, 3])
+    part = VertexBlocks(system).incident(vertices)
+    values = np.random.default_rng(4).standard_normal((part.owner.size, 2))
+    expected = np.zeros((vertices.size, 2))
+    for incidence, owner in enumerate(part.owner):
+        expected[owner] += values[incidence]
+    assert np.array_equal(part.summing(values), expected)
+    assert np.array_equal(np.sort(part.owner), part.owner)  # sorted by vertex
+    # each incidence pairs its vertex with the spring's other end
+    ends = set(zip(first.tolist(), second.tolist())) | set(zip(second.tolist(), first.tolist()))
+    assert all((int(vertices[owner]), int(dofs[0]) // 3) in ends for owner, dofs in zip(part.owner, part.other_dofs))
+
 @pytest.mark.parametrize("law", sorted(SPRING_LAWS))
 def test_energy_changes_resolve_steps_far_below_the_roundoff_of_p(law):
     """For u ~ 1e-9 m, P(x + u) - P(x) is round-off (~eps |P|), while the change formed without cancellation

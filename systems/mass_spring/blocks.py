@@ -14,8 +14,9 @@ the springs that touch the vertices are evaluated: their incidences are found on
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import scipy.sparse
@@ -36,13 +37,15 @@ class IncidentSprings:
     """The p (vertex, spring) incidences of a set of k vertices: a spring with both ends in the set counts twice.
 
     owner: (p,) the vertex's index in the set; other_dofs: (p, d) the dofs of the spring's other end;
-    summing: (k, p) CSR of ones that adds the incidences of each vertex; stiffness, rest_length,
+    summing: adds the incidences of each vertex, (p, ...) -> (k, ...): ``np.add.reduceat`` over the incidences
+    sorted by vertex (each vertex's run starts at ``starts``), or a (k, p) CSR of ones where some vertex has
+    none (reduceat cannot give an empty sum); stiffness, rest_length,
     rest_length_squared: (p,) and identity (d, d), what the spring laws read; gravity_force: (k, d) m_i g (N)."""
 
     vertices: np.ndarray
     owner: np.ndarray
     other_dofs: np.ndarray
-    summing: scipy.sparse.csr_matrix
+    summing: Callable[[np.ndarray], np.ndarray]
     stiffness: np.ndarray
     rest_length: np.ndarray
     rest_length_squared: np.ndarray
@@ -80,10 +83,17 @@ class VertexBlocks:
         springs = np.concatenate([at_first, at_second])
         owner = np.concatenate([local[system.first[at_first]], local[system.second[at_second]]])
         other = np.concatenate([system.second[at_first], system.first[at_second]])
-        count = springs.size
+        by_vertex = np.argsort(owner, kind="stable")  # each vertex's incidences together, in their old order
+        springs, owner, other = springs[by_vertex], owner[by_vertex], other[by_vertex]
+        counts = np.bincount(owner, minlength=vertices.size)
+        if counts.size and counts.all():
+            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            summing = functools.partial(np.add.reduceat, indices=starts, axis=0)
+        else:
+            summing = scipy.sparse.csr_matrix((np.ones(springs.size), (owner, np.arange(springs.size))),
+                                              shape=(vertices.size, springs.size)).__matmul__
         part = IncidentSprings(
-            vertices=vertices, owner=owner, other_dofs=d * other[:, None] + np.arange(d),
-            summing=scipy.sparse.csr_matrix((np.ones(count), (owner, np.arange(count))), shape=(vertices.size, count)),
+            vertices=vertices, owner=owner, other_dofs=d * other[:, None] + np.arange(d), summing=summing,
             stiffness=system.stiffness[springs], rest_length=system.rest_length[springs],
             rest_length_squared=system.rest_length_squared[springs], identity=system.identity,
             gravity_force=system.vertex_masses[vertices][:, None] * system.gravity)
@@ -108,10 +118,10 @@ class VertexBlocks:
         positions = x.reshape(-1, d)[part.vertices]
         geometry = self._geometry(part, x, positions)
         law = system.law
-        gradient = part.summing @ (law.gradient_factor(part, geometry)[:, None] * geometry.delta)
+        gradient = part.summing(law.gradient_factor(part, geometry)[:, None] * geometry.delta)
         gradient -= part.gravity_force
         spring_blocks = law.blocks(part, geometry, project_spd).reshape(-1, d * d)
-        hessian = (part.summing @ spring_blocks).reshape(-1, d, d)
+        hessian = part.summing(spring_blocks).reshape(-1, d, d)
         if system.contact is not None:  # the colliders act on each vertex alone
             system.contact.point_terms(positions, gradient, hessian, project_spd)
         return gradient, hessian
@@ -130,7 +140,7 @@ class VertexBlocks:
         squared_change = np.einsum("ij,ij->i", step, delta + delta + step)
         length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
         moved_length = np.sqrt(np.einsum("ij,ij->i", moved, moved))
-        changes = part.summing @ system.law.energy_changes(part, length, moved_length, squared_change)
+        changes = part.summing(system.law.energy_changes(part, length, moved_length, squared_change))
         changes -= np.einsum("ij,ij->i", part.gravity_force, steps)
         if system.contact is not None:
             changes += system.contact.point_energy_changes(positions, steps)
