@@ -174,7 +174,8 @@ class SolverParams(BaseModel):
             raise SolverOptionError(("tolerance",), f"in {self.tolerance_mode} mode the tolerance is a fraction of the first "
                                     f"{'residual' if self.tolerance_mode == 'residual' else 'step'}: it must be < 1 (got {self.tolerance:g})")
         chain = self.chain_names()
-        budgeted = [entry["type"] for entry in [vars(self), *self.fallback] if entry.get("time_budget") is not None]
+        budgeted = [entry["type"] for entry in [{"type": self.type, "time_budget": getattr(self, "time_budget", None)},
+                                                *self.fallback] if entry.get("time_budget") is not None]
         if budgeted and len(chain) > 1:
             raise SolverOptionError(("fallback",), f"a time budget ({', '.join(budgeted)}) ends a solve when its time is spent, "
                                     "and a fallback would then run past it: give time_budget or fallback, not both")

@@ -167,3 +167,17 @@ def test_the_stability_map_colour_bar_has_ticks_either_side_of_zero(tmp_path):
         assert min(ticks) < 0 < max(ticks) and min(ticks) == pytest.approx(-max(ticks))
     finally:
         close(figures)
+
+
+def test_a_long_panel_title_of_swept_settings_breaks_between_settings():
+    """Three swept solver keys side by side ran into the neighbouring panels' titles: a section's title is broken
+    after a comma into lines of at most PANEL_TITLE_WIDTH characters (one setting longer than that keeps its line),
+    and read back without the breaks it is the one-line title."""
+    from simrun.figures._data import PANEL_TITLE_WIDTH, _settings_title
+    swept = {"solver.type": "projective_dynamics", "solver.chebyshev_rho": 0.9, "solver.time_budget": 0.002,
+             "system.resolution": "x" * (PANEL_TITLE_WIDTH + 5)}
+    title = _settings_title(swept, width=PANEL_TITLE_WIDTH)
+    assert title.split("\n") == ["solver.type = projective_dynamics,", "solver.chebyshev_rho = 0.9,",
+                                 "solver.time_budget = 0.002,", "system.resolution = " + "x" * (PANEL_TITLE_WIDTH + 5)]
+    assert title.replace("\n", " ") == _settings_title(swept)
+    assert _settings_title({"solver.type": "newton"}, width=PANEL_TITLE_WIDTH) == "solver.type = newton"

@@ -12,7 +12,8 @@
 5. The solvers' default configurations reach the minimiser of every incremental-potential integrator's step: the
    combinations that neither tests/test_solver_integrators.py (the non-default options, every integrator) nor
    tests/test_solvers.py (every solver's defaults, backward Euler's step) covers.
-6. The cloth dropped on the penalty sphere: the safeguard that fires there is the projected-Hessian one.
+6. The cloth dropped on the penalty sphere: no safeguard before contact, some in contact, never the regularisation
+   or a fallback.
 
 The bound of 4 and 5 is that of a strongly convex problem, |y - y*|_2 <= |g(y)|_2 / mu (2x room for the change of
 the Hessian between y and y*; tests/test_projective.py ``assert_reaches_the_newton_step``).

@@ -320,8 +320,8 @@ def _lay_out(data: FigureData) -> None:
         panel = {key: value for key, value in swept.items() if key not in line_keys}
         sections.setdefault(json.dumps(panel, sort_keys=True), []).append(run)
         settings[id(run)] = ", ".join(format_value(swept[key]) for key in line_keys if key in swept)
-    data.sections = [(_settings_title({key: value for key, value in members[0].stored.swept.items() if key not in line_keys}),
-                      members) for members in sections.values()]
+    data.sections = [(_settings_title({key: value for key, value in members[0].stored.swept.items() if key not in line_keys},
+                                      width=PANEL_TITLE_WIDTH), members) for members in sections.values()]
     pairs = list(dict.fromkeys((run.label, settings[id(run)]) for run in data.runs))
     pairs.sort(key=lambda pair: data.labels.index(pair[0]))  # label-major, settings in config order
     names = [setting for _, setting in pairs]
@@ -367,8 +367,24 @@ def _families(series: list[Series]) -> list[tuple[str, list[Series]]]:
     return cut
 
 
-def _settings_title(swept: dict) -> str:
-    return ", ".join(f"{name} = {format_value(value)}" for name, value in swept.items())
+# Characters per line of a panel's title of swept settings: what the narrowest panels (the stability map's) hold at 9 pt.
+PANEL_TITLE_WIDTH = 36
+
+
+def _settings_title(swept: dict, width: int | None = None) -> str:
+    """"key = value, ..."; with ``width``, broken into lines of at most that many characters between settings
+    (a panel's title: three swept solver keys side by side run into the neighbouring panels' titles)."""
+    parts = [f"{name} = {format_value(value)}" for name, value in swept.items()]
+    if width is None:
+        return ", ".join(parts)
+    lines = [""]
+    for part in parts:
+        if lines[-1] and len(lines[-1]) + 2 + len(part) > width:
+            lines[-1] += ","
+            lines.append(part)
+        else:
+            lines[-1] += (", " if lines[-1] else "") + part
+    return "\n".join(lines)
 
 
 def format_value(value) -> str:

@@ -20,6 +20,7 @@ from simrun.results import FRAME_TIME
 MAX_COST_PANELS = 4
 EXPLICIT_MARKER = "^"
 IMPLICIT_MARKER = "o"
+DRIFT_LABEL = "max |E − E$_0$| / E$_{ref}$"
 
 
 def cost_vs_accuracy(data: FigureData):
@@ -49,14 +50,13 @@ def cost_vs_accuracy(data: FigureData):
         where = f"dt = {evidence['dt']:g} s" + "".join(f", {key} = {value}" for key, value in evidence["setting"].items())
         baseline = evidence["baseline"]
         by_distance = baseline is not None
-        measure = "error" if evidence["measure"] == "error" else "max |E − E$_0$| / E$_{ref}$"
         left_label = (f"max |x − x$_{{ref}}$| from {baseline} (m)" if by_distance
-                      else ("error (m)" if evidence["measure"] == "error" else measure))
+                      else "error (m)" if evidence["measure"] == "error" else DRIFT_LABEL)
         for ax, title in ((distance_ax, "distance from the converged solve" if by_distance else "accuracy"),
                           (drift_ax, "energy change (artificial damping)")):
             layout.log_log_panel(ax, f"{where}: {title}")
             ax.axvline(1e3 * FRAME_TIME, color="0.35", ls=":", lw=1.0)
-        left, right = [], []
+        left, right, floor_marker = [], [], None
         for name, method in evidence["methods"].items():
             x = 1e3 * method["wall_time_per_frame"]
             style = dict(color=colours[name], marker=EXPLICIT_MARKER if method["explicit"] else IMPLICIT_MARKER,
@@ -68,7 +68,7 @@ def cost_vs_accuracy(data: FigureData):
                 distance_ax.plot([x], [y], **style)
                 left.append(y)
             elif name == baseline:  # at distance 0: on the axis's floor, after the limits are known
-                left_baseline = (x, style)
+                floor_marker = (x, style)
             change = drift.get(method["run_id"], math.nan)
             if np.isfinite(change) and change > 0:
                 drift_ax.plot([x], [change], **style)
@@ -77,27 +77,26 @@ def cost_vs_accuracy(data: FigureData):
             limits = layout.log_limits(values)
             if limits is not None:
                 ax.set_ylim(*limits)
-        if by_distance:
-            x, style = left_baseline
-            floor = distance_ax.get_ylim()[0]
-            distance_ax.plot([x], [floor], clip_on=False, zorder=5, **style)
+        if floor_marker is not None:
+            x, style = floor_marker
+            distance_ax.plot([x], [distance_ax.get_ylim()[0]], clip_on=False, zorder=5, **style)
         distance_ax.set_ylabel(left_label)
-        drift_ax.set_ylabel("max |E − E$_0$| / E$_{ref}$")
+        drift_ax.set_ylabel(DRIFT_LABEL)
         for ax in (distance_ax, drift_ax):
             ax.set_xlabel("wall time per 1/60 s frame (ms)")
             layout.tidy_log_axes(ax)
-    handles = [Line2D([], [], color=colours[name], ls="none", mec="black", mew=0.6, ms=7,
-                      marker=("*" if name == evidence_baseline(shown, name) else
-                              EXPLICIT_MARKER if any(e["methods"].get(name, {}).get("explicit") for e in shown) else IMPLICIT_MARKER),
-                      label=name) for name in names]
+    baselines = {evidence["baseline"] for evidence in shown}
+    explicit = {name for evidence in shown for name, method in evidence["methods"].items() if method["explicit"]}
+    handles = [Line2D([], [], color=colours[name], ls="none", mec="black", mew=0.6, ms=7, label=name,
+                      marker="*" if name in baselines else EXPLICIT_MARKER if name in explicit else IMPLICIT_MARKER)
+               for name in names]
     handles.append(Line2D([], [], color="0.35", ls=":", lw=1.0, label="real time (16.7 ms per frame)"))
     layout.figure_legend(figure, handles)
-    implicit = sorted({data_run.label for data_run in data.runs if not data_run.explicit
-                       and any(data_run.run_id == method["run_id"] for evidence in shown for method in evidence["methods"].values())})
+    drawn = {method["run_id"] for evidence in shown for method in evidence["methods"].values()}
+    implicit = sorted({run.label for run in data.runs if not run.explicit and run.run_id in drawn})
     solved = f" ({', '.join(implicit)})" if implicit else ""
     notes.append("★ the baseline (the fastest Newton run whose every step converged), drawn on the floor of its panel "
                  f"(distance 0); ▲ explicit methods; ○ implicit ones{solved}, named by their solver")
-    drawn = {method["run_id"] for evidence in shown for method in evidence["methods"].values()}
     if len(drawn) < len(data.runs):
         notes.append(f"{len(drawn)} of {len(data.runs)} runs: each method's fastest run (of its linear solvers) at the "
                      "largest and the smallest dt the methods share")
@@ -109,11 +108,6 @@ def cost_vs_accuracy(data: FigureData):
 def _natural(name: str) -> list:
     """A sort key that orders the numbers within names by value."""
     return [(0, float(part), "") if part[:1].isdigit() else (1, 0.0, part) for part in re.findall(r"\d+(?:\.\d+)?|\D+", name)]
-
-
-def evidence_baseline(shown: list[dict], name: str) -> str | None:
-    """``name`` if it is the baseline of some shown comparison, else None (its legend marker is then not the star)."""
-    return name if any(evidence["baseline"] == name for evidence in shown) else None
 
 
 __all__ = ["cost_vs_accuracy"]
