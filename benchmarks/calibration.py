@@ -14,8 +14,8 @@ import time
 
 from simrun.calibration.engine import Model, fit_one
 from simrun.calibration.pipeline import prepare
-from simrun.config import load_experiment
-from simrun.sweep import expand_runs
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import expand_runs
 
 SPRING = """
 name: bench_spring

@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse
 
-from simrun.config import DivergenceParams, RecordParams, Run
+from simrun.execution.simulate import simulate
+from simrun.experiment.config import DivergenceParams, RecordParams, Run
 from simrun.integrators import INTEGRATORS
-from simrun.simulate import simulate
 from simrun.solvers import solver_params
 from simrun.systems import ClothParams
 

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from simrun import analysis
-from simrun.config import load_experiment
+from simrun.analysis import oscillator as analysis
+from simrun.execution.simulate import simulate
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import expand_runs
 from simrun.integrators import INTEGRATORS, State
-from simrun.simulate import simulate
 from simrun.solvers import SolveStats, solver_params
-from simrun.sweep import expand_runs
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 SPHERE = {"resolution": [16, 16], "damping": 0.1, "pinned": [],

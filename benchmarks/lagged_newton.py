@@ -13,9 +13,9 @@ import os
 
 import numpy as np
 
-from simrun.config import load_experiment
-from simrun.simulate import simulate
-from simrun.sweep import expand_runs
+from simrun.execution.simulate import simulate
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import expand_runs
 
 STEPS = {32: 12, 64: 10, 128: 3}  # the first steps refactor most: a run amortises them
 SPHERE = ", height: -0.28, contact: {sphere: {center: [0.5, 0.5, -0.6], radius: 0.3, stiffness: 1.0e+4}}"

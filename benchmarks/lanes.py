@@ -1,4 +1,4 @@
-"""Lockstep lanes (issue 18, runner/lanes.py): many spring runs stepped together, against the same arithmetic written
+"""Lockstep lanes (issue 18, runner/execution/lanes.py): many spring runs stepped together, against the same arithmetic written
 as a bare numpy loop here, and the damping map end to end.
 
 - 10^4 spring runs (w from 1 to 100 rad/s x 100 damping ratios in (0, 0.05]) of 10^3 steps of 0.01 s, stepped by
@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from simrun.config import load_experiment
-from simrun.lanes import simulate_lanes
-from simrun.sweep import expand_runs
+from simrun.execution.lanes import simulate_lanes
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import expand_runs
 
 RUNS_PER_AXIS, STEPS, DT = 100, 1000, 0.01
 ROOT = Path(__file__).resolve().parent.parent

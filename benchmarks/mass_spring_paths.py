@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse.linalg
 
-from simrun.config import DivergenceParams, RecordParams, Run
+from simrun.execution.simulate import simulate
+from simrun.experiment.config import DivergenceParams, RecordParams, Run
 from simrun.integrators import INTEGRATORS, IncrementalPotential
-from simrun.simulate import simulate
 from simrun.solvers import solver_params
 from simrun.solvers.linear import SPLU_ORDERING
 from simrun.systems import MassSpringParams

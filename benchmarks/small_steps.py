@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from simrun.config import DivergenceParams, RecordParams, Run
+from simrun.execution.simulate import simulate
+from simrun.experiment.config import DivergenceParams, RecordParams, Run
 from simrun.integrators import INTEGRATORS
-from simrun.simulate import simulate
 from simrun.solvers import solver_params
 from simrun.systems import CircularMotionParams, SpringMassParams
 

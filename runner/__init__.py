@@ -10,7 +10,7 @@ systems/ is `simrun.systems`, integrators/ is `simrun.integrators`, solvers/ is 
 `run`, `fit` and `load` are imported on first use, so that `import simrun` stays light for the command line.
 """
 
-__version__ = "0.1.0"
+from simrun.version import __version__
 
 __all__ = ["__version__", "fit", "load", "run"]
 

@@ -15,10 +15,10 @@ import shlex
 import sys
 from pathlib import Path
 
-from simrun import __version__
 from simrun.commands import COMMANDS
 from simrun.errors import ConfigError
-from simrun.workers import may_use_local_pool, start_worker_server
+from simrun.execution.workers import may_use_local_pool, start_worker_server
+from simrun.version import __version__
 
 EXIT_CONFIG_ERROR = 2
 CONFIG_FOLDER = Path("configs")  # where `simrun NAME` looks for NAME.yaml to suggest

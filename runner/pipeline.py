@@ -18,15 +18,17 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from simrun import __version__
-from simrun.config import load_experiment
-from simrun.sweep import config_hash, expand_runs, resolved_config
 from simrun.errors import ConfigError
-from simrun.executors import EXECUTOR_FUNCTIONS, LANE_MODES, execute
-from simrun.lock import FIGURES_NAME, REPORT_NAME, OutputLock, check_writable, filling, write_error
-from simrun.results import RESULTS_NAME, Results, Status, load
-from simrun.store import DEFAULT_MAX_SIZE_GB, admit_size, open_writer
-from simrun.workers import default_jobs
+from simrun.execution.executors import EXECUTOR_FUNCTIONS, LANE_MODES, execute
+from simrun.execution.workers import default_jobs
+from simrun.experiment.config import config_file_of, load_experiment
+from simrun.experiment.sweep import config_hash, expand_runs, resolved_config
+from simrun.format.layout import RESULTS_NAME
+from simrun.format.summary import Status
+from simrun.results import Results, load
+from simrun.results.lock import FIGURES_NAME, REPORT_NAME, OutputLock, check_writable, filling, write_error
+from simrun.results.writer import DEFAULT_MAX_SIZE_GB, admit_size, open_writer
+from simrun.version import __version__
 
 # The remaining time is estimated once this many runs finished, or this many seconds passed with one finished:
 # earlier, the first runs' times (imports, the pool starting) say little about the rest.
@@ -57,7 +59,7 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     silent). figures: draw them. overrides: ``key.path=value`` assignments, as ``--set``. max_size_gb:
     refuse bigger sweeps. command_line: what started the sweep, stored as provenance (the command line
     passes its own; default: this call, ``simrun.run('configs/x.yaml', ...)``). lanes: "auto" steps many small
-    runs of one kind together as lanes of one array (runner/lanes.py; each run's data is what it would be alone),
+    runs of one kind together as lanes of one array (runner/execution/lanes.py; each run's data is what it would be alone),
     "off" every run alone.
 
     Raises ConfigError (one line naming the field) before anything is written, and Interrupted
@@ -145,13 +147,6 @@ def _remove_drawn(output: Path) -> None:
     except OSError as error:
         raise ConfigError(f"output: cannot remove the old figures or report in {str(output)!r} "
                           f"({error.strerror or error}); remove them, or choose another --output") from None
-
-
-def config_file_of(config) -> Path | None:
-    """The config's file, when it was given as a path (not YAML text or a dict)."""
-    if isinstance(config, Path) or (isinstance(config, str) and "\n" not in config and ": " not in config):
-        return Path(config)
-    return None
 
 
 def _call_text(config, **keywords) -> str:

@@ -109,7 +109,7 @@ class LBFGS(NonlinearSolver):
     (s_i, dg_i), then the line search (Nocedal & Wright, "Numerical Optimization", alg. 7.4 and 7.5).
     Pairs with s^T dg <= eps dg^T dg are skipped, so H_k stays positive definite and p_k a descent direction.
 
-    The initial inverse Hessian H_0 of the recursion (``initial_hessian``): ``scalar``,
+    The initial inverse Hessian H_0 of the recursion (``initial_hessian``; ``step`` unless told otherwise): ``scalar``,
     H_0 = (s^T dg / dg^T dg) I from the newest pair (the Cauchy step before the first); ``rest``,
     H_0 = A^{-1} with A = M + s K_r (+ (s/b) D) the problem's ``rest_hessian()``, the matrix of projective
     dynamics' global step, factorised once per run (Liu, Bouaziz & Kavan, "Quasi-Newton methods for
@@ -131,7 +131,7 @@ class LBFGS(NonlinearSolver):
     filters_steps = True  # every step through line_search
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
-                 line_search: str = "backtracking", history: int = 8, initial_hessian: str = "scalar", **options):
+                 line_search: str = "backtracking", history: int = 8, initial_hessian: str = "step", **options):
         super().__init__(tolerance, max_iterations, linear_solver, **options)
         if history < 1:
             raise ValueError(f"history must be >= 1, got {history}")

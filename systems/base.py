@@ -47,6 +47,10 @@ import scipy.sparse
 from pydantic import BaseModel, ConfigDict
 
 
+# the roots of m l^2 + d l + k of a damped oscillator count as distinct when they differ by this fraction of their size:
+# the two-exponential form of its exact motion (the spring's, one run or lanes) then loses at most eps / DISTINCT_ROOTS
+# of its digits (about 1e-13)
+DISTINCT_ROOTS = 1e-3
 # |KE0| + |PE0| below this fraction of the work of the initial forces over the length scale is round-off
 ENERGY_ROUND_OFF = 1e-8
 # P sums terms of both signs: a difference of two values of P below this fraction of them is round-off

@@ -15,7 +15,8 @@ from .mass_spring.generators import GridModel
 from .mass_spring.model import ModelError
 from .contact.build import build_contact
 from .contact.params import ContactSpec
-from .mass_spring.system import Damping, MassSpring
+from .mass_spring.laws import Damping
+from .mass_spring.system import MassSpring
 
 PIN_NAMES = ("top_left", "top_right", "bottom_left", "bottom_right", "top", "bottom", "left", "right")
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import ENERGY_ROUND_OFF
+from .base import DISTINCT_ROOTS, ENERGY_ROUND_OFF
 
 
 class SpringMassLanes:
@@ -141,8 +141,6 @@ class SpringMassLanes:
     def exact_states(self, t):
         """(q, v) of every lane's exact solution at its own time t (lanes,): SpringMass.exact_solution's two-exponential
         form, evaluated for all lanes at once; lanes near critical damping take SpringMass's propagator one by one."""
-        from .spring_mass import DISTINCT_ROOTS  # spring_mass imports this module
-
         m, k, d, q0, p0 = (array[:, 0] for array in (self.mass, self.stiffness, self.damping, self.x0, self.v0))
         discriminant = (d * d - 4.0 * m * k).astype(complex)
         first = (-d - np.copysign(1.0, d) * np.sqrt(discriminant)) / (2.0 * m)

@@ -9,14 +9,9 @@ import numpy as np
 import scipy.linalg
 from pydantic import ConfigDict, Field, model_validator
 
-from .base import ParameterDerivative, System, SystemParams
+from .base import DISTINCT_ROOTS, ParameterDerivative, System, SystemParams
 from .compliant import anchored_springs
 from .lanes import SpringMassLanes
-
-
-# the roots of m l^2 + d l + k count as distinct when they differ by this fraction of their size: the two-exponential
-# form then loses at most eps / DISTINCT_ROOTS of its digits (about 1e-13)
-DISTINCT_ROOTS = 1e-3
 
 
 class SpringMassParams(SystemParams):

@@ -7,10 +7,10 @@ import os
 import numpy as np
 import pytest
 
-from simrun.config import validate_experiment
+from simrun.execution.simulate import simulate
+from simrun.experiment.config import validate_experiment
+from simrun.experiment.sweep import expand_runs
 from simrun.integrators import INTEGRATORS, State
-from simrun.sweep import expand_runs
-from simrun.simulate import simulate
 from simrun.solvers import LINEAR_SOLVERS, SolveStats, solver_params
 
 # CI installs the optional CHOLMOD solver and sets this, so a broken install fails instead of skipping

@@ -1,9 +1,9 @@
-"""Predicted and measured behaviour of the integrators (issue 6): simrun.analysis against theory.
+"""Predicted and measured behaviour of the integrators (issue 6): simrun.analysis.oscillator against theory.
 
 Notation: the undamped test spring q'' + w^2 q = 0, x = h w. The predictions come from the
-amplification matrix that simrun.analysis probes by stepping basis states through each method; the
+amplification matrix that simrun.analysis.oscillator probes by stepping basis states through each method; the
 closed forms below come from the literature (not from the code). The measurements come from real
-runs made by simrun.simulate.simulate, fitted by simrun.analysis.
+runs made by simrun.execution.simulate.simulate, fitted by simrun.analysis.oscillator.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import math
 import numpy as np
 import pytest
 
-from simrun import analysis
+from simrun.analysis import oscillator as analysis
+from simrun.analysis.reference import reference_positions
+from simrun.execution.simulate import simulate
 from simrun.integrators import INTEGRATORS
-from simrun.reference import reference_positions
-from simrun.simulate import simulate
 from simrun.systems import SpringMassParams
 
 from conftest import make_runs
@@ -130,7 +130,7 @@ SPRING = {"type": "spring_mass", "stiffness": 1.0, "mass": 1.0, "x0": 1.0, "v0":
 
 @pytest.fixture(scope="module")
 def measured_runs():
-    """One real run (simrun.simulate.simulate) per implicit method and h w, 300 steps each."""
+    """One real run (simrun.execution.simulate.simulate) per implicit method and h w, 300 steps each."""
     results = {}
     for x in X_MEASURED:
         integrators = [{"type": method.name, **method.model_dump()} for method in IMPLICIT]

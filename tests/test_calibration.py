@@ -35,17 +35,17 @@ import h5py
 import numpy as np
 import pytest
 
-from simrun.analysis import amplification_matrix
+from simrun.analysis.oscillator import amplification_matrix
 from simrun.calibration.engine import Model, Status, fit_one, step_run
 from simrun.calibration.keys import get_value, key_parts, system_at, system_mapping
 from simrun.calibration.pipeline import fit, prepare
 from simrun.calibration.predicted import continuous_eigenvalue, predicted_fit
-from simrun.config import load_experiment, validate_system
 from simrun.errors import ConfigError
+from simrun.experiment.config import load_experiment, validate_system
+from simrun.experiment.sweep import expand_runs
 from simrun.integrators import INTEGRATORS
 from simrun.integrators.sensitivity import ForwardSensitivity, exact_refusal
 from simrun.solvers import solver_params
-from simrun.sweep import expand_runs
 from simrun.systems import SpringMassParams
 
 MASS, STIFFNESS, DAMPING = 1.0, 100.0, 0.4  # w = 10 rad/s, so dt = 0.005 s is h w = 0.05

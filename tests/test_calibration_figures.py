@@ -20,9 +20,9 @@ from matplotlib.text import Text
 
 import simrun
 from simrun.figures import CALIBRATION, FIGURES, figure_data
-from simrun.findings_calibration import (calibration_findings, fit_rows, fitted_tables, transfer_table, value_text,
-                                         key_unit)
-from simrun.report import write_report
+from simrun.findings.calibration import (calibration_findings, fit_rows, fitted_tables, key_unit, transfer_table,
+                                         value_text)
+from simrun.report.page import write_report
 from simrun.results import load
 
 ROOT = Path(__file__).parents[1]

@@ -22,7 +22,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from conftest import needs_linear_solver, run_one
-from simrun.workers import BLAS_THREAD_VARIABLES
+from simrun.execution.workers import BLAS_THREAD_VARIABLES
 from simrun.solvers import LINEAR_SOLVERS
 from simrun.solvers.dofs import free_dofs
 from simrun.systems import ClothParams

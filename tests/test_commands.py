@@ -22,10 +22,10 @@ import yaml
 
 import simrun
 from simrun.cli import main
-from simrun.config import load_experiment, validate_experiment
-from simrun.sweep import config_hash, expand_runs, family_labels
+from simrun.experiment.config import load_experiment, validate_experiment
+from simrun.experiment.sweep import config_hash, expand_runs, family_labels
+from simrun.format.layout import RESULTS_NAME
 from simrun.pipeline import ESTIMATE_AFTER_RUNS, remaining_text
-from simrun.results import RESULTS_NAME
 
 ROOT = Path(__file__).resolve().parents[1]
 SPRING = """\
@@ -134,7 +134,7 @@ def test_a_full_disk_while_writing_is_one_line_naming_the_path_and_leaves_nothin
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr("simrun.figures.draw_figures", lambda results, folder, **_: half_then_full(Path(folder) / "a.png"))
-    monkeypatch.setattr("simrun.report.write_report", lambda path, output, **_: half_then_full(Path(output)))
+    monkeypatch.setattr("simrun.report.page.write_report", lambda path, output, **_: half_then_full(Path(output)))
     monkeypatch.setattr("simrun.figures.frames.write_gif", lambda results, run_id, output, **_: half_then_full(Path(output)))
     target = tmp_path / "out"
     argv = {"plot": ["plot", str(results_file), "--output", str(target)],

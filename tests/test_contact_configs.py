@@ -72,7 +72,7 @@ def test_a_cloths_obstacle_file_is_found_beside_its_config_and_hashed(tmp_path, 
     (as a mass_spring model file is), made absolute for the workers, and its sha256 is part of the config's inputs."""
     import meshio
 
-    from simrun.config import load_experiment
+    from simrun.experiment.config import load_experiment
 
     folder = tmp_path / "scene"
     folder.mkdir()

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 import simrun
-from simrun.analysis import observed_order
-from simrun.config import ERROR_PERIODS, load_experiment
-from simrun.sweep import expand_runs
-from simrun.reference import reference_errors
-from simrun.tables import ORDER_TOLERANCE
+from simrun.analysis.oscillator import observed_order
+from simrun.analysis.reference import reference_errors
+from simrun.analysis.rows import ORDER_TOLERANCE
+from simrun.experiment.config import ERROR_PERIODS, load_experiment
+from simrun.experiment.sweep import expand_runs
 
 CONFIGS = simrun.__path__[0] + "/../configs"
 

@@ -19,13 +19,13 @@ import pytest
 import yaml
 from matplotlib.text import Text
 
+from simrun.analysis.reference import reference_errors
+from simrun.analysis.rows import summary_rows
+from simrun.analysis.runs import format_value
 from simrun.cli import main
 from simrun.figures import figure_data, render_figures
-from simrun.figures._data import format_value
-from simrun.reference import reference_errors
-from simrun.findings_cost import solver_cost
+from simrun.findings.cost import solver_cost
 from simrun.results import load
-from simrun.tables import summary_rows
 
 CONFIGS = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
 CLOTH = ["system.resolution=[4,4]"]

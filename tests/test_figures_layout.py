@@ -17,8 +17,7 @@ from matplotlib.lines import Line2D
 from matplotlib.text import Text
 from mpl_toolkits.mplot3d import Axes3D
 
-from simrun.figures import figure_data, render_figures
-from simrun.figures import _layout as layout
+from simrun.figures import _layout as layout, figure_data, render_figures
 from simrun.results import load
 from test_figures import run_pipeline
 
@@ -173,11 +172,12 @@ def test_a_long_panel_title_of_swept_settings_breaks_between_settings():
     """Three swept solver keys side by side ran into the neighbouring panels' titles: a section's title is broken
     after a comma into lines of at most PANEL_TITLE_WIDTH characters (one setting longer than that keeps its line),
     and read back without the breaks it is the one-line title."""
-    from simrun.figures._data import PANEL_TITLE_WIDTH, _settings_title
+    from simrun.analysis.runs import settings_title
+    from simrun.figures._data import PANEL_TITLE_WIDTH
     swept = {"solver.type": "projective_dynamics", "solver.chebyshev_rho": 0.9, "solver.time_budget": 0.002,
              "system.resolution": "x" * (PANEL_TITLE_WIDTH + 5)}
-    title = _settings_title(swept, width=PANEL_TITLE_WIDTH)
+    title = settings_title(swept, width=PANEL_TITLE_WIDTH)
     assert title.split("\n") == ["solver.type = projective_dynamics,", "solver.chebyshev_rho = 0.9,",
                                  "solver.time_budget = 0.002,", "system.resolution = " + "x" * (PANEL_TITLE_WIDTH + 5)]
-    assert title.replace("\n", " ") == _settings_title(swept)
-    assert _settings_title({"solver.type": "newton"}, width=PANEL_TITLE_WIDTH) == "solver.type = newton"
+    assert title.replace("\n", " ") == settings_title(swept)
+    assert settings_title({"solver.type": "newton"}, width=PANEL_TITLE_WIDTH) == "solver.type = newton"

@@ -8,11 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from simrun.config import load_experiment
 from simrun.errors import ConfigError
-from simrun.simulate import simulate
+from simrun.execution.simulate import simulate
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import expand_runs
 from simrun.solvers import lagged
-from simrun.sweep import expand_runs
 
 
 def cloth_run(refactor: str, solver: str = "newton", steps: int = 12, extra: str = "", system: str = ""):

@@ -1,4 +1,4 @@
-"""Lanes (runner/lanes.py): many runs of the spring stepped together, one row of an array per run.
+"""Lanes (runner/execution/lanes.py): many runs of the spring stepped together, one row of an array per run.
 
 What is held here: every lane's data is its run's stepped alone by ``simulate``, bit for bit (status, steps,
 message, samples, per-step arrays, attributes), for every lane integrator, with and without series, with strided
@@ -29,18 +29,21 @@ import numpy as np
 import pytest
 
 import simrun
-import simrun.lanes
-from simrun import analysis
+import simrun.execution.lanes
+from conftest import needs_linear_solver
+from simrun.analysis import oscillator as analysis
 from simrun.cli import main
-from simrun.config import validate_experiment
 from simrun.errors import ConfigError
-from simrun.executors import execute
+from simrun.execution.executors import execute
+from simrun.execution.lanes import LANE_INTEGRATORS, MIN_LANES, lane_chunks, lane_key, simulate_lanes
+from simrun.execution.simulate import DECAY_FLOOR, decay_per_period, simulate
+from simrun.experiment.config import validate_experiment
+from simrun.experiment.sweep import expand_runs
 from simrun.figures import render_figures
+from simrun.format.layout import LANES_GROUP, RESULTS_NAME
+from simrun.format.summary import SERIES_SUMMARY_KEYS, Status
 from simrun.integrators import INTEGRATORS
-from simrun.lanes import LANE_INTEGRATORS, MIN_LANES, lane_chunks, lane_key, simulate_lanes
-from simrun.results import LANES_GROUP, RESULTS_NAME, SERIES_SUMMARY_KEYS, Status, load
-from simrun.simulate import DECAY_FLOOR, decay_per_period, simulate
-from simrun.sweep import expand_runs
+from simrun.results import load
 from simrun.systems import SpringMassParams
 from simrun.systems.lanes import SpringMassLanes
 
@@ -277,7 +280,8 @@ def test_a_solver_lanes_cannot_reproduce_steps_its_runs_alone(solver):
 
 
 @pytest.mark.parametrize("solver", [{"type": "newton"}, {"type": "projected_newton"},
-                                    {"type": "newton", "linear_solver": "cholesky", "tolerance_mode": "absolute"}])
+                                    pytest.param({"type": "newton", "linear_solver": "cholesky", "tolerance_mode": "absolute"},
+                                                 marks=needs_linear_solver("cholesky"), id="cholesky")])
 def test_a_solver_lanes_reproduce_takes_lanes(solver):
     (run,) = spring_runs(["backward_euler"], stiffnesses=(100.0,), ratios=(0.0,), solver=solver)
     assert lane_key(run) is not None
@@ -343,10 +347,10 @@ def test_lane_chunks_put_every_run_once_into_chunks_of_one_key_or_alone(jobs):
 
 
 def test_lane_chunks_hold_at_most_chunk_bytes_of_data(monkeypatch):
-    from simrun.store import estimate_run_bytes
+    from simrun.format.size import estimate_run_bytes
 
     runs = reindexed(chunk_sweep())
-    monkeypatch.setattr(simrun.lanes, "CHUNK_BYTES", 7 * estimate_run_bytes(runs[0]))
+    monkeypatch.setattr(simrun.execution.lanes, "CHUNK_BYTES", 7 * estimate_run_bytes(runs[0]))
     chunks, alone = lane_chunks(runs, 1)
     assert chunks and all(1 <= len(chunk) <= 7 for chunk in chunks)
     assert sum(len(chunk) for chunk in chunks) + len(alone) == len(runs)
@@ -382,7 +386,7 @@ def fail_as_lanes(runs):
 
 def test_a_chunk_whose_stepping_raises_is_run_run_by_run(monkeypatch):
     runs = spring_runs(["backward_euler"], masses=MASSES)
-    monkeypatch.setattr(simrun.lanes, "_simulate_lanes", fail_as_lanes)
+    monkeypatch.setattr(simrun.execution.lanes, "_simulate_lanes", fail_as_lanes)
     batch = simulate_lanes(runs)
     assert batch.results_alone is not None
     assert batch.status == [result.status for result in batch.results_alone]
@@ -394,7 +398,7 @@ def test_a_sweep_whose_chunks_fail_as_lanes_stores_its_runs_as_runs(tmp_path, mo
     config = spring_config(["backward_euler"], stiffnesses=tuple(np.geomspace(1.0, 1e4, 16).tolist()), ratios=(0.0,),
                            duration=0.1)
     off = run_quietly(config, tmp_path / "off", jobs=1, lanes="off")
-    monkeypatch.setattr(simrun.lanes, "_simulate_lanes", fail_as_lanes)
+    monkeypatch.setattr(simrun.execution.lanes, "_simulate_lanes", fail_as_lanes)
     failed = run_quietly(config, tmp_path / "failed", jobs=1, lanes="auto")  # serial: the patch is in this process
     assert lane_chunk_names(failed.path) == []
     assert failed.ran == {"ok": 16}

@@ -32,7 +32,7 @@ from simrun.solvers.linear import LINEAR_SOLVERS, MPCG_STARTS, ModifiedPCG
 from simrun.solvers.params import SOLVERS
 from simrun.systems.mass_spring.generators import GridModel, grid_quads
 from simrun.systems.mass_spring.params import MassSpringParams
-from simrun.systems.mass_spring.system import DAMPING_MODELS, SPRING_LAWS
+from simrun.systems.mass_spring.laws import DAMPING_MODELS, SPRING_LAWS
 
 
 def build(**config):
@@ -293,23 +293,42 @@ CLOTH_INTEGRATORS = ["symplectic_euler", "rk4", "backward_euler", "implicit_midp
                      "exponential_rosenbrock_euler", "semi_implicit_backward_euler"]
 
 
-@pytest.mark.parametrize("system", sorted(CLOTH_SYSTEMS))
-def test_grid_model_equals_the_former_cloth_bit_for_bit(system, tmp_path):
-    """tests/data/cloth_before_mass_spring.npz holds frames, energies and Newton iterations recorded by the cloth
-    code before the rewrite; the `cloth` config and its `mass_spring` equivalent reproduce them exactly (the
-    explicit methods diverge at the same step, as they did)."""
-    stored = np.load(Path(__file__).parent / "data" / "cloth_before_mass_spring.npz")
+# The recording's arithmetic is the same as today's, operation for operation, but BLAS (OpenBLAS picks its kernels
+# by CPU) and numpy's SIMD reductions round differently on another machine: measured on an AMD EPYC against the
+# recording, the largest difference is 3e-13 of a series' size (Newmark's energy after 60 steps; 1e-20 in the first
+# explicit steps). A change of the model or of a method moves them by orders of magnitude more.
+RECORDING_ROUND_OFF = 1e-11
+
+
+def _cloth_runs(system: str, output: Path) -> dict:
     results = simrun.run({"name": f"bits_{system}", "system": CLOTH_SYSTEMS[system], "integrators": CLOTH_INTEGRATORS,
                           "solver": {"type": "newton", "tolerance": 1e-9, "max_iterations": 30}, "duration": 0.3,
                           "sweep": {"dt": [0.005]}, "record": {"max_frames": 1000}},
-                         output=tmp_path / system, figures=False, progress=False, jobs=1)
-    seen = set()
-    for run in results.runs.values():
-        name = run.attrs["integrator"]
-        seen.add(name)
-        for key in ("frames", "energy", "newton_iterations"):
-            assert np.array_equal(run[key], stored[f"{name}/{key}"]), f"{name}/{key}"
-    assert seen == set(CLOTH_INTEGRATORS)
+                         output=output, figures=False, progress=False, jobs=1)
+    return {run.attrs["integrator"]: {key: run[key] for key in ("frames", "energy", "newton_iterations")}
+            for run in results.runs.values()}
+
+
+def test_grid_model_equals_the_former_cloth(tmp_path):
+    """tests/data/cloth_before_mass_spring.npz holds frames, energies and Newton iterations recorded by the cloth
+    code before the rewrite. The `cloth` config and its `mass_spring` equivalent give the same series bit for bit;
+    against the recording, every Newton iteration count is the same, the explicit methods diverge at the same step,
+    and frames and energies agree to the other machine's round-off (RECORDING_ROUND_OFF of each series' size)."""
+    stored = np.load(Path(__file__).parent / "data" / "cloth_before_mass_spring.npz")
+    runs = {system: _cloth_runs(system, tmp_path / system) for system in CLOTH_SYSTEMS}
+    assert set(runs["cloth"]) == set(runs["mass_spring"]) == set(CLOTH_INTEGRATORS)
+    for name, series in runs["cloth"].items():
+        for key, values in series.items():
+            assert np.array_equal(values, runs["mass_spring"][name][key]), f"{name}/{key}: cloth against mass_spring"
+            recorded = stored[f"{name}/{key}"]
+            if key == "newton_iterations":
+                assert np.array_equal(values, recorded), f"{name}/{key}"
+                continue
+            assert values.shape == recorded.shape, f"{name}/{key}"
+            assert np.array_equal(np.isfinite(values), np.isfinite(recorded)), f"{name}/{key}"
+            finite = np.isfinite(recorded)
+            scale = np.abs(recorded[finite]).max()
+            assert np.abs(values[finite] - recorded[finite]).max() <= RECORDING_ROUND_OFF * scale, f"{name}/{key}"
 
 
 def test_grid_as_an_obj_quad_mesh_gives_the_same_springs(tmp_path):

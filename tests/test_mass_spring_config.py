@@ -12,7 +12,7 @@ import simrun
 import pytest
 
 from simrun.cli import main
-from simrun.config import load_experiment
+from simrun.experiment.config import load_experiment
 from simrun.systems import MassSpringParams
 
 
@@ -145,7 +145,7 @@ def test_a_driven_damped_model_reports_and_its_reference_follows_the_paths(tmp_p
     """End to end on a strip with a list of damping models and a turning end: the run, the report (its
     findings read the damping and the prescribed work from the data), and the DOP853 reference, whose
     prescribed vertices stay on their rotating path (they accelerate with it)."""
-    from simrun.reference import reference_positions
+    from simrun.analysis.reference import reference_positions
 
     config = {"name": "driven", "output": str(tmp_path / "out"),
               "system": {"type": "mass_spring", "model": {"grid": {"resolution": [5, 2], "size": [0.4, 0.1]}},
@@ -167,7 +167,7 @@ def test_a_driven_damped_model_reports_and_its_reference_follows_the_paths(tmp_p
 
 
 def test_a_model_beside_the_config_is_found_and_a_changed_file_is_a_changed_experiment(tmp_path, monkeypatch):
-    from simrun.sweep import config_hash
+    from simrun.experiment.sweep import config_hash
 
     folder = tmp_path / "experiment"
     folder.mkdir()

@@ -253,9 +253,9 @@ def test_jobs_must_be_positive(tmp_path, tiny_config):
 
 
 def test_the_command_line_offers_every_executor_and_only_those():
-    """simrun.workers.EXECUTORS (light, read by the parser) names exactly the executors' registry."""
-    from simrun.executors import EXECUTOR_FUNCTIONS
-    from simrun.workers import EXECUTOR_ALIASES, EXECUTORS
+    """simrun.execution.workers.EXECUTORS (light, read by the parser) names exactly the executors' registry."""
+    from simrun.execution.executors import EXECUTOR_FUNCTIONS
+    from simrun.execution.workers import EXECUTORS, EXECUTOR_ALIASES
 
     assert set(EXECUTORS) == set(EXECUTOR_FUNCTIONS)
     assert set(EXECUTOR_ALIASES.values()) <= set(EXECUTOR_FUNCTIONS)
@@ -264,7 +264,7 @@ def test_the_command_line_offers_every_executor_and_only_those():
 def test_the_command_line_default_size_limit_is_the_store_s():
     """commands/run.py states the --max-size default without importing the store (a light parser): the same number."""
     from simrun.commands.run import DEFAULT_MAX_SIZE_GB as command_line
-    from simrun.store import DEFAULT_MAX_SIZE_GB as store
+    from simrun.results.writer import DEFAULT_MAX_SIZE_GB as store
 
     assert command_line == store
 

@@ -24,10 +24,10 @@ import yaml
 import simrun
 from conftest import make_runs
 from simrun.cli import main
-from simrun.config import load_experiment
 from simrun.errors import ConfigError
-from simrun.simulate import simulate
-from simrun.sweep import config_hash, expand_runs
+from simrun.execution.simulate import simulate
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import config_hash, expand_runs
 from simrun.systems import plugins
 from simrun.systems.contract import CHECKS, run_checks
 

@@ -28,13 +28,16 @@ import numpy as np
 import pytest
 
 import simrun
-from simrun.figures import figure_data
-from simrun.findings import drift_text, findings
-from simrun.report import write_report
+from simrun.analysis.rows import summary_rows
+from simrun.analysis.units import frame_time_text, real_time_text
 from simrun.cli import main
-from simrun.results import Status, load
-from simrun.table_text import NO_SWEPT_KEY, format_table, frame_time_text, real_time_text, write_csv
-from simrun.tables import summary_rows
+from simrun.figures import figure_data
+from simrun.findings import findings
+from simrun.findings.base import drift_text
+from simrun.format.summary import Status
+from simrun.report.page import write_report
+from simrun.report.summary_table import NO_SWEPT_KEY, format_table, write_csv
+from simrun.results import load
 
 CLOTH = {"type": "cloth", "resolution": [4, 4], "stretch_stiffness": 1000.0, "shear_stiffness": 100.0,
          "bend_stiffness": 1.0, "damping": 0.0, "pinned": ["top_left", "top_right"]}

@@ -20,10 +20,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from simrun.cli import main
-from simrun.config import ConfigError, parse_yaml, validate_experiment
-from simrun.sweep import expand_runs
-from simrun.workers import BLAS_THREAD_VARIABLES, _limit_blas_threads, default_jobs, may_use_local_pool, process_pool
-from simrun.lock import OutputLock
+from simrun.execution.workers import (BLAS_THREAD_VARIABLES, _limit_blas_threads, default_jobs, may_use_local_pool,
+                                      process_pool)
+from simrun.experiment.config import ConfigError, parse_yaml, validate_experiment
+from simrun.experiment.sweep import expand_runs
+from simrun.results.lock import OutputLock
 
 SIMRUN = [sys.executable, "-m", "simrun.cli"]
 
@@ -377,7 +378,7 @@ def test_a_sweep_estimated_beyond_the_disk_is_refused_before_it_starts(tmp_path,
 
 
 def _estimate(raw: dict) -> int:
-    from simrun.store import estimate_run_bytes
+    from simrun.format.size import estimate_run_bytes
 
     return sum(estimate_run_bytes(run) for run in expand_runs(validate_experiment(raw)))
 

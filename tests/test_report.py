@@ -19,16 +19,14 @@ import numpy as np
 import pytest
 import yaml
 
-from simrun import tables
-from simrun.commands import analyze as analyze_command
-from simrun.commands import report as report_command
-from simrun.commands import show as show_command
-from simrun.figures import CALIBRATION, FIGURES, figure_data, render_figures
-from simrun.reference import reference_errors
-from simrun.results import load
+from simrun.analysis import rows as tables
+from simrun.analysis.reference import reference_errors
 from simrun.cli import main
-from simrun.config import ConfigError, load_experiment
-from simrun.sweep import expand_runs
+from simrun.commands import analyze as analyze_command, report as report_command, show as show_command
+from simrun.experiment.config import ConfigError, load_experiment
+from simrun.experiment.sweep import expand_runs
+from simrun.figures import CALIBRATION, FIGURES, figure_data, render_figures
+from simrun.results import load
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -357,7 +355,7 @@ def test_a_cloth_report_leaves_out_what_does_not_apply(cloth, tmp_path):
 def test_captions_drop_what_holds_only_on_the_test_equation():
     """The registry's captions speak of h w (the test equation) only in their test-equation part, which the
     report adds for files with runs on the test equation (the theory figures are drawn only for those)."""
-    from simrun.report import caption
+    from simrun.report.page import caption
 
     # and the damping map, drawn only for oscillators, whose natural frequency w gives its h w axis
     theory = {"artificial_damping", "spectral_radius_and_period", "damping_map"}

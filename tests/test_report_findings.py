@@ -24,12 +24,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from simrun.analysis.rows import order_rows, summary_rows
 from simrun.cli import main
 from simrun.commands import report as report_command
 from simrun.figures import figure_data
-from simrun.findings import DAMPING_BUDGET, energy_lost_per_period, findings, largest_hw_within
-from simrun.results import Status, load
-from simrun.tables import order_rows, summary_rows
+from simrun.findings import findings
+from simrun.findings.base import energy_lost_per_period
+from simrun.findings.integrators import DAMPING_BUDGET, largest_hw_within
+from simrun.format.summary import Status
+from simrun.results import load
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 W = 10.0  # rad/s, the quickstart spring
@@ -166,7 +169,7 @@ def test_orders_and_what_could_not_be_measured(data, found):
 
 
 def test_largest_hw_within_a_budget_is_where_the_curve_crosses_it():
-    from simrun import analysis
+    from simrun.analysis import oscillator as analysis
 
     prediction = analysis.predict(analysis.parse_integrator("generalized_alpha:rho_inf=0.5"))
     x = largest_hw_within(prediction, 0.05)

@@ -24,11 +24,12 @@ import yaml
 
 import simrun
 from simrun.cli import main
-from simrun.config import load_experiment
-from simrun.sweep import config_hash
 from simrun.errors import ConfigError, ResultsFileError
-from simrun.results import (FORMAT_VERSION, READABLE_VERSIONS, SUMMARY_COLUMNS, Results, Status, StoredRun, drift_scale,
-                            energy_drift, load)
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import config_hash
+from simrun.format.layout import FORMAT_VERSION, READABLE_VERSIONS
+from simrun.format.summary import SUMMARY_COLUMNS, Status, drift_scale, energy_drift
+from simrun.results import Results, StoredRun, load
 from simrun.systems import SYSTEMS
 
 DATA = Path(__file__).parent / "data"
@@ -418,11 +419,9 @@ def test_provenance_of_a_format1_file_decodes_its_package_versions():
 
 
 # -- the deprecated table --------------------------------------------------------------------------------
-@pytest.mark.parametrize("module", ["simrun.results", "simrun.store"])
-def test_load_summary_still_returns_the_structured_array(module, diverging):
-    import importlib
+def test_load_summary_still_returns_the_structured_array(diverging):
+    from simrun.results import load_summary
 
-    load_summary = getattr(importlib.import_module(module), "load_summary")
     for path in (*FORMAT1_FILES, diverging):
         with pytest.warns(DeprecationWarning, match=r"simrun.load\(path\).summary"):
             table = load_summary(path)

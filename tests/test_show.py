@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 import yaml
 
+from simrun.analysis.rows import iteration_name
 from simrun.cli import main
+from simrun.report.summary_table import TERMINAL_WIDTH
 from simrun.results import load
-from simrun.table_text import TERMINAL_WIDTH
-from simrun.tables import iteration_name
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 # An explicit and an implicit method on the spring, the implicit one with each of two solvers.
@@ -88,8 +88,8 @@ def test_iteration_columns_are_named_by_the_solver(tmp_path, capsys):
     table = capsys.readouterr().out
     assert "solver" in table.splitlines()[1] + table.splitlines()[2] and "lbfgs" in table
     assert "Newton it/step" not in table  # the neutral name when solvers mix
+    from simrun.analysis.rows import summary_rows
     from simrun.figures import figure_data
-    from simrun.tables import summary_rows
 
     loaded = load(results)
     with loaded.opened():

@@ -34,8 +34,8 @@ from conftest import own_step_problem, run_one, step_problem, stretched_cloth_st
 from test_projective import CONSTRAINED, LINE_DIRECTION, PLANE_NORMAL, assert_reaches_the_newton_step, cloth_hang
 from test_safe_newton import ConvexQuartic
 from test_solver_integrators import CLOTH as INTEGRATOR_CLOTH, DT as INTEGRATOR_DT, WARMUP_STEPS, expected_scale
+from simrun.format.layout import RESULTS_NAME
 from simrun.integrators import INTEGRATORS
-from simrun.results import RESULTS_NAME
 from simrun.solvers import ProjectiveDynamics, solver_params
 from simrun.solvers.newton import ADAPTIVE_TRUST, SAFEGUARDS, project_eigen
 from simrun.systems import ClothParams

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from conftest import make_runs, run_one
-from simrun.simulate import simulate
+from simrun.execution.simulate import simulate
 
 NO_DIVERGENCE = {"divergence": {"energy_factor": 1e300}, "record": {"every": 1}}
 

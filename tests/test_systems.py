@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 from conftest import make_runs
+from simrun.execution.simulate import _moving_dofs, _on_paths, simulate
 from simrun.integrators import State
-from simrun.simulate import _moving_dofs, _on_paths, simulate
 from simrun.systems import SYSTEMS, Capabilities, System, SystemParams, plugins
 from simrun.systems.contract import CHECKS, ROUND_OFF, check_params, generic_state, held_dofs, max_abs, stable_dt
 

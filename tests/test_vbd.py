@@ -27,7 +27,7 @@ from simrun.solvers.vbd import ColourPlan
 from simrun.systems import ClothParams, SpringMassParams, System
 from simrun.systems.base import diagonal_blocks
 from simrun.systems.mass_spring.params import MassSpringParams
-from simrun.systems.mass_spring.system import SPRING_LAWS
+from simrun.systems.mass_spring.laws import SPRING_LAWS
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 

@@ -15,12 +15,12 @@ import pytest
 import yaml
 
 from conftest import run_one
-from simrun import analysis
-from simrun.config import load_experiment, validate_system
+from simrun.analysis import oscillator as analysis
 from simrun.errors import ConfigError
+from simrun.experiment.config import load_experiment, validate_system
+from simrun.experiment.sweep import expand_runs
 from simrun.integrators import INTEGRATORS, State
 from simrun.solvers import EXPLICIT_STEP
-from simrun.sweep import expand_runs
 from simrun.systems import CircularMotionParams, SpringMassParams, System
 from simrun.systems.compliant import ANCHORED, CompliantSprings
 from simrun.systems.constraints import SlidingFilter

@@ -20,9 +20,9 @@ import scipy.interpolate
 import scipy.optimize
 
 from simrun.calibration.keys import system_at
+from simrun.execution.simulate import _moving_dofs, _on_paths
 from simrun.integrators import Integrator, State
 from simrun.integrators.sensitivity import ForwardSensitivity, exact_refusal
-from simrun.simulate import _moving_dofs, _on_paths
 
 # a diverged trial's residual: this many times the observed motion's largest value, at every observation
 DIVERGED_RESIDUAL = 1e3
@@ -97,7 +97,7 @@ class Trajectory:
 def step_run(system, integrator: Integrator, solver, dt: float, steps: int, dofs: np.ndarray,
              sensitivity: ForwardSensitivity | None = None) -> Trajectory:
     """Step ``integrator`` ``steps`` times from the system's initial state, keeping ``dofs`` of x and v (and of the
-    tangents with ``sensitivity``); constraints, contact and prescribed paths as ``simrun.simulate`` applies them."""
+    tangents with ``sensitivity``); constraints, contact and prescribed paths as ``simrun.execution.simulate`` applies them."""
     q = dofs.size
     xs, vs = np.full((steps + 1, q), np.nan), np.full((steps + 1, q), np.nan)
     dxs = dvs = None

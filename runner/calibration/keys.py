@@ -8,8 +8,8 @@ import difflib
 import math
 from typing import Any
 
-from simrun.config import validate_system
 from simrun.errors import ConfigError
+from simrun.experiment.config import validate_system
 
 
 def key_parts(key: str) -> list[str | int]:

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simrun.calibration.params import FitParams, StoredRun, Synthetic
 from simrun.errors import ConfigError
+from simrun.experiment.fit import FitParams, StoredRun, Synthetic
 
 AXES = "xyz"
 # an observation this far past the run's end (in units of its smallest step) still counts as inside it
@@ -160,7 +160,7 @@ def _stored_run(source: StoredRun, system, dofs: np.ndarray, names: list[str], w
 def _synthetic(spec: Synthetic, experiment, dofs: np.ndarray, names: list[str], keys_truth) -> Observations:
     from simrun.calibration.engine import step_run
     from simrun.calibration.keys import system_mapping
-    from simrun.config import set_path, validate_system
+    from simrun.experiment.config import set_path, validate_system
 
     mapping = system_mapping(experiment.system)
     for key, value in spec.system.items():  # dotted keys reach into mappings: stiffness.stretch
@@ -202,7 +202,7 @@ def _synthetic(spec: Synthetic, experiment, dofs: np.ndarray, names: list[str], 
 
 
 def _integrator(value):
-    from simrun.config import _build_integrator
+    from simrun.experiment.config import _build_integrator
 
     try:
         return _build_integrator(value)

@@ -20,21 +20,21 @@ from pathlib import Path
 
 import numpy as np
 
-from simrun import __version__
-from simrun.calibration import store as fit_store
+from simrun.results import fits_writer
 from simrun.calibration.engine import FitTask, Model, at_times, fit_one, on_steps, step_run, steps_covering
 from simrun.calibration.keys import check_parameters, get_value, key_parts, system_at, system_mapping
 from simrun.calibration.observations import load_observations
 from simrun.calibration.predicted import predicted_values
-from simrun.config import _build_integrator, load_experiment
 from simrun.errors import ConfigError
-from simrun.lock import FIGURES_NAME, OutputLock, check_writable, filling, write_error
-from simrun.pipeline import config_file_of
-from simrun.results import RESULTS_NAME, Results, load
-from simrun.simulate import simulate
-from simrun.store import open_writer
-from simrun.sweep import config_hash, expand_runs, resolved_config
-from simrun.workers import default_jobs, process_pool, stop_workers
+from simrun.execution.simulate import simulate
+from simrun.execution.workers import default_jobs, process_pool, stop_workers
+from simrun.experiment.config import _build_integrator, config_file_of, load_experiment
+from simrun.experiment.sweep import config_hash, expand_runs, resolved_config
+from simrun.format.layout import RESULTS_NAME
+from simrun.results import Results, load
+from simrun.results.lock import FIGURES_NAME, OutputLock, check_writable, filling, write_error
+from simrun.results.writer import open_writer
+from simrun.version import __version__
 
 EXACT_ID = "exact"  # the fit id of the fit with the system's exact solution
 
@@ -77,8 +77,8 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
         except OSError as error:
             raise write_error("output", path, error) from None
         with writer:
-            fit_store.begin(writer.file, experiment.fit, observations, tasks[0].keys)
-            done = fit_store.completed(writer.file)
+            fits_writer.begin(writer.file, experiment.fit, observations, tasks[0].keys)
+            done = fits_writer.completed(writer.file)
             pending = [task for task in tasks if task.fit_id not in done]
             stale = [task.fit_id for task in pending if task.fit_id in writer.file["runs"]]
             if stale:  # a fitted run written before its fit was committed (a killed calibration)
@@ -88,13 +88,13 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
             for number, (task, outcome, result) in enumerate(_execute(pending, runs_by_id, jobs), start=1):
                 if result is not None:
                     writer.write_run(runs_by_id[task.fit_id].model_copy(update={"system": result[0]}), result[1])
-                fit_store.write_fit(writer.file, task, outcome)
+                fits_writer.write_fit(writer.file, task, outcome)
                 values = ", ".join(f"{key.removeprefix('system.')} = {value:.6g}" for key, value in zip(task.keys, outcome.values))
                 say(f"[{number}/{len(pending)}] {task.label} dt = {task.dt:g}: {outcome.status}, {values} "
                     f"({outcome.simulations} simulations, {outcome.wall_time:.2g} s)")
             stored = load(path).fits
-            fit_store.write_predicted(writer.file, _predicted(experiment, tasks, stored, observations))
-            fit_store.write_transfer(writer.file, _transfer(experiment, tasks, stored, transfer_steps, jobs))
+            fits_writer.write_predicted(writer.file, _predicted(experiment, tasks, stored, observations))
+            fits_writer.write_transfer(writer.file, _transfer(experiment, tasks, stored, transfer_steps, jobs))
     results = load(path)
     if figures:
         from simrun.figures import draw_figures

@@ -3,7 +3,7 @@ the observed motion's eigenvalue.
 
 The observed motion m q'' + d q' + k q = 0 has the eigenvalue lambda = -d/(2m) + i sqrt(k/m - d^2/(4 m^2)); sampled
 at the step h, it advances by exp(lambda h) per step. A method with parameters (k', d') advances by the principal
-eigenvalue mu(k', d') of its amplification matrix, probed by stepping the unit states (``simrun.analysis``, no
+eigenvalue mu(k', d') of its amplification matrix, probed by stepping the unit states (``simrun.analysis.oscillator``, no
 formula of its own). A fit over many periods matches the motion's decay and phase per step, so it should land where
 log mu(k', d') = lambda h: two real equations (modulus and phase) in two unknowns, solved here by a 2-D root-find.
 With d alone fitted, the phase error would leak into d; with k and d together, k absorbs the period error and d
@@ -44,7 +44,7 @@ def observed_eigenvalue(mass: float, stiffness: float, damping: float, data_meth
     rate = continuous_eigenvalue(mass, stiffness, damping)
     if data_method is None:
         return rate
-    from simrun.analysis import amplification_matrix
+    from simrun.analysis.oscillator import amplification_matrix
     from simrun.systems import SpringMassParams
 
     integrator, step = data_method
@@ -58,7 +58,7 @@ def predicted_fit(integrator, dt: float, mass: float, stiffness: float, damping:
     """(k', d') at which ``integrator`` at step ``dt`` has the eigenvalue exp(lambda h) of the motion with (k, d) (as
     ``data_method`` made it, if one did: ``observed_eigenvalue``); (NaN, NaN) where no such parameters exist (the
     phase per step is past pi, or the root-find does not meet it)."""
-    from simrun.analysis import amplification_matrix
+    from simrun.analysis.oscillator import amplification_matrix
     from simrun.systems import SpringMassParams
 
     target = observed_eigenvalue(mass, stiffness, damping, data_method) * dt

@@ -18,7 +18,7 @@ def add_experiment_options(parser, example: str) -> None:
 def add_reference_option(parser, default: str = "none") -> None:
     """``--reference METHOD_OR_RUN``: what the error of runs without an exact solution (the cloth) is measured
     against. It always takes a value, so that it never takes the results file for one."""
-    from simrun.reference import REFERENCE_CHOICES, REFERENCE_RTOL
+    from simrun.analysis.reference import REFERENCE_CHOICES, REFERENCE_RTOL
 
     parser.add_argument(
         "--reference", default=default, metavar="METHOD_OR_RUN",
@@ -39,7 +39,7 @@ def writable_output(path: str | Path, field: str, *, kind: str = "file") -> Path
 
     kind: "file" (a file to write: not a folder, and its folder can be created or written in) or
     "folder" (a folder to write into). Raises ConfigError ``field: ...`` (one line, exit status 2)."""
-    from simrun.lock import check_writable
+    from simrun.results.lock import check_writable
 
     path = Path(path)
     check_writable(path, field, kind=kind)
@@ -50,7 +50,7 @@ def writing_file(path: str | Path, field: str):
     """``with writing_file(path, field) as temporary:`` write ``temporary`` (same suffix as path); it
     replaces ``path`` at once at the end, and is removed on any error. An OSError (disk full,
     permission) becomes ConfigError ``field: cannot write 'path': reason``."""
-    from simrun.lock import replacing
+    from simrun.results.lock import replacing
 
     return replacing(Path(path), field)
 
@@ -59,7 +59,7 @@ def writing_folder(path: str | Path, field: str):
     """``with writing_folder(folder, field) as temporary:`` write files into the empty folder
     ``temporary``; at the end they move into ``folder`` (created if needed); on any error nothing
     is left. An OSError becomes ConfigError ``field: cannot write 'folder': reason``."""
-    from simrun.lock import filling
+    from simrun.results.lock import filling
 
     return filling(Path(path), field)
 

@@ -28,9 +28,9 @@ def add_parser(commands) -> None:
 
 
 def handle(args) -> int:
-    from simrun import analysis
+    from simrun.analysis import oscillator as analysis
     from simrun.integrators import INTEGRATORS
-    from simrun.table_text import csv_number
+    from simrun.report.summary_table import csv_number
 
     integrators = []
     for spec in args.integrators or list(INTEGRATORS):
@@ -66,11 +66,12 @@ def draw_predicted_figures(predictions: dict, output: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     from simrun.figures import _layout as layout
+    from simrun.figures._style import label_colours, label_markers
     from simrun.figures.theory import damping_figure, spectral_figure
 
     labels = list(predictions)
-    colours = layout.label_colours(labels)
-    markers = {label: layout.LABEL_MARKERS[number % len(layout.LABEL_MARKERS)] for number, label in enumerate(labels)}
+    colours = label_colours(labels)
+    markers = label_markers(labels)
     figures = {
         "artificial_damping": damping_figure(predictions, colours, markers, "predicted artificial damping"),
         "spectral_radius_and_period": spectral_figure(predictions, colours, markers, "predicted spectral radius and period error"),
@@ -86,8 +87,8 @@ def draw_predicted_figures(predictions: dict, output: Path) -> list[Path]:
 
 def format_predictions(predictions: dict) -> str:
     """One line per integrator: order, stability limit, rho as h w -> infinity (implicit methods) and d/w at three h w."""
-    from simrun import analysis
-    from simrun.table_text import damping_text
+    from simrun.analysis import oscillator as analysis
+    from simrun.analysis.units import damping_text
 
     lines = [f"{'integrator':<36} {'order':>5}  {'stability limit h w':>20}  {'rho(inf)':>8}  "
              f"{'d/w at h w = 0.1':>16}  {'1':>9}  {'10':>9}"]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from simrun.commands._options import load_results, writable_output, writing_file
 from simrun.errors import ConfigError
-from simrun.lock import FIGURES_NAME
+from simrun.results.lock import FIGURES_NAME
 
 
 def add_parser(commands) -> None:

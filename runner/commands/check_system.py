@@ -28,8 +28,8 @@ def add_parser(commands) -> None:
 
 
 def handle(args) -> int:
-    from simrun.config import apply_override, validate_system
     from simrun.errors import ConfigError
+    from simrun.experiment.config import apply_override, validate_system
     from simrun.systems.contract import run_checks
 
     raw = {"system": {"type": args.system}}

@@ -70,7 +70,7 @@ def _print(lines: list[str]) -> None:
 
 
 def handle(args) -> int:
-    from simrun.config import Experiment
+    from simrun.experiment.config import Experiment
     from simrun.integrators import INTEGRATORS
     from simrun.solvers import LINEAR_SOLVERS, SOLVER_PARAMS, SolverParams
     from simrun.systems import SYSTEMS

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from simrun.commands._options import add_reference_option, load_results, say, writable_output, writing_folder
-from simrun.lock import FIGURES_NAME
+from simrun.results.lock import FIGURES_NAME
 
 
 def add_parser(commands) -> None:
@@ -34,7 +34,7 @@ def handle(args) -> int:
     out = writable_output(Path(args.output) if args.output else results.path.parent / FIGURES_NAME, field, kind="folder")
     errors = None
     if args.reference is not None and args.reference.lower() != "none":
-        from simrun.reference import reference_errors
+        from simrun.analysis.reference import reference_errors
 
         errors = reference_errors(results, args.reference, say=say)
     with writing_folder(out, field) as folder:

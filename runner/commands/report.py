@@ -1,11 +1,11 @@
-"""`simrun report RESULTS`: the results file as one self-contained HTML page (simrun.report)."""
+"""`simrun report RESULTS`: the results file as one self-contained HTML page (simrun.report.page)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from simrun.commands._options import add_reference_option, load_results, say, writable_output, writing_file
-from simrun.lock import REPORT_NAME  # beside the results file, unless --output says otherwise
+from simrun.results.lock import REPORT_NAME  # beside the results file, unless --output says otherwise
 
 
 def add_parser(commands) -> None:
@@ -21,7 +21,7 @@ def add_parser(commands) -> None:
 
 
 def handle(args) -> int:
-    from simrun.report import write_report
+    from simrun.report.page import write_report
 
     results = load_results(args.results)  # refuses anything but a results file before any work
     field = "--output" if args.output else "output"

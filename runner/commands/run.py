@@ -5,10 +5,10 @@ from __future__ import annotations
 import sys
 
 from simrun.commands._options import add_experiment_options
-from simrun.workers import EXECUTOR_ALIASES, EXECUTORS
+from simrun.execution.workers import EXECUTORS, EXECUTOR_ALIASES
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report Ctrl-C
-DEFAULT_MAX_SIZE_GB = 50.0  # = simrun.store.DEFAULT_MAX_SIZE_GB (the store is not imported before a run)
+DEFAULT_MAX_SIZE_GB = 50.0  # = simrun.results.writer.DEFAULT_MAX_SIZE_GB (the writer is not imported before a run)
 
 
 def add_parser(commands) -> None:

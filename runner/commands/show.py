@@ -31,9 +31,9 @@ def add_parser(commands) -> None:
 
 
 def handle(args) -> int:
+    from simrun.analysis.rows import summary_rows
     from simrun.figures import figure_data
-    from simrun.table_text import format_table, write_csv
-    from simrun.tables import summary_rows
+    from simrun.report.summary_table import format_table, write_csv
 
     output = getattr(args, "output", None)
     target = writable_output(Path(output), "--output") if output else None  # refused before any work

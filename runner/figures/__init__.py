@@ -17,8 +17,9 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from simrun.analysis.runs import RunData
 from simrun.figures import _layout as layout
-from simrun.figures._data import FigureData, RunData, figure_data
+from simrun.figures._data import FigureData, figure_data
 from simrun.figures.calibration import fitted_parameters_vs_dt, observed_vs_fitted, transfer_errors
 from simrun.figures.convergence import convergence, work_precision
 from simrun.figures.cost import cost_vs_accuracy
@@ -172,7 +173,7 @@ def render_figures(results: Results | str | Path, reference_errors: dict[str, fl
     """Yield (registry entry, file name, matplotlib Figure) for every figure the file supports; the caller closes each.
 
     reference_errors (run_id -> error at the end time, m) stand in for the stored ``final_error`` where it is
-    NaN (no exact solution); ``simrun.reference.reference_errors`` computes them on request.
+    NaN (no exact solution); ``simrun.analysis.reference.reference_errors`` computes them on request.
     """
     results = results if isinstance(results, Results) else load(results)
     if not results.runs:

@@ -25,10 +25,11 @@ import numpy as np  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 
-from simrun.results import Status  # noqa: E402
+from simrun.format.summary import Status  # noqa: E402
 
 if TYPE_CHECKING:
-    from simrun.figures._data import FigureData, RunData, Series
+    from simrun.analysis.runs import RunData
+    from simrun.figures._data import FigureData, Series
 
 FORMATS = ("png", "svg")
 PNG_DPI = 150
@@ -55,9 +56,6 @@ FIGURE_LEGEND_WIDTH = 2.2
 # A note under the panels (what a figure leaves out, footnotes), in points.
 NOTE_SIZE = 7.5
 
-# A marker per integrator label in the figures against dt, so that coinciding lines stay apart
-# (and colour is not the only cue); "X" is kept for failed runs.
-LABEL_MARKERS = "osD^vP<>hpd*"
 # Each later line's marker is drawn this much smaller (pt), so coinciding points show as rings.
 MARKER_SHRINK = 0.5
 LEGEND_MARKER_SIZE = 6.0
@@ -71,19 +69,6 @@ OVERLAY_DASHES = (0, (3.0, 3.0))
 LINEAR_RANGE = 10.0
 # A log axis covers at most this many decades below the largest value (a decay to underflow is not data).
 MAX_LOG_DECADES = 20.0
-
-
-# -- colours, markers, saving ----------------------------------------------------------------------
-def label_colours(labels: list[str]) -> dict[str, tuple]:
-    """A stable colour per integrator label: sorted labels -> tab10 (or tab20 beyond ten labels)."""
-    ordered = sorted(labels)
-    if len(ordered) <= 10:
-        palette = plt.get_cmap("tab10")
-        return {label: palette(number) for number, label in enumerate(ordered)}
-    # tab20 pairs a dark and a light shade of each hue: all dark ones first, so that neighbours differ in hue
-    palette = plt.get_cmap("tab20")
-    shades = [palette(index) for index in (*range(0, 20, 2), *range(1, 20, 2))]
-    return {label: shades[number % len(shades)] for number, label in enumerate(ordered)}
 
 
 def save_figure(figure, stem: Path, dpi: int = PNG_DPI) -> list[Path]:

@@ -2,7 +2,7 @@
 observed motion against each fit's trajectory, and the transfer of fitted parameters to other integrators.
 
 They read the file's fits (``Results.fits``) and its runs' stored parameters only; the numbers and their grouping
-come from ``simrun.findings_calibration`` (imported on first use, like ``simrun.analysis`` elsewhere): importing the
+come from ``simrun.findings.calibration`` (imported on first use, like ``simrun.analysis.oscillator`` elsewhere): importing the
 figures loads no integrator or system. Each returns None for a file without fits.
 """
 
@@ -19,6 +19,7 @@ from matplotlib.ticker import FuncFormatter
 
 from simrun.figures import _layout as layout
 from simrun.figures._data import MAX_LINES, FigureData
+from simrun.figures._style import label_colours, label_markers
 
 # A positive parameter whose values span more than this ratio gets a log axis.
 LOG_RATIO = 10.0
@@ -57,8 +58,8 @@ def _styles(data: FigureData, labels: list[str]) -> tuple[dict, dict]:
     """Colour and marker per integrator label: the figures' own (from the runs) where they cover every label."""
     if all(label in data.colours for label in labels):
         return data.colours, data.markers
-    markers = {label: layout.LABEL_MARKERS[number % len(layout.LABEL_MARKERS)] for number, label in enumerate(labels)}
-    return layout.label_colours(labels), markers
+    markers = label_markers(labels)
+    return label_colours(labels), markers
 
 
 def _families(data: FigureData, groups: list[list[str]]) -> list[tuple[str, list[list[str]]]]:
@@ -114,7 +115,7 @@ def fitted_parameters_vs_dt(data: FigureData):
     fits = _fits(data)
     if fits is None:
         return None
-    from simrun import findings_calibration as found  # on first use: the figures import no findings
+    from simrun.findings import calibration as found  # on first use: the figures import no findings
 
     rows = found.fit_rows(fits)
     shown = [row for row in rows if row.shown]
@@ -216,7 +217,7 @@ def observed_vs_fitted(data: FigureData):
     fits = _fits(data)
     if fits is None or fits.observed_t.size == 0:
         return None
-    from simrun import findings_calibration as found
+    from simrun.findings import calibration as found
 
     rows = found.fit_rows(fits)
     frequency = found.spring_frequency(data.results, fits)
@@ -311,7 +312,7 @@ def transfer_errors(data: FigureData):
     fits = _fits(data)
     if fits is None:
         return None
-    from simrun import findings_calibration as found
+    from simrun.findings import calibration as found
 
     table = found.transfer_table(fits)
     if table is None or not table.rows:

@@ -13,11 +13,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from matplotlib.lines import Line2D
 
+from simrun.analysis.runs import RunData
 from simrun.figures import _layout as layout
-from simrun.figures._data import FigureData, RunData, Series
+from simrun.figures._data import FigureData, Series
 
 if TYPE_CHECKING:
-    from simrun import analysis
+    from simrun.analysis import oscillator as analysis
 
 # An error of exactly zero cannot sit on a log axis: drawn at this floor (m).
 ERROR_FLOOR = 1e-16
@@ -37,7 +38,7 @@ def error_runs(data: FigureData) -> list[RunData]:
 
 def order_fits(data: FigureData) -> dict[tuple[str, Series], tuple["analysis.OrderFit", list[RunData]]]:
     """(panel title, series) -> (observed order fit, runs sorted by dt) for every line with errors."""
-    from simrun import analysis  # on first use: importing the figures loads no integrator
+    from simrun.analysis import oscillator as analysis  # on first use: importing the figures loads no integrator
 
     fits = {}
     for panel in layout.summary_panels(data, _usable):
@@ -76,7 +77,7 @@ def error_axis_label(runs: list[RunData]) -> str:
 
 def convergence(data: FigureData):
     """Error at the error time against dt (log-log); each line's fitted slope (observed order) in its legend."""
-    from simrun import analysis  # on first use: importing the figures loads no integrator
+    from simrun.analysis import oscillator as analysis  # on first use: importing the figures loads no integrator
 
     fits = order_fits(data)
     if not fits:

@@ -1,6 +1,6 @@
 """What a method costs and what it buys: wall time per frame against the distance from a converged solve.
 
-The numbers are the cost findings' (``simrun.findings_cost``: the same baseline, the same runs standing for each
+The numbers are the cost findings' (``simrun.findings.cost``: the same baseline, the same runs standing for each
 method, the same distances), so that the figure and the report's sentences cannot disagree.
 """
 
@@ -14,7 +14,8 @@ from matplotlib.lines import Line2D
 
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData
-from simrun.results import FRAME_TIME
+from simrun.figures._style import label_colours
+from simrun.format.summary import FRAME_TIME
 
 # Panels (comparisons: a dt, per setting of the other swept keys) drawn; the rest are named in a note.
 MAX_COST_PANELS = 4
@@ -27,8 +28,8 @@ def cost_vs_accuracy(data: FigureData):
     """Per comparison of the cost findings, two panels: the distance max |x - x_ref| from the baseline's positions
     (or, without a baseline, the error or the energy drift the findings use) and the largest energy change, each
     against the wall time per 1/60 s frame, one marker per method; the real-time line at 16.7 ms."""
-    from simrun.findings_cost import solver_cost  # the findings import the figures' data layer: on use, not at import
-    from simrun.tables import summary_rows
+    from simrun.analysis.rows import summary_rows
+    from simrun.findings.cost import solver_cost  # the findings import the figures' data layer: on use, not at import
 
     rows = summary_rows(data)
     drift = {row.run_id: row.max_rel_energy_drift for row in rows}
@@ -42,7 +43,7 @@ def cost_vs_accuracy(data: FigureData):
                      "cost findings")
     # a solver's variants together, numbers in numeric order (substeps=5 before substeps=10)
     names = sorted(dict.fromkeys(name for evidence in shown for name in evidence["methods"]), key=_natural)
-    colours = layout.label_colours(names)
+    colours = label_colours(names)
     figure, axes = layout.panel_grid([[None, None] for _ in shown], panel_size=layout.SUMMARY_PANEL_SIZE,
                                      legend_width=3.4, extra_height=0.3)
     for number, evidence in enumerate(shown):

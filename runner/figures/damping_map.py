@@ -18,21 +18,17 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.colors import Normalize
 
+from simrun.analysis.damping_map import FLOOR_DECADES, exact_decades, map_cells, predicted_decades
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData
-from simrun.results import Status
+from simrun.format.summary import Status
 
-# a map needs this many distinct h w and zeta values for one method (fewer: the damping curves say it better)
-MIN_HW, MIN_ZETA = 3, 2
-# the colour scale, log10 of the decay per period, from "annihilated" (clipped below) to 0 (kept); growth has a colour
-# of its own
-FLOOR_DECADES = -4.0
+# growth (decay per period above 1) has a colour of its own, beyond the scale that ends at FLOOR_DECADES
 GROWTH_COLOUR = "#d62728"
 # a "growth" below this many decades per period is round-off of a kept amplitude (the implicit midpoint rule's
 # undamped runs measure 1 + 1e-14), drawn as 0
 GROWTH_ROUNDOFF = 1e-6
 CONTOUR_LEVELS = (-3.0, -2.0, -1.0, -0.3, -0.1, -0.03, -0.01)
-DECIMALS = 9  # h w and zeta are told apart to this many significant digits (a grid of floats)
 
 
 def damping_map(data: FigureData):
@@ -107,49 +103,8 @@ def damping_map(data: FigureData):
     return figure
 
 
-def map_cells(data: FigureData) -> dict[str, list[tuple[float, float, float, Status]]]:
-    """label -> [(h w, zeta, measured decay per period, status)], in label order, for the labels whose runs of a
-    linear oscillator (``natural_frequency``, ``damping_ratio``) span a map: MIN_HW values of h w, MIN_ZETA of zeta."""
-    points: dict[str, list] = {}
-    for run in data.runs:
-        attrs = run.stored.attrs
-        frequency, ratio = attrs.get("natural_frequency", math.nan), attrs.get("damping_ratio", math.nan)
-        if not (isinstance(frequency, float) and math.isfinite(frequency) and math.isfinite(ratio)):
-            continue
-        points.setdefault(run.label, []).append((_rounded(run.dt * frequency), _rounded(ratio),
-                                                 float(attrs.get("decay_per_period", math.nan)), run.status))
-    return {label: points[label] for label in data.labels if label in points
-            and len({cell[0] for cell in points[label]}) >= MIN_HW and len({cell[1] for cell in points[label]}) >= MIN_ZETA}
-
-
-def predicted_decades(data: FigureData, label: str, hw: np.ndarray, zeta: np.ndarray) -> np.ndarray | None:
-    """log10 of the predicted amplitude factor per period, rho(A)^(2 pi / (h w)), of the method of ``label`` at each
-    (h w, zeta), A probed with the points as lanes; None for a method without a lane form."""
-    from simrun.analysis import amplification_matrices, integrator_from_params
-
-    run = next(run for run in data.runs if run.label == label)
-    matrices = amplification_matrices(integrator_from_params(run.integrator, run.integrator_params), hw, zeta)
-    if matrices is None:
-        return None
-    rho = np.max(np.abs(np.linalg.eigvals(matrices)), axis=1)
-    with np.errstate(divide="ignore"):
-        return np.log10(rho) * (2.0 * math.pi / np.asarray(hw))
-
-
-def exact_decades(zeta) -> np.ndarray:
-    """log10 of the exact motion's amplitude factor per period 2 pi / w, for damping ratios zeta >= 0: e^(-2 pi zeta)
-    below critical damping, its slow mode's e^(-2 pi (zeta - sqrt(zeta^2 - 1))) above."""
-    zeta = np.asarray(zeta, dtype=float)
-    slow = np.where(zeta < 1.0, zeta, zeta - np.sqrt(np.maximum(zeta * zeta - 1.0, 0.0)))
-    return -2.0 * math.pi * slow / math.log(10.0)
-
-
 def _axis_values(cells: list, axis: int) -> np.ndarray:
     return np.array(sorted({cell[axis] for cell in cells}))
-
-
-def _rounded(value: float) -> float:
-    return float(f"{value:.{DECIMALS}g}")
 
 
 def _edges(centres: np.ndarray, log: bool) -> np.ndarray:

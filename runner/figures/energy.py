@@ -16,9 +16,10 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.transforms import blended_transform_factory
 
+from simrun.analysis.runs import RunData
 from simrun.figures import _layout as layout
-from simrun.figures._data import FigureData, RunData
-from simrun.results import Status
+from simrun.figures._data import FigureData
+from simrun.format.summary import Status
 
 # Exact conservation (zero drift) cannot sit on a log axis: drawn at double-precision round-off.
 DRIFT_FLOOR = 1e-16

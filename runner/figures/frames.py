@@ -18,10 +18,12 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
-from simrun.figures._data import FigureData, format_value
+from simrun.analysis.runs import format_value
+from simrun.figures._data import FigureData
 from simrun.figures.colliders import (COLLIDER_NOTE, COLLIDER_REACH, collider_boxes, collider_text, draw_collider,
-                                     run_colliders)
-from simrun.results import Results, Status, StoredRun
+                                      run_colliders)
+from simrun.format.summary import Status
+from simrun.results import Results, StoredRun
 
 SNAPSHOT_COUNT = 4
 # A sweep of many such runs would drown its figure folder in snapshots: beyond this many runs,

@@ -6,9 +6,10 @@ import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
 
+from simrun.analysis.runs import RunData
 from simrun.figures import _layout as layout
-from simrun.figures._data import FigureData, RunData
-from simrun.results import Status
+from simrun.figures._data import FigureData
+from simrun.format.summary import Status
 
 # Height (in) of the line of notes under the panels.
 NOTE_LINE = 0.16

@@ -9,10 +9,10 @@ import numpy as np
 from matplotlib.colors import Normalize
 from matplotlib.ticker import MaxNLocator
 
+from simrun.analysis.runs import RunData, predictions_for, test_equation_runs
 from simrun.figures import _layout as layout
-from simrun.figures._data import FigureData, RunData
-from simrun.figures.theory import predictions_for, test_equation_runs
-from simrun.results import Status
+from simrun.figures._data import FigureData
+from simrun.format.summary import Status
 
 # Smallest half-range (decades) of the stability map's colour scale, so that round-off-sized
 # changes stay pale instead of saturating the map.

@@ -1,5 +1,5 @@
 """Theory curves: the predicted artificial damping, spectral radius and period error of the integrators named in
-the file (probed by ``simrun.analysis``), with what the runs on the test equation measured as markers."""
+the file (probed by ``simrun.analysis.oscillator``), with what the runs on the test equation measured as markers."""
 
 from __future__ import annotations
 
@@ -12,12 +12,13 @@ import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.transforms import blended_transform_factory
 
+from simrun.analysis.runs import RunData, predictions_for, test_equation_runs
 from simrun.figures import _layout as layout
-from simrun.figures._data import FigureData, RunData
-from simrun.results import Status
+from simrun.figures._data import FigureData
+from simrun.format.summary import Status
 
 if TYPE_CHECKING:
-    from simrun import analysis
+    from simrun.analysis import oscillator as analysis
 
 # Up to this many labels share one panel; more are split into families (one panel per integrator
 # with several parameter values, one for the rest), so that the curves stay apart.
@@ -31,29 +32,6 @@ NO_DAMPING = 1e-9
 # The relative period error axis is cut here: beyond, the curves only say "far too slow".
 PERIOD_ERROR_RANGE = (-0.5, 1.5)
 RHO_AXIS_TOP = 1.3
-
-
-def test_equation_runs(data: FigureData) -> list[RunData]:
-    """The runs on the undamped test equation (spring, linear circular motion): h w is defined for them."""
-    return [run for run in data.runs if run.frequency is not None]
-
-
-def predictions_for(data: FigureData, runs: list[RunData] | None = None) -> dict[str, "analysis.Prediction"]:
-    """label -> predicted curves for each label whose integrator this simrun knows, over analysis.HW_RANGE
-    widened to cover the runs' h w."""
-    from simrun import analysis  # on first use: importing the figures loads no integrator
-
-    runs = test_equation_runs(data) if runs is None else runs
-    xs = [run.hw for run in runs if np.isfinite(run.hw) and run.hw > 0]
-    low = min([analysis.HW_RANGE[0]] + [0.5 * min(xs)] if xs else [analysis.HW_RANGE[0]])
-    high = max([analysis.HW_RANGE[1]] + [2.0 * max(xs)] if xs else [analysis.HW_RANGE[1]])
-    # a decade boundary keeps the grid (and so the cache key) the same for similar files
-    low, high = 10.0 ** math.floor(math.log10(low)), 10.0 ** math.ceil(math.log10(high))
-    methods = {}
-    for run in data.runs:
-        if run.label not in methods and run.method is not None:
-            methods[run.label] = run.method
-    return {label: analysis.predict(method, low, high) for label, method in methods.items()}
 
 
 def family_panels(predictions: dict[str, "analysis.Prediction"]) -> list[tuple[str, list[str]]]:
@@ -95,7 +73,7 @@ def _predicted_and_measured(data: FigureData, draw, title: str):
 def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict, markers: dict, title: str,
                    runs: list[RunData] = ()):
     """The damping curves (one panel per family), with the measured damping of `runs` as markers."""
-    from simrun import analysis  # on first use: importing the figures loads no integrator
+    from simrun.analysis import oscillator as analysis  # on first use: importing the figures loads no integrator
 
     rows = _grid_rows(family_panels(predictions))
     figure, axes = layout.panel_grid(rows, sharey=True, panel_size=CURVE_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH + 0.6)
@@ -193,7 +171,7 @@ def spectral_radius_and_period(data: FigureData):
 
 def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict, markers: dict, title: str,
                     runs: list[RunData] = ()):
-    from simrun import analysis  # on first use: importing the figures loads no integrator
+    from simrun.analysis import oscillator as analysis  # on first use: importing the figures loads no integrator
 
     panels = family_panels(predictions)
     columns = len(panels)

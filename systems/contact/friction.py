@@ -5,13 +5,9 @@ the potential of one step for the method's velocity map (model.py's docstring ha
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse
-
-if TYPE_CHECKING:
-    from .model import ContactModel
 
 
 def mollifier(speed: np.ndarray, epsilon: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -44,20 +40,24 @@ class FrictionTerm:
     """Psi(y) = sum mu lambda f0(|w|; epsv b), w = T (y - a - b v_c) per contact (see the module docstring), and the
     mesh contacts' friction potential through ipctk with the same w and epsilon; value (J), gradient (N), Hessian."""
 
-    def __init__(self, model: ContactModel, lag: FrictionLag, velocity_origin: np.ndarray, velocity_divisor: float):
-        self.model = model
+    def __init__(self, friction: tuple[float, float], dim: int, mesh, lag: FrictionLag, velocity_origin: np.ndarray,
+                 velocity_divisor: float):
+        """``friction``: (mu, epsv (m/s)); ``dim``: 2 or 3; ``mesh``: the contact model's ipctk mesh contact (its
+        friction potential), or None."""
+        self.dim = dim
+        self.mesh = mesh
         self.lag = lag
         self.origin = velocity_origin
         self.divisor = velocity_divisor
-        self.mu, epsv = model.friction
+        self.mu, epsv = friction
         self.epsilon = epsv * velocity_divisor  # m: the sliding speed epsv as a displacement over b
         self.weight = self.mu * lag.normal_force  # (q,) N
-        d = model.dim
+        d = dim
         self.dofs = (d * lag.vertices[:, None] + np.arange(d)).ravel()
 
     def _tangential(self, y: np.ndarray) -> np.ndarray:
         """w = T (y_i - a_i - b v_c) per contact, (q, d) (m)."""
-        d = self.model.dim
+        d = self.dim
         offset = (y[self.dofs] - self.origin[self.dofs]).reshape(-1, d) - self.divisor * self.lag.velocities
         normals = self.lag.normals
         return offset - np.einsum("ij,ij->i", offset, normals)[:, None] * normals
@@ -69,7 +69,7 @@ class FrictionTerm:
             speed = np.sqrt(np.einsum("ij,ij->i", w, w))
             energy = float(self.weight @ mollifier(speed, self.epsilon)[0])
         if self.lag.mesh is not None:
-            energy += self.model.mesh.friction_energy(self.lag.mesh, y - self.origin, self.epsilon)
+            energy += self.mesh.friction_energy(self.lag.mesh, y - self.origin, self.epsilon)
         return energy
 
     def gradient(self, y: np.ndarray) -> np.ndarray:
@@ -79,7 +79,7 @@ class FrictionTerm:
             speed = np.sqrt(np.einsum("ij,ij->i", w, w))
             np.add.at(gradient, self.dofs, ((self.weight * mollifier(speed, self.epsilon)[1])[:, None] * w).ravel())
         if self.lag.mesh is not None:
-            gradient += self.model.mesh.friction_gradient(self.lag.mesh, y - self.origin, self.epsilon)
+            gradient += self.mesh.friction_gradient(self.lag.mesh, y - self.origin, self.epsilon)
         return gradient
 
     def vertex_blocks(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -87,12 +87,12 @@ class FrictionTerm:
         mu lambda [f1/|w| T + (f2 |w| - f1)/|w|^3 w w^T] (PSD: its eigenvalues are f1/|w| >= 0 across w and
         f2 >= 0 along it, so no projection is needed)."""
         if not self.lag.vertices.size:
-            return self.lag.vertices, np.zeros((0, self.model.dim, self.model.dim))
+            return self.lag.vertices, np.zeros((0, self.dim, self.dim))
         w = self._tangential(y)
         speed = np.sqrt(np.einsum("ij,ij->i", w, w))
         _, f1_over, curvature = mollifier(speed, self.epsilon)
         normals = self.lag.normals
-        tangent = np.eye(self.model.dim) - normals[:, :, None] * normals[:, None, :]
+        tangent = np.eye(self.dim) - normals[:, :, None] * normals[:, None, :]
         blocks = self.weight[:, None, None] * (f1_over[:, None, None] * tangent
                                                + curvature[:, None, None] * w[:, :, None] * w[:, None, :])
         return self.lag.vertices, blocks
@@ -101,11 +101,11 @@ class FrictionTerm:
         """The mesh contacts' friction Hessian through ipctk (CSR, n d x n d), or None without them."""
         if self.lag.mesh is None:
             return None
-        return self.model.mesh.friction_hessian(self.lag.mesh, y - self.origin, self.epsilon, project_spd)
+        return self.mesh.friction_hessian(self.lag.mesh, y - self.origin, self.epsilon, project_spd)
 
     def point_matrix(self, y: np.ndarray):
         """``vertex_blocks`` as a CSR matrix (n d x n d)."""
-        n, d = y.size, self.model.dim
+        n, d = y.size, self.dim
         vertices, blocks = self.vertex_blocks(y)
         dofs = d * vertices[:, None] + np.arange(d)
         rows = np.repeat(dofs, d, axis=1).ravel()

@@ -428,7 +428,7 @@ class ContactModel:
         lag = self.friction_lag(x_start, time)
         if lag is None or (not lag.vertices.size and (lag.mesh is None or not self.mesh.friction_count(lag.mesh))):
             return None
-        return FrictionTerm(self, lag, velocity_origin, velocity_divisor)
+        return FrictionTerm(self.friction, self.dim, self.mesh, lag, velocity_origin, velocity_divisor)
 
     def friction_work(self, x_start: np.ndarray, x_end: np.ndarray, v_end: np.ndarray) -> float:
         """The energy (J) friction took out of the model in the step x_start -> x_end that ended with velocity v_end:

@@ -2,13 +2,14 @@
 
 Every check that needs the model (vertex indices and names, dimensions, kinds, array lengths, overlapping
 constraints) is here; each raises ModelError naming the config field, which the config loader reports as
-one line (``system.pinned: vertex 99 does not exist; ...``).
+one line (``system.pinned: vertex 99 does not exist; ...``). ``params`` is always a ``MassSpringParams``
+(params.py, which calls ``resolve``; this module builds below it and names no type of it).
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -16,13 +17,10 @@ from ..constraints import PrescribedMotion, VertexConstraints, cross, filter_blo
 from .files import find_file, load_model_file, lumped_area_masses
 from .model import ModelError, SpringModel
 from ..contact.build import build_contact
-from .system import Damping
-
-if TYPE_CHECKING:
-    from .params import MassSpringParams
+from .laws import Damping
 
 
-def resolve(params: MassSpringParams) -> dict[str, Any]:
+def resolve(params) -> dict[str, Any]:
     """The keyword arguments of MassSpring; ModelError (naming the config field) for anything inconsistent."""
     model = params.spring_model()
     dim = model.dim
@@ -78,7 +76,7 @@ DEFAULT_STIFFNESS = 1.0e4  # N/m, for models that bring none of their own
 DEFAULT_TOTAL_MASS = 1.0  # kg, for models that bring no masses
 
 
-def _stiffness(params: MassSpringParams, model: SpringModel) -> np.ndarray:
+def _stiffness(params, model: SpringModel) -> np.ndarray:
     if params.stiffness == "auto":
         stiffness = (model.stiffness.astype(float).copy() if model.stiffness is not None
                      else np.full(model.spring_count, DEFAULT_STIFFNESS))
@@ -105,7 +103,7 @@ def _stiffness(params: MassSpringParams, model: SpringModel) -> np.ndarray:
     return stiffness
 
 
-def _masses(params: MassSpringParams, model: SpringModel) -> np.ndarray:
+def _masses(params, model: SpringModel) -> np.ndarray:
     n = model.vertex_count
     spec = params.mass
     if spec.file:
@@ -129,14 +127,14 @@ def _masses(params: MassSpringParams, model: SpringModel) -> np.ndarray:
     return areas * spec.density if spec.density is not None else areas * (spec.total / float(np.sum(areas)))
 
 
-def _damping(params: MassSpringParams) -> tuple[Damping, ...]:
+def _damping(params) -> tuple[Damping, ...]:
     if not isinstance(params.damping, list):
         return (Damping("spring", float(params.damping)),) if params.damping > 0 else ()
     return tuple(Damping(term.model, term.coefficient, term.alpha, term.beta) for term in params.damping
                  if term.coefficient > 0 or term.alpha > 0 or term.beta > 0)
 
 
-def _initial_state(params: MassSpringParams, model: SpringModel, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _initial_state(params, model: SpringModel, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     initial, dim = params.initial, model.dim
     centroid = rest.mean(axis=0)
     if initial.file is not None:
@@ -219,7 +217,7 @@ def select(selector, model: SpringModel, field: str) -> np.ndarray:
     return np.unique(np.concatenate(chosen)).astype(np.intp)
 
 
-def _constraints(params: MassSpringParams, model: SpringModel, rest: np.ndarray, x0: np.ndarray) -> VertexConstraints:
+def _constraints(params, model: SpringModel, rest: np.ndarray, x0: np.ndarray) -> VertexConstraints:
     dim = model.dim
     owner = np.full(model.vertex_count, "", dtype=object)  # which config entry constrains each vertex
 
@@ -258,7 +256,7 @@ def _constraints(params: MassSpringParams, model: SpringModel, rest: np.ndarray,
     return VertexConstraints(dim, model.vertex_count, pinned, sliding, prescribed)
 
 
-def _contact(params: MassSpringParams, model: SpringModel, x0: np.ndarray):
+def _contact(params, model: SpringModel, x0: np.ndarray):
     """The ContactModel of ``params.contact`` (None without contact); files were made absolute by the params."""
     return build_contact(params.contact, dim=model.dim, rest=model.vertices.astype(float), x0=x0,
                          masses=_masses(params, model), triangles=model.triangles, edges=model.springs,

@@ -16,16 +16,14 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 import scipy.sparse
 
 from ..base import colour_vertices
-from .system import SpringGeometry
+from .laws import SpringGeometry
 
-if TYPE_CHECKING:
-    from .system import MassSpring
 
 # Vertex sets whose incidences are kept: a solver asks for its colours (a few dozen at most); a bound keeps a
 # caller that asks for ever new sets from growing the memory without end.
@@ -56,7 +54,7 @@ class IncidentSprings:
 class VertexBlocks:
     """Gradient and Hessian blocks and local energies of a MassSpring, vertex by vertex (see the module docstring)."""
 
-    def __init__(self, system: "MassSpring"):
+    def __init__(self, system):
         self.system = system
         self._kept: dict[bytes, IncidentSprings] = {}
         self._colouring: list[np.ndarray] | None = None

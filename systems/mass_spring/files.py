@@ -157,7 +157,7 @@ def save_npz(model: SpringModel, path: Path) -> None:
 
 # -- where files are found ---------------------------------------------------------------------
 # Folders where relative model paths are looked for after the current one: the config file's folder, set by
-# the config loader while it validates a config read from a file (runner/config.py: load_experiment).
+# the config loader while it validates a config read from a file (runner/experiment/config.py: load_experiment).
 SEARCH_FOLDERS: contextvars.ContextVar[tuple[Path, ...]] = contextvars.ContextVar("model_search_folders", default=())
 
 

@@ -22,7 +22,8 @@ from .assemble import resolve
 from .files import SEARCH_FOLDERS, file_digest, find_file, load_model_file
 from .generators import model_source
 from .model import ModelError, SpringModel
-from .system import DAMPING_MODELS, SPRING_LAWS, MassSpring
+from .laws import DAMPING_MODELS, SPRING_LAWS
+from .system import MassSpring
 
 __all__ = ["MassSpringParams", "SEARCH_FOLDERS", "BoxSelector", "Rotation"]
 

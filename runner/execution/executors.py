@@ -1,0 +1,118 @@
+"""Where runs are simulated: serially, on a local process pool, or on a Dask cluster.
+
+Every executor takes tasks, a run (``simulate``) or a chunk of runs stepped together as lanes (``simulate_lanes``,
+runner/execution/lanes.py), and yields ``(task, outcome)`` as tasks finish: a RunResult for a run, a LaneBatch for a chunk. The
+caller (one writer in the main process) commits each outcome at once. Runs are independent, so neither the order of
+completion nor the chunk a run was stepped in changes any run's data.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+from collections.abc import Iterator
+
+from simrun.errors import ConfigError
+from simrun.execution.lanes import lane_chunks, simulate_lanes
+from simrun.execution.simulate import simulate
+from simrun.execution.workers import EXECUTORS, process_pool, stop_workers
+from simrun.experiment.config import Run
+
+__all__ = ["EXECUTORS", "EXECUTOR_FUNCTIONS", "LANE_MODES", "execute", "run_serial", "run_process_pool", "run_dask"]
+
+LANE_MODES = ("auto", "off")  # --lanes: step many small runs of one kind together (auto), or every run alone (off)
+
+
+def _work(task):
+    """The function that simulates a task: simulate_lanes for a chunk (a list of runs), simulate for a run."""
+    return simulate_lanes if isinstance(task, list) else simulate
+
+
+def _size(task) -> int:
+    return len(task) if isinstance(task, list) else 1
+
+
+def run_serial(tasks: list) -> Iterator[tuple]:
+    for task in tasks:
+        yield task, _work(task)(task)
+
+
+def run_process_pool(tasks: list, jobs: int) -> Iterator[tuple]:
+    """A local pool of `jobs` processes; pending tasks are cancelled and running ones ended when the
+    consumer stops early (or Ctrl-C, which the workers ignore, stops it)."""
+    pool = process_pool(jobs)
+    finished = False
+    try:
+        # the biggest tasks first (chunks of lanes), so that no worker is left with a long one at the end
+        ordered = sorted(tasks, key=_size, reverse=True)
+        futures = {pool.submit(_work(task), task): task for task in ordered}
+        for future in concurrent.futures.as_completed(futures):
+            yield futures[future], future.result()
+        finished = True
+    finally:
+        if not finished:  # Ctrl-C (the workers ignore it) or a consumer that stopped: no run in flight is waited for
+            stop_workers(pool)
+        # wait even when the workers were stopped: the pool's manager thread then ends before the
+        # interpreter's exit hook wakes it (Python 3.11 races there and prints a traceback at exit)
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def run_dask(tasks: list, jobs: int, scheduler: str | None) -> Iterator[tuple]:
+    """Dask: an existing scheduler at `scheduler`, else a local cluster of `jobs` single-threaded workers."""
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ConfigError("--executor dask: Dask is not installed; install it with  pip install 'simrun[dask]'  "
+                          "(or: pip install 'dask[distributed]')") from None
+    cluster = None
+    try:
+        if scheduler:
+            client = Client(scheduler, timeout="10s")
+        else:
+            cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=logging.ERROR)
+            client = Client(cluster)
+    except OSError as error:
+        raise ConfigError(f"--scheduler: cannot reach the Dask scheduler at {scheduler!r}: {error}") from None
+    futures = []
+    try:
+        by_key = {}
+        for task in tasks:
+            key = f"simrun-lanes-{task[0].run_id}" if isinstance(task, list) else f"simrun-{task.run_id}"
+            future = client.submit(_work(task), task, key=key, pure=False)
+            futures.append(future)
+            by_key[future.key] = task
+        for future in as_completed(futures):
+            yield by_key[future.key], future.result()
+    finally:
+        client.cancel(futures)
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_local(tasks: list, jobs: int, scheduler: str | None = None) -> Iterator[tuple]:
+    """This machine: serially for one job or one task, else a pool of ``jobs`` processes."""
+    if jobs <= 1 or len(tasks) <= 1:
+        return run_serial(tasks)
+    return run_process_pool(tasks, min(jobs, len(tasks)))
+
+
+# executor name -> function(tasks, jobs, scheduler) yielding (task, outcome) as tasks finish; the names are
+# simrun.execution.workers.EXECUTORS, which the command line offers before it imports this module
+EXECUTOR_FUNCTIONS = {
+    "process": run_local,
+    "dask": run_dask,
+}
+
+
+def execute(runs: list[Run], executor: str = "process", jobs: int = 1, scheduler: str | None = None,
+            lanes: str = "auto") -> Iterator[tuple]:
+    """Every run on the named executor; yields (task, outcome) as each task finishes: (run, RunResult), or, for the
+    runs stepped together as lanes (``lanes`` auto: runner/execution/lanes.py decides which), (list of runs, LaneBatch)."""
+    if executor not in EXECUTOR_FUNCTIONS:
+        raise ConfigError(f"executor: unknown {executor!r}; valid: " + ", ".join(EXECUTOR_FUNCTIONS))
+    if lanes not in LANE_MODES:
+        raise ConfigError(f"--lanes: unknown {lanes!r}; valid: " + ", ".join(LANE_MODES))
+    chunks, alone = lane_chunks(runs, jobs) if lanes == "auto" else ([], list(runs))
+    return EXECUTOR_FUNCTIONS[executor]([*chunks, *alone], jobs, scheduler)

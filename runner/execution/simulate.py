@@ -1,0 +1,353 @@
+"""Simulate one run: step the integrator, record samples, decide the outcome. No I/O here."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from simrun.experiment.config import Run
+from simrun.format.run_result import RunResult
+from simrun.format.summary import Status, series_summary as _series_summary
+from simrun.integrators import State
+from simrun.solvers import EXPLICIT_STEP
+
+
+class Recorder:
+    """Preallocated rows for the samples of a run: one float table, one row per sample.
+
+    A row holds the observables (``system.observable_layout``, written by ``system.write_observables``
+    without a dictionary), then t and the dissipated energy (and, for systems with prescribed paths, the
+    work the paths did), then, for small systems, x and v. Systems of vertices (mass-spring models) keep
+    the vertex positions as ``frames`` (frames x vertices x d) at their own, sparser cadence instead.
+    """
+
+    def __init__(self, system, sample_count: int, frame_count: int):
+        self.write_observables = system.write_observables
+        self.with_state = system.records_state_per_sample
+        columns = list(system.observable_layout) + [("t", ()), ("dissipated_energy", ())]
+        self.with_work = _moving_dofs(system).size > 0
+        if self.with_work:
+            columns.append(("prescribed_work", ()))
+        self.with_friction = getattr(system, "has_friction", False)
+        if self.with_friction:
+            columns.append(("friction_dissipated", ()))
+        if self.with_state:
+            columns += [("positions", (system.dof_count,)), ("velocities", (system.dof_count,))]
+        self.columns: dict[str, tuple[slice, tuple[int, ...]]] = {}
+        start = 0
+        for key, shape in columns:
+            self.columns[key] = (slice(start, start + math.prod(shape)), shape)
+            start += math.prod(shape)
+        self.table = np.empty((sample_count, start))
+        self.t_column = self.columns["t"][0].start
+        self.dissipated_column = self.columns["dissipated_energy"][0].start
+        if self.with_state:
+            self.positions, self.velocities = self.columns["positions"][0], self.columns["velocities"][0]
+        self.count = 0
+        self.frame_count = 0
+        self.work_column = self.columns["prescribed_work"][0].start if self.with_work else None
+        self.friction_column = self.columns["friction_dissipated"][0].start if self.with_friction else None
+        dim = system.vertex_dim
+        self.frames = None if self.with_state else np.empty((frame_count, system.dof_count // dim, dim))
+        self.frame_t = None if self.with_state else np.empty(frame_count)
+
+    def record(self, t: float, x: np.ndarray, v: np.ndarray, dissipated_energy: float, work: float = 0.0,
+               friction: float = 0.0) -> float:
+        """One sample at time t (s) of (x, v); returns its total energy (J), for the divergence check.
+        dissipated_energy, work, friction: the physical damping's loss, the prescribed paths' work and the
+        friction's loss (J) up to t."""
+        row = self.table[self.count]
+        energy = self.write_observables(x, v, row)
+        row[self.t_column] = t
+        row[self.dissipated_column] = dissipated_energy
+        if self.work_column is not None:
+            row[self.work_column] = work
+        if self.friction_column is not None:
+            row[self.friction_column] = friction
+        if self.with_state:
+            row[self.positions] = x
+            row[self.velocities] = v
+        self.count += 1
+        return energy
+
+    def record_frame(self, t: float, x: np.ndarray) -> None:
+        self.frames[self.frame_count] = x.reshape(self.frames.shape[1:])
+        self.frame_t[self.frame_count] = t
+        self.frame_count += 1
+
+    def result(self) -> dict[str, np.ndarray]:
+        """The samples by name (t first), each a contiguous array of shape (samples,) + its shape."""
+        count = self.count
+        order = ["t", *(key for key in self.columns if key != "t")]
+        arrays = {key: np.ascontiguousarray(self.table[:count, self.columns[key][0]]).reshape((count,) + self.columns[key][1])
+                  for key in order}
+        if self.frames is not None:
+            arrays["frames"] = self.frames[: self.frame_count]
+            arrays["frame_t"] = self.frame_t[: self.frame_count]
+        return arrays
+
+
+def simulate(run: Run) -> RunResult:
+    """Run the integrator for run.step_count steps of run.dt on run.system; never raises for a bad run."""
+    system = run.system.build()
+    integrator = run.integrator
+    solver = run.solver.build()
+    step_count, dt = run.step_count, run.dt
+    stride = run.record.stride(step_count)
+    check_every = run.divergence.check_every
+    frame_stride = run.record.frame_stride(step_count)
+    error_step = run.record.error_step(dt, step_count, system.capabilities.test_frequency)
+    error_state = None  # (t, x, v) at the end of step error_step, where the run's error is measured
+    recorder = Recorder(system, step_count // stride + 2, step_count // frame_stride + 2)
+    with_frames = not system.records_state_per_sample
+    per_step = {
+        "newton_iterations": np.zeros(step_count, dtype=np.int32),
+        "linear_iterations": np.zeros(step_count, dtype=np.int32),
+        "line_search_steps": np.zeros(step_count, dtype=np.int32),
+        "residual": np.zeros(step_count),
+        "solver_index": np.zeros(step_count, dtype=np.int8),
+        "safeguards": np.zeros(step_count, dtype=np.uint8),
+    }
+    with_contact = system.has_contact
+    if with_contact:  # per step: the smallest signed contact distance (m), active contacts, friction's loss (J)
+        per_step.update(contact_distance=np.zeros(step_count), active_contacts=np.zeros(step_count, dtype=np.int32),
+                        friction_work=np.zeros(step_count))
+    stop_on_not_converged = run.solver.on_not_converged == "stop"
+    # a real-time budget: a step that used up max_iterations is what the budget bought, not a failure
+    accept_not_converged = run.solver.on_not_converged == "accept"
+
+    state = State(0.0, system.x0.copy(), system.v0.copy())
+    if with_contact:  # IPC's barrier stiffness (auto) before anything evaluates the energy
+        system.begin_run(dt, state.x)
+    energy0 = system.total_energy(state.x, state.v)
+    energy_bound = run.divergence.energy_factor * system.energy_scale()
+    dissipated = 0.0  # work of the physical damping forces so far (J), for the energy budget
+    work = 0.0  # work done on the system by the vertices on prescribed paths so far (J), for the energy budget
+    friction = 0.0  # energy friction took out so far (J), for the energy budget
+    moving = _moving_dofs(system)
+    damped = system.is_damped
+    newton_iterations, linear_iterations = per_step["newton_iterations"], per_step["linear_iterations"]
+    line_search_steps, residuals, solver_index = per_step["line_search_steps"], per_step["residual"], per_step["solver_index"]
+    safeguards = per_step["safeguards"]
+
+    record_sample, record_frame, total_energy = recorder.record, recorder.record_frame, system.total_energy
+    step = integrator.step
+
+    def record_stop(t: float, state: State, sampled: bool, framed: bool) -> None:
+        """The sample (and frame) of the step a run stops at, unless the regular cadence took them already."""
+        if not sampled:
+            record_sample(t, state.x, state.v, dissipated, work, friction)
+        if with_frames and not framed:
+            record_frame(t, state.x)
+
+    record_sample(0.0, state.x, state.v, dissipated, work, friction)
+    if with_frames:
+        record_frame(0.0, state.x)
+    path_power = _path_power(system, moving, state.x, state.v, 0.0) if moving.size else 0.0
+    status, message, t_diverged, not_converged_steps = Status.OK, "", None, 0
+    first_not_converged = diverged_step = 0  # 1-based step numbers; 0: none
+    steps = 0
+    start = time.perf_counter()
+    try:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            state = integrator.start(system, state)
+            for n in range(step_count):
+                previous = state
+                if with_contact:  # colliders move to the step's end; IPC's stiffness is estimated and updated
+                    system.begin_step(dt * n, dt, state.x)
+                state, stats = step(system, state, dt, solver)
+                steps = n + 1
+                t = dt * steps  # the loop owns t: no accumulated round-off, whatever state.t says
+                if with_contact:
+                    distance, active, lost = system.contact_record(previous.x, state.x, state.v, dt)
+                    per_step["contact_distance"][n], per_step["active_contacts"][n] = distance, active
+                    per_step["friction_work"][n] = lost
+                    friction += lost
+                if moving.size:  # the prescribed vertices where their paths are at t, and the work they did
+                    state = _on_paths(system.constraints, moving, state, t)
+                    power = _path_power(system, moving, state.x, state.v, t)
+                    work += 0.5 * dt * (path_power + power)  # the trapezoidal rule: second order
+                    path_power = power
+                if damped:
+                    # h v_bar^T D(x_bar) v_bar with the step's mean velocity and D at its mean position: the
+                    # exact discrete balance of implicit midpoint for quadratic energies, a second-order
+                    # estimate for the others (D at the step's start would make it first order when D
+                    # depends on x, as spring damping does)
+                    damping = system.damping_matrix(0.5 * (previous.x + state.x))
+                    mean_velocity = 0.5 * (previous.v + state.v)
+                    dissipated += dt * float(mean_velocity @ (damping @ mean_velocity))
+                if stats is not EXPLICIT_STEP:  # the per-step arrays start at zero, what an explicit step reports
+                    newton_iterations[n] = stats.iterations
+                    linear_iterations[n] = stats.linear_iterations
+                    line_search_steps[n] = stats.line_search_steps
+                    residuals[n] = stats.residual
+                    solver_index[n] = stats.solver_index
+                    safeguards[n] = stats.safeguards
+                if steps == error_step:
+                    error_state = (t, state.x.copy(), state.v.copy())
+                last = steps == step_count
+                sampled = steps % stride == 0 or last
+                # a sample's row carries the energy, so the check below needs no second evaluation
+                energy = record_sample(t, state.x, state.v, dissipated, work, friction) if sampled else None
+                framed = with_frames and (steps % frame_stride == 0 or last)
+                if framed:
+                    record_frame(t, state.x)
+                if not stats.converged:  # counted first: a step can fail to converge and diverge at once
+                    not_converged_steps += 1
+                    first_not_converged = first_not_converged or steps
+                # a step that stops the run for not converging is checked for divergence first: a run
+                # whose energy left the bound is diverged, whatever else went wrong in the step
+                if steps % check_every == 0 or last or (stop_on_not_converged and not stats.converged):
+                    if energy is None:
+                        energy = total_energy(state.x, state.v)
+                    # math.isfinite: cheaper than np.isfinite on one float (docs/performance.md)
+                    # the work of prescribed paths is energy put in on purpose, not a sign of instability
+                    if not math.isfinite(energy) or abs(energy - work - energy0) > energy_bound:
+                        status, t_diverged, diverged_step = Status.DIVERGED, t, steps
+                        message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {t:.6g} s"
+                        record_stop(t, state, sampled, framed)
+                        break
+                if stop_on_not_converged and not stats.converged:
+                    message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
+                    record_stop(t, state, sampled, framed)
+                    break
+    except Exception as error:  # a failing run is a result, never the end of the sweep
+        status, message = Status.FAILED, f"{type(error).__name__}: {error}"
+    wall_time = time.perf_counter() - start
+    if status is Status.OK and not_converged_steps and not accept_not_converged:
+        status = Status.NOT_CONVERGED
+        if not message:
+            limits = "max_iterations" + (" or time_budget" if getattr(run.solver, "time_budget", None) else "")
+            message = f"{not_converged_steps} of {steps} steps did not converge within {limits}"
+    samples = recorder.result()
+    attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps,
+             "first_not_converged_step": first_not_converged, "diverged_step": diverged_step,
+             "safeguard_steps": int(np.count_nonzero(safeguards[:steps])),
+             **(_contact_attrs(per_step, steps) if with_contact else {}),
+             **system.capabilities.as_attrs()}
+    oscillator = system.capabilities.oscillator
+    if oscillator is not None:  # the amplitude's decay per period, which the damping map compares with its prediction
+        with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN (or a growth, inf)
+            attrs["decay_per_period"] = _measured_decay(system, samples, oscillator[0])
+    if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
+        attrs["error_time"], samples["error_positions"], _ = error_state
+        attrs["error"] = _error_at(system, *error_state)
+    model = {}
+    if system.frame_edges is not None and with_frames:
+        model["model_edges"] = system.frame_edges
+        if system.frame_triangles is not None:
+            model["model_triangles"] = system.frame_triangles
+    result = RunResult(
+        run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
+        per_step={key: value[:steps] for key, value in per_step.items()},
+        t_diverged=t_diverged, message=message, attrs=attrs, model=model,
+    )
+    if not run.record.series:  # a map: the summary's numbers as attributes, no series
+        result.attrs.update(series_summary(result))
+        result.samples, result.per_step = {}, {}
+    return result
+
+
+def series_summary(result: RunResult) -> dict[str, float]:
+    """The summary's numbers that come from the run's series (results.SERIES_SUMMARY_KEYS), from its RunResult."""
+    empty = np.empty(0)
+    return _series_summary(result.attrs, lambda key: result.samples.get(key, result.per_step.get(key, empty)))
+
+
+def _contact_attrs(per_step: dict[str, np.ndarray], steps: int) -> dict[str, float]:
+    """The run's contact in numbers: the smallest signed distance over its steps (m; negative: a penetration),
+    the most contacts acting at once, and friction's total loss (J)."""
+    distances = per_step["contact_distance"][:steps]
+    return {"min_contact_distance": float(np.min(distances)) if steps else float("inf"),
+            "max_active_contacts": int(np.max(per_step["active_contacts"][:steps])) if steps else 0,
+            "friction_work": float(np.sum(per_step["friction_work"][:steps]))}
+
+
+def _moving_dofs(system) -> np.ndarray:
+    """The dofs of vertices on prescribed paths (empty for systems without them)."""
+    constraints = system.constraints
+    return constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+
+
+def _on_paths(constraints, moving: np.ndarray, state: State, t: float) -> State:
+    """The state with the prescribed vertices exactly on their paths at t (new arrays; the step's own
+    values there are the method's approximation of the path, exact for a constant velocity)."""
+    positions, velocities = constraints.path(t)
+    x, v = state.x.copy(), state.v.copy()
+    x[moving], v[moving] = positions, velocities
+    return State(state.t, x, v, state.aux)
+
+
+def _path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: float) -> float:
+    """The power (W) that the drivers of the prescribed vertices put into the system: sum over their dofs
+    of v (m a - f), with f = -dP/dx - D v the forces of the system on them (unfiltered) and a the paths'
+    accelerations: what holds the vertices on their paths against the springs, gravity and damping.
+    Systems that can give f on those dofs alone (``driven_force``: the springs that touch them) do so."""
+    driven_force = getattr(system, "driven_force", None)
+    if driven_force is not None:
+        force = driven_force(x, v)
+    else:
+        force = -system.gradient(x)
+        if system.is_damped:
+            force -= system.damping_matrix(x) @ v
+        force = force[moving]
+    accelerations = system.constraints.path_accelerations(t)
+    return float(v[moving] @ (system.mass[moving] * accelerations - force))
+
+
+# energies below this fraction of E(0) are in (or near) the subnormal range, where their digits go: not measured
+DECAY_FLOOR = 1e-250
+MAX_EXPONENT = math.log(np.finfo(float).max)
+
+
+def decay_per_period(energy0: float, energy: float, t: float, frequency: float) -> float:
+    """The amplitude's decay per period 2 pi / w of a linear oscillator, from its modal energy V(t) at one time t > 0:
+    the amplitude goes as sqrt(V), so the factor per period is (V(t)/V(0))^(pi / (w t)); > 1 where it grows."""
+    exponent = math.log(energy / energy0) * math.pi / (frequency * t)
+    return math.inf if exponent > MAX_EXPONENT else math.exp(exponent)  # (math.exp raises beyond it)
+
+
+def _measured_decay(system, samples: dict[str, np.ndarray], frequency: float) -> float:
+    """decay_per_period at the last sample whose modal energy (``System.modal_energy``: the spring's
+    E + d x v / 2, which the exact damped motion loses at the steady rate 2 zeta w) is finite and above DECAY_FLOOR V(0)
+    (NaN when none is, after t = 0): measured over the whole run, so a method's own damping adds to the model's."""
+    energy, t = samples.get("energy"), samples.get("t")
+    if energy is None or energy.size < 2 or "positions" not in samples:
+        return math.nan
+    modal = system.modal_energy(energy, samples["positions"], samples["velocities"])
+    if not modal[0] > 0.0:
+        return math.nan
+    usable = np.flatnonzero(np.isfinite(modal) & (modal > DECAY_FLOOR * modal[0]))
+    last = int(usable[-1]) if usable.size else 0
+    if last == 0:
+        return math.nan
+    return decay_per_period(float(modal[0]), float(modal[last]), float(t[last]), frequency)
+
+
+def _error_at(system, t: float, x: np.ndarray, v: np.ndarray) -> float:
+    """The distance (m) of (x, v) at time t from the exact solution, NaN where none is known.
+
+    On the test equation (a declared test frequency w) it is the phase-space distance
+    sqrt(|x - x_exact|^2 + |v - v_exact|^2 / w^2): a method's error there is a vector that turns with
+    the motion, whose length this measures at any phase (|x - x_exact| alone vanishes twice a period).
+    Otherwise max |x - x_exact| over the degrees of freedom."""
+    exact = system.exact_solution(np.array([t]))
+    if exact is None:
+        return math.nan
+    x_exact, v_exact = exact[0][0], exact[1][0]
+    frequency = system.capabilities.test_frequency
+    if frequency is None:
+        return float(np.max(np.abs(x - x_exact)))
+    return math.sqrt(float(np.sum((x - x_exact) ** 2)) + float(np.sum((v - v_exact) ** 2)) / frequency ** 2)
+
+
+def _final_error(system, samples: dict[str, np.ndarray]) -> float:
+    """max |x - x_exact| at the last recorded sample (m), NaN where no exact solution is known."""
+    if not samples.get("t", np.empty(0)).size or "positions" not in samples:
+        return float("nan")
+    exact = system.exact_solution(samples["t"][-1:])
+    if exact is None:
+        return float("nan")
+    return float(np.max(np.abs(samples["positions"][-1] - exact[0][0])))

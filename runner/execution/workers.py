@@ -1,0 +1,128 @@
+"""The local process pool's workers: where they come from and how many BLAS threads each gets.
+
+Kept free of numpy and the simulation, so that the command line can start the workers' fork server
+before it imports them itself: the two imports then run side by side on two cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import multiprocessing
+import multiprocessing.forkserver
+import os
+import select
+import signal
+import threading
+import time
+
+import threadpoolctl
+
+EXECUTORS = ("process", "dask")  # the names of simrun.execution.executors.EXECUTOR_FUNCTIONS, light for the command line
+# what the command line also accepts: `--executor local` (the name before the pipeline API) is the process pool
+EXECUTOR_ALIASES = {"local": "process"}
+# Thread-count variables of the BLAS libraries a run may load (CHOLMOD's OpenBLAS; MKL or OpenMP builds)
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def default_jobs() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def process_pool(jobs: int) -> concurrent.futures.ProcessPoolExecutor:
+    """`jobs` worker processes, each with cores / jobs BLAS threads, each ending with this process."""
+    threads = max(1, default_jobs() // jobs)
+    return concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=_worker_context(),
+                                                  initializer=_start_worker, initargs=(threads, os.getpid()))
+
+
+def _start_worker(threads: int, owner: int) -> None:
+    # Ctrl-C reaches the whole process group: the main process handles it (it commits what finished and
+    # stops the workers); a worker that took it too would die with a traceback of its own
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _limit_blas_threads(threads)
+    _exit_with(owner)
+
+
+def stop_workers(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """End the pool's workers now, in the middle of their runs (they ignore Ctrl-C): the sweep was
+    interrupted, and a shutdown would wait for every run in flight to finish."""
+    terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+    if terminate is not None:
+        terminate()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
+
+
+def _exit_with(owner: int) -> None:
+    """End this worker when process ``owner`` (the simrun that made the pool) ends, however it ends.
+
+    After a kill -9 of simrun nothing else would: a worker's parent is the fork server, which
+    outlives simrun while the workers hold its liveness pipe, and a worker blocked on its result
+    pipe waits forever. A daemon thread waits on a pidfd of the owner (no polling)."""
+    def wait_for_owner() -> None:
+        try:
+            descriptor = os.pidfd_open(owner)
+        except (AttributeError, OSError):  # no pidfd (not Linux >= 5.3): poll once a second
+            while _alive(owner):
+                time.sleep(1.0)
+        else:
+            select.select([descriptor], [], [])  # readable once the owner has ended
+        os._exit(1)
+
+    threading.Thread(target=wait_for_owner, name="simrun-exit-with-owner", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _limit_blas_threads(threads: int) -> None:
+    """Give each worker its share of the cores for BLAS: multithreaded BLAS in two workers on two
+    cores would run four threads, each waiting on the others. The libraries already loaded (numpy's)
+    are limited now; the ones loaded later (CHOLMOD's, with the first `cholesky` solver) read these
+    variables when they load. A user who set any of them chose the thread counts: nothing is changed."""
+    if any(variable in os.environ for variable in BLAS_THREAD_VARIABLES):
+        return
+    threadpoolctl.threadpool_limits(limits=threads, user_api="blas")
+    for variable in BLAS_THREAD_VARIABLES:
+        os.environ[variable] = str(threads)
+
+
+def start_worker_server() -> None:
+    """Start the pool's fork server now, in the background: its imports then overlap with the
+    caller's own instead of delaying the first run. A no-op where workers are spawned."""
+    if _worker_context().get_start_method() == "forkserver":
+        multiprocessing.forkserver.ensure_running()
+
+
+def _worker_context():
+    """Workers forked from a clean server process: a plain fork would inherit the open results file
+    (and the HDF5 lock on it); the server imports the simulation once, so each fork starts at once."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["simrun.execution.simulate", "simrun.execution.lanes"])
+    return context
+
+
+def may_use_local_pool(argv: list[str]) -> bool:
+    """Whether a `simrun run` command line may run on the local pool (not -j 1, not --executor dask);
+    a guess from the options alone, before the full parser (which needs the heavy imports) runs.
+    A wrong yes (--help, a sweep with one pending run, combined short options such as -qj1) costs
+    one idle server process and its imports on another core, nothing of the caller's time."""
+    guess = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    guess.add_argument("-j", "--jobs", type=int)
+    guess.add_argument("--executor")
+    try:
+        known, _ = guess.parse_known_args(argv)
+    except (argparse.ArgumentError, SystemExit):
+        return False  # the real parser will report it
+    return known.executor in (None, "local", "process") and (known.jobs is None or known.jobs > 1) and default_jobs() > 1

@@ -1,0 +1,3 @@
+"""The results file's format, as every stage shares it: where things are (layout), the summary table and the
+run's status (summary), and what one run or one chunk of lanes produced (run_result). The stepping code builds
+these rows, the writer stores them, the reader and the tables read them (docs/results-format.md)."""

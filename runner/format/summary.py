@@ -1,0 +1,154 @@
+"""The summary table of a results file and what it is computed from: the run's status, its energy drift
+relative to the system's energy reference, and its cost per simulated second and per frame.
+
+Every stage reads these definitions: the stepping code (a lane's summary rows, a run kept without series), the
+writer (a run's row), the reader (a resumed or older file's rows) and the tables. Like the reader, this module
+imports h5py and numpy only.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+import h5py
+import numpy as np
+
+
+class Status(str, enum.Enum):
+    """How a run ended (the ``status`` attribute); a ``str``, so ``Status.OK == "ok"``."""
+
+    OK = "ok"  # reached the end time
+    DIVERGED = "diverged"  # energy non-finite or beyond the bound (``t_diverged`` says when)
+    NOT_CONVERGED = "not_converged"  # some step's solver hit max_iterations
+    FAILED = "failed"  # an exception; its message is stored
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def stopped(self) -> bool:
+        """The run did not reach its end time with data to trust (diverged or failed)."""
+        return self in (Status.DIVERGED, Status.FAILED)
+
+
+# -- energy drift: the one definition ---------------------------------------------------------------
+def energy_reference(attrs, energy: np.ndarray, kinetic: np.ndarray, potential: np.ndarray) -> tuple[float, str]:
+    """A run's energy reference E_ref (J) and what it is: every drift, energy figure and table divides by it.
+
+    Format 2: what the run's system declared (attributes ``energy_scale``, ``energy_reference_name``),
+    e.g. E0 for the spring and M |g| L for a cloth at rest, whose E0 is round-off. Format 1 did not store
+    it: its drifts were relative to ``drift_scale``, which stays its reference."""
+    if "energy_scale" in attrs:
+        return float(attrs["energy_scale"]), as_text(attrs.get("energy_reference_name", "the system's energy scale"))
+    return drift_scale(energy, kinetic, potential), "|E0| (format 1)"
+
+
+def energy_drift(energy: np.ndarray, scale: float) -> tuple[float, float]:
+    """(max |E - E0|, final E - E0) over the finite samples, both divided by ``scale`` (J); NaN without samples."""
+    energy = energy[np.isfinite(energy)]
+    if energy.size == 0:
+        return math.nan, math.nan
+    drift = (energy - energy[0]) / scale
+    return float(np.max(np.abs(drift))), float(drift[-1])
+
+
+# -- the summary table ------------------------------------------------------------------------------
+SUMMARY_DTYPE = np.dtype([
+    ("run_id", h5py.string_dtype()),
+    ("integrator", h5py.string_dtype()),
+    ("dt", "f8"),
+    ("status", h5py.string_dtype()),
+    ("steps", "i8"),
+    ("max_rel_energy_drift", "f8"),
+    ("final_rel_energy_drift", "f8"),
+    ("final_error", "f8"),
+    ("error_time", "f8"),
+    ("error", "f8"),
+    ("mean_newton_iterations", "f8"),
+    ("mean_linear_iterations", "f8"),
+    ("wall_time", "f8"),
+    ("real_time_factor", "f8"),
+    ("wall_time_per_frame", "f8"),
+])
+
+
+SUMMARY_COLUMNS = SUMMARY_DTYPE.names
+
+
+# the frame of real-time animation, simulated seconds: wall_time_per_frame is the wall time per 1/60 s
+FRAME_TIME = 1.0 / 60.0
+
+
+def real_time_factor(steps: int, dt: float, wall_time: float) -> float:
+    """Simulated time over wall time (> 1: faster than real time); NaN when either is zero or unknown."""
+    simulated = steps * dt
+    return simulated / wall_time if simulated > 0.0 and wall_time > 0.0 else math.nan
+
+
+def wall_time_per_frame(steps: int, dt: float, wall_time: float) -> float:
+    """Wall time (s) per FRAME_TIME of simulated time: real time needs it below FRAME_TIME."""
+    simulated = steps * dt
+    return wall_time * FRAME_TIME / simulated if simulated > 0.0 else math.nan
+
+
+# the summary's numbers that come from a run's series; a run recorded without them (record.series: false) stores
+# them as attributes instead
+SERIES_SUMMARY_KEYS = ("max_rel_energy_drift", "final_rel_energy_drift", "mean_newton_iterations", "mean_linear_iterations")
+
+
+def series_summary(attrs, read) -> dict[str, float]:
+    """SERIES_SUMMARY_KEYS of one run: from its attributes where it kept no series, else from ``read(key)`` (its
+    recorded dataset, or an empty array)."""
+    if SERIES_SUMMARY_KEYS[0] in attrs:
+        return {key: float(attrs[key]) for key in SERIES_SUMMARY_KEYS}
+    series = {key: read(key) for key in ("energy", "kinetic_energy", "potential_energy")}
+    max_drift, final_drift = energy_drift(series["energy"], energy_reference(attrs, *series.values())[0])
+    newton, linear = read("newton_iterations"), read("linear_iterations")
+    return {"max_rel_energy_drift": max_drift, "final_rel_energy_drift": final_drift,
+            "mean_newton_iterations": float(newton.mean()) if newton.size else 0.0,
+            "mean_linear_iterations": float(linear.mean()) if linear.size else 0.0}
+
+
+def summary_row(run_id: str, group: h5py.Group) -> tuple:
+    """One summary row, computed from a run's group alone (the writer's row, and a resumed file's rebuild)."""
+    return summary_row_of(run_id, group.attrs, lambda key: group[key][()] if key in group else np.empty(0))
+
+
+def summary_row_of(run_id: str, attrs, read) -> tuple:
+    """One summary row from a run's attributes and ``read(key)``, its datasets (an empty array where it has none)."""
+    series = series_summary(attrs, read)
+    steps, dt, wall_time = int(attrs["steps"]), float(attrs["dt"]), float(attrs["wall_time"])
+    return (
+        run_id, as_text(attrs["integrator_label"]), dt, as_text(attrs["status"]), steps,
+        series["max_rel_energy_drift"], series["final_rel_energy_drift"], float(attrs.get("final_error", math.nan)),
+        float(attrs.get("error_time", math.nan)), float(attrs.get("error", math.nan)),
+        series["mean_newton_iterations"], series["mean_linear_iterations"], wall_time,
+        real_time_factor(steps, dt, wall_time), wall_time_per_frame(steps, dt, wall_time),
+    )
+
+
+def as_text(value) -> str:
+    """An attribute as text: h5py gives bytes for some strings."""
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+# -- format 1: the drift reference and the capabilities ---------------------------------------------
+def drift_scale(energy: np.ndarray, kinetic: np.ndarray, potential: np.ndarray) -> float:
+    """Format 1's drift reference (J): |E0|, else |KE0| + |PE0| (E0 = 0), else 1 J."""
+    if energy.size and np.isfinite(energy[0]) and energy[0] != 0:
+        return abs(float(energy[0]))
+    if kinetic.size and potential.size:
+        scale = abs(float(kinetic[0])) + abs(float(potential[0]))
+        if np.isfinite(scale) and scale > 0:
+            return scale
+    return 1.0
+
+
+def attribute_value(value):
+    """An HDF5 attribute as Python: str for strings, int/float/bool for numpy scalars, arrays as they are."""
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value

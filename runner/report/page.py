@@ -1,0 +1,563 @@
+"""`simrun report`'s page: a results file as one self-contained HTML file.
+
+Figures are embedded as base64 PNG, styles inline, no script, no link to any other file. The page opens
+with the findings (``simrun.findings``: the answers, each linked to the table or figure that shows it,
+and what could not be measured), then the tables that apply to the file: the summary of the runs, the
+observed orders (runs with a known error), the predicted stability limits against what the runs did
+(runs on the undamped test equation), the determinant of each method's one-step map on the spring
+against the lectures' closed forms (runs with one degree of freedom); then every figure the file
+supports with its caption (the cloth's snapshots as one grid of runs x times), and the provenance with
+the config as written beside the resolved one. Like the figures, it is made from the results file alone
+(``simrun.results``); the tables come from ``simrun.analysis.rows``, the errors of runs without an exact
+solution from ``simrun.analysis.reference`` on request.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import html
+import io
+import json
+import math
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from simrun.analysis.reference import REFERENCE_RTOL, reference_errors
+from simrun.analysis.rows import (DAMPING_TOLERANCE, DETERMINANT_TOLERANCE, ORDER_TOLERANCE, DeterminantRow, OrderRow,
+                                  StabilityRow, SummaryRow, any_safeguards, determinant_rows, energy_reference_differs,
+                                  energy_reference_text, error_time_text, iteration_name, mixed_solvers, order_rows,
+                                  stability_rows, steps_text, summary_rows)
+from simrun.analysis.units import damping_text, distance_text, frame_time_text, number_text, real_time_text
+from simrun.figures import CALIBRATION, FIGURES, Figure, FigureData, figure_data, figures_for, frames as frame_figures
+from simrun.findings import findings
+from simrun.findings.base import Finding, drift_text
+from simrun.format.summary import FRAME_TIME, Status
+from simrun.results import Results, load
+
+REPORT_DPI = 100  # the figures' inches become about as many CSS pixels at this resolution
+# A summary table longer than this scrolls inside its box.
+SCROLLING_TABLE_ROWS = 40
+
+STYLE = """
+body { font-family: system-ui, -apple-system, 'Segoe UI', Roboto, Helvetica, Arial, sans-serif; margin: 0 auto;
+       max-width: 1280px; padding: 1.5rem 2rem 4rem; color: #1d2330; line-height: 1.45; box-sizing: border-box; }
+h1 { font-size: 1.7rem; margin-bottom: 0.2rem; } h2 { margin-top: 2.4rem; border-bottom: 1px solid #d8dce3; padding-bottom: 0.2rem; }
+h3 { font-size: 1.02rem; margin: 1.4rem 0 0.5rem; }
+.subtitle { color: #5a6270; margin-top: 0; }
+nav ul { columns: 3; list-style: none; padding-left: 0; } nav a, a { color: #2856a3; text-decoration: none; }
+table { border-collapse: collapse; font-size: 0.8rem; font-variant-numeric: tabular-nums; }
+th, td { padding: 0.25rem 0.38rem; border-bottom: 1px solid #e6e8ec; text-align: right; white-space: nowrap; }
+th { background: #f3f5f8; position: sticky; top: 0; text-align: center; white-space: normal; min-width: 2.4rem; }
+td.text, th.text { text-align: left; }
+td.label { white-space: normal; overflow-wrap: anywhere; min-width: 7rem; max-width: 14rem; }
+td.wrap { white-space: normal; min-width: 12rem; max-width: 26rem; text-align: left; }
+tbody tr:nth-child(even) { background: #fafbfc; }
+.box { max-width: 100%; overflow-x: auto; }
+.scroll { max-height: 34rem; overflow: auto; border: 1px solid #e6e8ec; }
+.status { padding: 0.05rem 0.4rem; border-radius: 0.6rem; font-size: 0.75rem; }
+.ok { background: #e3f4e8; color: #1c6b34; } .diverged { background: #fde6e4; color: #a1281c; }
+.failed { background: #f2e3f7; color: #6d2a86; } .not_converged { background: #fff2d6; color: #8a5a00; }
+.agrees { color: #1c6b34; } .differs { color: #a1281c; font-weight: 600; }
+.sub { color: #5a6270; font-size: 0.74rem; }
+pre { background: #f6f8fa; padding: 0.8rem 1rem; overflow: auto; font-size: 0.8rem; border-radius: 4px; max-height: 40rem; margin: 0; }
+.configs { display: grid; grid-template-columns: minmax(0, 1fr) minmax(0, 1fr); gap: 1rem; }
+.configs pre { white-space: pre-wrap; overflow-wrap: anywhere; }
+figure { margin: 1.6rem 0 2.4rem; } figure img { max-width: 100%; height: auto; border: 1px solid #eceef2; }
+figcaption { color: #3c4452; font-size: 0.9rem; max-width: 70rem; margin-top: 0.4rem; }
+figcaption b { color: #1d2330; }
+dl { display: grid; grid-template-columns: max-content minmax(0, 1fr); gap: 0.2rem 1.2rem; font-size: 0.9rem; }
+dt { color: #5a6270; } dd { margin: 0; overflow-wrap: anywhere; }
+.note { color: #5a6270; font-size: 0.85rem; max-width: 70rem; }
+.missing { color: #8a5a00; }
+ul.findings { padding-left: 1.2rem; max-width: 72rem; } ul.findings li { margin: 0.35rem 0; }
+ul.findings a.see { font-size: 0.8rem; white-space: nowrap; }
+.topic { color: #5a6270; font-size: 0.75rem; text-transform: uppercase; letter-spacing: 0.04em; margin-right: 0.3rem; }
+"""
+
+
+def write_report(path: str | Path, output: str | Path, reference: str | None = "dop853", say=None) -> Path:
+    """Write the report of the results file at path into output (an .html file); returns output.
+
+    reference: what the errors of runs without an exact solution are measured against (see
+    ``simrun.analysis.reference.reference_errors``), or None / "none" for no reference. (``simrun report`` checks
+    the output before any work and hands a temporary file here, renamed when the page is complete.)"""
+    import matplotlib.pyplot as plt
+
+    output = Path(output)
+    results = load(path)
+    without_exact = [run for run in results.runs.values() if not np.isfinite(run.error) and not run.status.stopped]
+    errors: dict[str, float] = {}
+    reference_note = ""
+    if without_exact and reference and str(reference).lower() != "none":
+        errors = reference_errors(results, reference, say=say)
+        against = (f"run {reference}" if reference in results.runs
+                   else f"scipy solve_ivp ({str(reference).upper()}, rtol {REFERENCE_RTOL:g})")
+        reference_note = (f"{len(without_exact)} runs have no exact solution: their errors are measured against {against} "
+                          f"on the system rebuilt from its stored parameters ({len(errors)} runs).")
+    elif without_exact:
+        reference_note = (f"{len(without_exact)} runs have no exact solution and no reference was asked for "
+                          "(--reference none): no convergence for them.")
+    figures = []
+    with results.opened():
+        data = figure_data(results, errors or None)
+        rows = summary_rows(data)
+        orders = order_rows(data)
+        stability = stability_rows(data)
+        determinants = determinant_rows(data)
+        for entry, name, figure in _render(data):
+            try:
+                figures.append((entry, name, _png_data(figure)))
+            finally:
+                plt.close(figure)
+        found = findings(data, rows, orders)
+    test_equation = any(np.isfinite(row.hw) for row in rows)
+    sections = [("summary", "Runs", _summary_section(rows))]
+    if orders:
+        sections.append(("orders", "Observed order of convergence", _orders_section(orders, reference_note, error_time_text(rows))))
+    if stability:
+        sections.append(("stability", "Stability limits: predicted and observed", _stability_section(stability)))
+    if determinants:
+        sections.append(("determinants", "Determinant of the one-step map (one degree of freedom: the mass on a spring)",
+                         _determinant_section(determinants)))
+    sections.append(("figures", "Figures", _figures_section(figures, test_equation)))
+    sections.append(("provenance", "Provenance and config", _provenance_section(results, path)))
+    anchors = {f"#{key}" for key, _, _ in sections} | {f"#figure-{name}" for _, name, _ in figures}
+    sections.insert(0, ("findings", "Findings", _findings_section(found, anchors, rows, data.dt_names)))
+    if results.fits is not None:  # a calibration answers its own question first; its runs each have their own values
+        sections[0] = ("findings", "Findings on the fitted runs (each simulated with its own fit's values)", sections[0][2])
+        sections.insert(0, ("calibration", "Calibration", _calibration_section(results)))
+    page = _page(results, data, sections)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(page, encoding="utf-8")
+    return output
+
+
+def _render(data: FigureData):
+    """(registry entry, name, matplotlib Figure) for every figure the file supports; the snapshots as one grid."""
+    for entry in figures_for(data):
+        if entry.name == "snapshots":
+            grid = frame_figures.snapshot_grid(data)
+            if grid is not None:
+                yield entry, entry.name, grid
+            continue
+        drawn = entry.draw(data)
+        if drawn is None:
+            continue
+        for name, figure in drawn if isinstance(drawn, list) else [(entry.name, drawn)]:
+            yield entry, name, figure
+
+
+def _png_data(figure) -> str:
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=REPORT_DPI)
+    return base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def _e(text) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _page(results: Results, data: FigureData, sections: list[tuple[str, str, str]]) -> str:
+    counts = Counter(str(run.status) for run in results.runs.values())
+    status_text = ", ".join(f"{count} {status}" for status, count in sorted(counts.items())) or "no runs"
+    provenance = results.provenance
+    created = provenance.get("created", "")
+    now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    navigation = "".join(f'<li><a href="#{key}">{_e(title)}</a></li>' for key, title, _ in sections)
+    body = "".join(f'<section id="{key}"><h2>{_e(title)}</h2>{content}</section>' for key, title, content in sections)
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+        f"<title>simrun report: {_e(results.name)}</title><style>{STYLE}</style></head><body>"
+        f"<h1>{_e(results.name)}</h1>"
+        f"<p class=\"subtitle\">{len(results.runs)} runs ({_e(status_text)}) · {len(data.labels)} integrators · "
+        f"results written {_e(created)} by simrun {_e(provenance.get('simrun_version', '?'))} · report made {_e(now)}</p>"
+        f"<nav><ul>{navigation}</ul></nav>{body}</body></html>\n"
+    )
+
+
+def _table(headings: list[tuple[str, bool | str]], body_rows: list[list[str]], scroll: bool = False) -> str:
+    """headings: (text, kind): False a number column, True a text column, "label" a text column that wraps
+    (integrator labels), "wrap" a prose column; cells are HTML already. The table scrolls sideways inside
+    its box when it is wider than the page, and down when ``scroll``."""
+    classes = {True: ' class="text"', "label": ' class="text label"', "wrap": ' class="text wrap"', False: ""}
+    head = "".join(f'<th class="text">{_e(text)}</th>' if kind else f"<th>{_e(text)}</th>" for text, kind in headings)
+    rows = ["<tr>" + "".join(f"<td{classes[headings[number][1]]}>{cell}</td>" for number, cell in enumerate(cells)) + "</tr>"
+            for cells in body_rows]
+    table = f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+    return f'<div class="box{" scroll" if scroll else ""}">{table}</div>'
+
+
+def _status(status: str, message: str = "") -> str:
+    title = f' title="{_e(message)}"' if message else ""
+    return f'<span class="status {_e(status)}"{title}>{_e(status.replace("_", " "))}</span>'
+
+
+def _status_cell(row: SummaryRow) -> str:
+    """The run's status, its message on hover, and below it where it went wrong (``SummaryRow.status_detail``)."""
+    detail = row.status_detail
+    return _status(row.status, row.message) + (f'<br><span class="sub">{_e(detail)}</span>' if detail else "")
+
+
+def _verdict(text: str) -> str:
+    kind = "agrees" if text in ("agrees", "consistent") else ("differs" if text in ("differs",) or "below" in text or "beyond" in text else "")
+    return f'<span class="{kind}">{_e(text)}</span>' if kind else _e(text)
+
+
+# -- findings ---------------------------------------------------------------------------------------
+def _anchor_name(anchor: str) -> str:
+    names = {"#summary": "runs table", "#orders": "orders table", "#stability": "stability table",
+             "#determinants": "determinants table", "#calibration": "fitted values", "#calibration-transfer": "transfer table"}
+    return names.get(anchor, "figure: " + anchor.removeprefix("#figure-").replace("_", " "))
+
+
+def _findings_section(found: list[Finding], anchors: set[str], rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
+    """The findings as a list, each linked to what shows it (the runs table when that is not on the page),
+    then the error (or energy change) and cost of every run as one integrators x dt table."""
+    items = []
+    for finding in found:
+        anchor = finding.link_anchor if finding.link_anchor in anchors else "#summary"
+        kind = ' class="missing"' if finding.topic == "not measured" else ""
+        topic = f'<span class="topic">{_e(finding.topic)}</span>' if finding.topic and finding.topic != "not measured" else ""
+        items.append(f'<li{kind}>{topic}{_e(finding.sentence)} '
+                     f'<a class="see" href="{_e(anchor)}">→ {_e(_anchor_name(anchor))}</a></li>')
+    parts = [f'<ul class="findings">{"".join(items)}</ul>'] if items else ['<p class="note">The file holds no runs.</p>']
+    if rows:
+        parts.append(_glance(rows, dt_names))
+    return "".join(parts)
+
+
+def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
+    """Integrators (rows) x dt (columns): each run's error and wall time, or its status when it stopped."""
+    errors = any(np.isfinite(row.error) for row in rows)
+    several = len({row.group for row in rows}) > 1
+    dts = sorted({row.dt for row in rows})
+    hw = {}
+    for row in rows:
+        if np.isfinite(row.hw):
+            hw.setdefault(row.dt, set()).add(f"{row.hw:.3g}")
+    keys = list(dict.fromkeys((row.group, row.integrator) for row in rows))
+    cells = {(row.group, row.integrator, row.dt): row for row in rows}
+    head = (("<th class=\"text\">group</th>" if several else "") + "<th class=\"text\">integrator</th>"
+            + "".join(f"<th>dt = {_e(dt_names.get(dt, f'{dt:g}'))} s" + (f"<br><span class=\"sub\">h w = {_e(', '.join(sorted(hw[dt])))}</span>"
+                                                if dt in hw else "") + "</th>" for dt in dts))
+    body = []
+    for group, label in keys[:MAX_RUN_ROWS]:
+        line = (f'<td class="text">{_e(group)}</td>' if several else "") + f'<td class="text">{_e(label)}</td>'
+        for dt in dts:
+            row = cells.get((group, label, dt))
+            if row is None:
+                line += "<td></td>"
+            elif row.status in (Status.DIVERGED, Status.FAILED):
+                line += f"<td>{_status_cell(row)}</td>"
+            else:
+                top = ((number_text(row.error) + " m" if np.isfinite(row.error) else "–") if errors
+                       else drift_text(row.max_rel_energy_drift))
+                flag = "" if row.status == Status.OK else f" {_status(row.status, row.message)}"
+                cost = f"{row.wall_time:.3g} s" + (f" · {real_time_text(row.real_time_factor)}"
+                                                   if np.isfinite(row.real_time_factor) else "")
+                line += f'<td>{_e(top)}{flag}<br><span class="sub">{_e(cost)}</span></td>'
+        body.append(f"<tr>{line}</tr>")
+    what = (f"the error at {error_time_text(rows)} (against the "
+            + ("reference" if any(row.error_from_reference for row in rows) else "exact") + " solution)"
+            if errors else f"the largest energy change max |E − E0| / E_ref ({energy_reference_text(rows)})")
+    note = (f'<h3>Error and cost at each dt</h3><p class="note">Each cell: {_e(what)}; below it the wall time of the '
+            "whole run and its real-time factor (simulated over wall time, > 1x faster than real time). Stopped runs "
+            "show their status and the step at which they stopped."
+            + (f" The first {MAX_RUN_ROWS:,} of {len(keys):,} rows, in sweep order." if len(keys) > MAX_RUN_ROWS else "")
+            + "</p>")
+    return note + f'<div class="box"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
+
+
+# -- calibration (simrun fit) -----------------------------------------------------------------------
+def _calibration_section(results: Results) -> str:
+    """What the fits were fitted to, their findings, the fitted values (integrators x dt) and the transfer table."""
+    from simrun.findings import calibration
+
+    fits = results.fits
+    items = "".join(f'<li>{_e(finding.sentence)} <a class="see" href="{_e(finding.link_anchor)}">→ '
+                    f"{_e(_anchor_name(finding.link_anchor))}</a></li>" for finding in calibration.calibration_findings(results))
+    parts = [f'<p class="note">Observed: {_e(calibration.source_text(fits))}.</p>', f'<ul class="findings">{items}</ul>']
+    for table in calibration.fitted_tables(results):
+        head = [("integrator", "label")] + [(f"dt = {dt:g} s" + (f" (h w = {hw:.3g})" if np.isfinite(hw) else ""), False)
+                                            for dt, hw in zip(table.dts, table.hws)]
+        body = [[_e(label)] + ["" if cell is None else _e(cell.value_text()) + (
+            f'<br><span class="sub">({_e(cell.predicted_text())})</span>' if cell.predicted_text() else "") + (
+            "" if cell.status == "converged" else f"<br>{_status(cell.status)}") for cell in cells]
+            for label, cells in table.rows]
+        anchor = (f"; {table.anchor_name}: {table.anchor:g} {table.unit}" if np.isfinite(table.anchor) else "")
+        exact = f"; the exact-solution fit: {table.reference.text()}" if table.reference is not None else ""
+        predicted = any(cell is not None and cell.predicted_text() for _, cells in table.rows for cell in cells)
+        explained = (", below it (the predicted value: where the method's own step has the observed eigenvalue)"
+                     if predicted else "")
+        parts.append(f"<h3>{_e(table.key)}" + (f" ({_e(table.unit)})" if table.unit else "") + "</h3>"
+                     f'<p class="note">Each cell: the fitted value ± its standard error{_e(explained + anchor + exact)}.</p>'
+                     + _table(head, body))
+    transfer = calibration.transfer_table(fits)
+    if transfer is not None:
+        head = [("fitted with", "label"), ("dt (s)", False)] + [(f"{name} at dt = {dt:g} s", False) for name, dt in transfer.targets]
+        body = [[_e(row.label), "–" if not np.isfinite(row.dt) else f"{row.dt:g}"] + [
+            "" if cell is None else f'<span class="{"agrees" if cell.within else ""}">{_e(cell.text())}</span>'
+            for cell in row.cells] for row in transfer.rows]
+        parts.append('<h3 id="calibration-transfer">Fitted parameters simulated with other integrators</h3><p class="note">'
+                     "Each cell: the relative rms error |x − x_obs|_rms / |x_obs|_rms of the fit's parameters simulated "
+                     f"with the column's integrator and dt (green: within {100 * calibration.TRANSFER_TOLERANCE:g} %).</p>"
+                     + _table(head, body, scroll=len(body) > SCROLLING_TABLE_ROWS))
+    return "".join(parts)
+
+
+# -- the tables ------------------------------------------------------------------------------------
+# the Runs table shows at most this many rows (a map of 10^4 runs would make a page of megabytes); the findings and
+# the figures use every run
+MAX_RUN_ROWS = 1000
+
+
+def _summary_section(rows: list[SummaryRow]) -> str:
+    """The runs, one row each; a column every run leaves empty (NaN, zero or not applicable) is left out."""
+    def finite(value) -> bool:
+        return value is not None and np.isfinite(value) and value != 0
+
+    iterations = iteration_name(rows)
+    columns = [  # heading, kind, cell, shown
+        ("#", False, lambda row: str(row.index), True),
+        ("integrator", "label", lambda row: _e(row.integrator), True),
+        ("group", "wrap", lambda row: _e(row.group), len({row.group for row in rows}) > 1),
+        ("solver", True, lambda row: _e(row.solver or "–"), mixed_solvers(rows)),
+        ("dt (s)", False, lambda row: f"{row.dt:.4g}", True),
+        ("h w", False, lambda row: "–" if not np.isfinite(row.hw) else f"{row.hw:.3g}", any(finite(row.hw) for row in rows)),
+        ("status", True, _status_cell, True),
+        ("steps", False, lambda row: str(row.steps), True),
+        ("order", False, lambda row: str(row.order), True),
+        ("E_ref (J)", False, lambda row: number_text(row.energy_reference), energy_reference_differs(rows)),
+        ("max drift", False, lambda row: number_text(row.max_rel_energy_drift), True),
+        ("final drift", False, lambda row: number_text(row.final_rel_energy_drift), True),
+        ("error (m)", False, lambda row: number_text(row.error), any(finite(row.error) for row in rows)),
+        (f"{iterations} it/step", False, lambda row: f"{row.mean_newton_iterations:.2f}" if row.solver else "–",
+         any(finite(row.mean_newton_iterations) for row in rows)),
+        ("linear it/step", False, lambda row: number_text(row.mean_linear_iterations) if row.solver else "–",
+         any(finite(row.mean_linear_iterations) for row in rows)),
+        ("wall (s)", False, lambda row: f"{row.wall_time:.3g}", True),
+        ("real-time", False, lambda row: real_time_text(row.real_time_factor),
+         any(finite(row.real_time_factor) for row in rows)),
+        ("wall/frame (ms)", False, lambda row: frame_time_text(row.wall_time_per_frame),
+         any(finite(row.wall_time_per_frame) for row in rows)),
+        ("safeguards", False, lambda row: steps_text(row.safeguard_steps, row) or "–", any_safeguards(rows)),
+        ("min contact distance", False, lambda row: distance_text(row.min_contact_distance),
+         any(finite(row.min_contact_distance) for row in rows)),
+        ("contacts", False, lambda row: str(row.max_active_contacts), any(finite(row.min_contact_distance) for row in rows)),
+        ("friction loss (J)", False, lambda row: number_text(row.friction_work),
+         any(finite(row.friction_work) and row.friction_work > 0 for row in rows)),
+        ("d/w measured", False, _measured_cell, any(np.isfinite(row.measured_damping) for row in rows)),
+        ("d/w predicted", False, lambda row: damping_text(row.predicted_damping),
+         any(np.isfinite(row.predicted_damping) for row in rows)),
+        ("difference", False, _difference_cell, any(np.isfinite(row.damping_difference) for row in rows)),
+    ]
+    columns = [column for column in columns if column[3]]
+    body = [[cell(row) for _, _, cell, _ in columns] for row in rows[:MAX_RUN_ROWS]]
+    shown = {heading for heading, _, _, _ in columns}
+    notes = [f"the first {MAX_RUN_ROWS:,} of {len(rows):,} runs, in sweep order (every run: simrun show RESULTS --csv)"
+             ] if len(rows) > MAX_RUN_ROWS else []
+    notes += [f"drift: |E − E0| / E_ref (the largest over the run, and at its end), {energy_reference_text(rows)}"]
+    if "error (m)" in shown:
+        reference = any(row.error_from_reference for row in rows)
+        notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
+                     f"{error_time_text(rows)} (record.error_time, at the step nearest it"
+                     + ("; on the test equation in phase space, √(|x − x_exact|² + |v − v_exact|²/w²)"
+                        if any(np.isfinite(row.hw) for row in rows) and not reference else "") + ")")
+    if any(heading.endswith("it/step") for heading in shown):
+        notes.append(f"{iterations} it/step: the solver's iterations per step"
+                     + (" (the solver column says which)" if mixed_solvers(rows) else "")
+                     + "; – for explicit methods, which solve nothing")
+    if "real-time" in shown or "wall/frame (ms)" in shown:
+        notes.append("real-time: simulated time (steps × dt) over the wall time of the stepping loop, > 1x faster than "
+                     f"real time; wall/frame: wall time per 1/{1 / FRAME_TIME:g} s of simulated time (an animation "
+                     f"frame: real time needs it below {1e3 * FRAME_TIME:.3g} ms)")
+    if any(row.status_detail for row in rows):
+        notes.append("status: below it, the step at which a run diverged, or the first step that did not converge and "
+                     "how many did (under on_not_converged: accept such steps are the price of a real-time budget and "
+                     "the run stays ok)")
+    if "safeguards" in shown:
+        notes.append("safeguards: steps where a solver safeguard fired (the line search cut the step, the Hessian was "
+                     "SPD-projected or regularised, or a fallback solver took the step over)")
+    if "d/w measured" in shown or "d/w predicted" in shown:
+        notes.append("d/w: the artificial damping d_method/w = −2 ln ρ/(h w), measured from the decay of ln E(t) of runs "
+                     "on the undamped test equation and predicted from the probed amplification matrix at the run's h w; "
+                     f"the difference is relative to the prediction (±{100 * DAMPING_TOLERANCE:g} % agrees), or where "
+                     "none is predicted the measured d/w itself, without %, agreeing within the fit's resolution 1e-3)")
+    hidden = [name for name, present in (("h w", "h w" in shown), ("error", "error (m)" in shown),
+                                         ("solver iterations", any(h.endswith("it/step") for h in shown)),
+                                         ("d/w", "d/w measured" in shown)) if not present]
+    if hidden:
+        notes.append("not shown, empty for every run: " + ", ".join(hidden))
+    note = '<p class="note">' + "<br>".join(_e(text[0].upper() + text[1:]) + "." for text in notes) + "</p>"
+    return note + _table([(heading, kind) for heading, kind, _, _ in columns], body, scroll=len(rows) > SCROLLING_TABLE_ROWS)
+
+
+def _measured_cell(row: SummaryRow) -> str:
+    text = _e(damping_text(row.measured_damping))
+    if np.isfinite(row.measured_damping) and not row.measured_resolved:
+        text += ' <span class="sub">(unresolved)</span>'
+    return text
+
+
+def _difference_cell(row: SummaryRow) -> str:
+    difference = row.damping_difference
+    if not np.isfinite(difference):
+        return "–"
+    if row.damping_relative:
+        text = "0.00 %" if abs(difference) < 5e-5 else f"{100 * difference:+.2f} %"
+    else:
+        text = "0" if abs(difference) < 1e-12 else f"{difference:+.1e}"
+    if row.measured_resolved:
+        text = f'<span class="{"agrees" if row.damping_agrees else "differs"}">{text}</span>'
+    return text
+
+
+def _orders_section(rows: list[OrderRow], reference_note: str, when: str) -> str:
+    note = f'<p class="note">{_e(reference_note)}</p>' if reference_note else ""
+    several = len({row.group for row in rows}) > 1
+    headings = ([("group", True)] if several else []) + [("integrator", "label"), ("declared order", False),
+                                                           ("observed order", False), ("fitted over", False), ("", "wrap")]
+    body = [([_e(row.group)] if several else []) + [_e(row.integrator), str(row.declared),
+            "–" if not np.isfinite(row.observed) else f"{row.observed:.2f}", _e(row.dt_range), _verdict(row.verdict)]
+            for row in rows[:MAX_RUN_ROWS]]
+    if len(rows) > MAX_RUN_ROWS:
+        note += f'<p class="note">The first {MAX_RUN_ROWS:,} of {len(rows):,} rows, in sweep order.</p>'
+    explain = ('<p class="note">Slope of log(error) against log(dt), the error measured at a fixed time'
+               + (f" ({_e(when)}, record.error_time)" if when else "")
+               + ", over the consecutive smallest time steps whose error lies between round-off (1e-10 of the length "
+               f"scale) and saturation (10 % of it), at most 4 and at least 3; agreement within ±{ORDER_TOLERANCE:g}.</p>")
+    return note + explain + _table(headings, body)
+
+
+def _stability_section(rows: list[StabilityRow]) -> str:
+    several = len({row.group for row in rows}) > 1
+
+    def limit_text(row):
+        if math.isinf(row.limit_hw):
+            return "none"
+        if row.limit_hw == 0:
+            return "0 (unstable at every h)"
+        return f"{row.limit_hw:.4g}"
+
+    headings = ([("group", True)] if several else []) + [("integrator", "label"), ("limit h w", False), ("limit dt (s)", False),
+                                                           ("largest dt that did not diverge", False),
+                                                           ("smallest dt that diverged", False), ("", "wrap")]
+    body = [([_e(row.group)] if several else []) + [_e(row.integrator), limit_text(row),
+            "∞" if math.isinf(row.limit_dt) else f"{row.limit_dt:.4g}", number_text(row.largest_ok_dt),
+            number_text(row.smallest_diverged_dt), _verdict(row.verdict)] for row in rows]
+    explain = ('<p class="note">Predicted: the h w at which the spectral radius of the probed amplification matrix first '
+               "exceeds 1 (+1e-8). Measured: the runs at each dt. A run beyond the limit grows, but is only marked diverged "
+               "once its energy leaves the configured bound, which a short run may not reach.</p>")
+    return explain + _table(headings, body)
+
+
+def _determinant_section(rows: list[DeterminantRow]) -> str:
+    several = len({row.group for row in rows}) > 1
+    headings = ([("group", True)] if several else []) + [("integrator", "label"), ("dt (s)", False), ("k (N/m)", False),
+                                                           ("m (kg)", False), ("det A (probed)", False),
+                                                           ("lecture closed form", True), ("value", False),
+                                                           ("relative difference", False), ("", True)]
+    body = [([_e(row.group)] if several else []) + [
+        _e(row.integrator), f"{row.dt:.4g}", f"{row.stiffness:g}", f"{row.mass:g}", f"{row.probed:.15g}",
+        _e(row.formula or "–"), "–" if not np.isfinite(row.closed_form) else f"{row.closed_form:.15g}",
+        "–" if not np.isfinite(row.difference) else f"{row.difference:.1e}", _verdict(row.verdict)] for row in rows]
+    explain = ("<p class=\"note\">det A is the factor by which one step scales areas in the (x, v) phase plane: "
+               "forward Euler 1 + k h² (the orbit spirals out), symplectic Euler 1 (area-preserving), backward Euler "
+               "1/(1 + k h²) (spirals in), as in the lectures (m = 1; here k/m). A is probed by stepping the basis states "
+               f"through each method on the run's spring; agreement to {DETERMINANT_TOLERANCE:g} relative.</p>")
+    return explain + _table(headings, body, scroll=len(rows) > SCROLLING_TABLE_ROWS)
+
+
+# -- figures ----------------------------------------------------------------------------------------
+def caption(entry: Figure, test_equation: bool) -> str:
+    """The registry's caption for this file: with its test-equation part only when the file has runs on it."""
+    return f"{entry.caption} {entry.test_equation_caption}" if test_equation and entry.test_equation_caption else entry.caption
+
+
+def _figures_section(figures: list[tuple[Figure, str, str]], test_equation: bool) -> str:
+    """Every drawn figure with its caption; the registered figures not drawn, with what they need."""
+    if not figures:
+        return '<p class="note">The file holds no run with data to draw.</p>'
+    drawn = {entry.name for entry, _, _ in figures}
+    calibrated = any(FIGURES[name].needs == CALIBRATION for name in drawn)  # else its figures are not this file's kind
+    missing = [f"{name.replace('_', ' ')} (needs {entry.needs})" for name, entry in FIGURES.items()
+               if name not in drawn and (calibrated or entry.needs != CALIBRATION)]
+    parts = [f'<p class="note">Not drawn for this file: {_e("; ".join(missing))}.</p>'] if missing else []
+    for entry, name, data in figures:
+        title = name.replace("_", " ")
+        text = caption(entry, test_equation)
+        if entry.name == "snapshots":
+            text += " Rows: the runs shown; columns: times spread over the run, all at one scale."
+        parts.append(f'<figure id="figure-{_e(name)}"><img alt="{_e(title)}" src="data:image/png;base64,{data}">'
+                     f"<figcaption><b>{_e(title)}.</b> {_e(text)}</figcaption></figure>")
+    return "".join(parts)
+
+
+# -- provenance -------------------------------------------------------------------------------------
+NOT_RECORDED = "not recorded"
+# Root attributes shown under these names, in this order (the rest after them, by their own names).
+PROVENANCE_ITEMS = (("simrun_version", "simrun version"), ("format_version", "format version"), ("created", "created"),
+                    ("config_hash", "config hash"), ("host", "host"), ("cpu", "CPU"),
+                    ("config_git_commit", "git commit of the config's folder"), ("command_line", "command line"))
+NOT_PROVENANCE = ("config", "resolved_config", "package_versions")
+
+
+def _provenance_section(results: Results, path: Path) -> str:
+    provenance = results.provenance
+    versions = provenance.get("package_versions", {})
+    if isinstance(versions, dict):
+        versions = ", ".join(f"{name} {version}" for name, version in versions.items())
+    items = [("results file", str(path))]
+    for key, name in PROVENANCE_ITEMS:
+        items.append((name, _attribute_text(provenance[key]) if key in provenance else None))
+    known = {key for key, _ in PROVENANCE_ITEMS} | set(NOT_PROVENANCE)
+    items += [(key.replace("_", " "), _attribute_text(value)) for key, value in provenance.items() if key not in known]
+    items.append(("package versions", versions or None))
+    listing = "".join(f"<dt>{_e(key)}</dt><dd>{_e(value) if value not in (None, '') else _missing()}</dd>"
+                      for key, value in items)
+    written = f"<pre>{_e(results.config_text)}</pre>"
+    resolved = _resolved_config(results)
+    if resolved is None:
+        configs = (f"<h3>Config as written (after --set overrides)</h3>{written}<p class=\"note\">The resolved config "
+                   "(every default filled in) is not recorded in this file (written by an older simrun).</p>")
+    else:
+        configs = ('<div class="configs"><div><h3>Config as written (after --set overrides)</h3>'
+                   f"{written}</div><div><h3>Resolved (every default filled in)</h3><pre>{_e(resolved)}</pre></div></div>")
+    return f"<dl>{listing}</dl>{configs}"
+
+
+def _missing() -> str:
+    return f'<span class="missing">{NOT_RECORDED}</span>'
+
+
+def _attribute_text(value) -> str:
+    """A root attribute as text: lists (a command line) joined with spaces, JSON lists likewise."""
+    if isinstance(value, str) and value.startswith("["):
+        try:
+            value = json.loads(value)
+        except ValueError:
+            return value
+    if isinstance(value, (list, tuple, np.ndarray)):
+        import shlex
+
+        return shlex.join(str(item) for item in value)
+    return str(value)
+
+
+def _resolved_config(results: Results) -> str | None:
+    """The resolved config (root attribute ``resolved_config``) as YAML text; None when the file has none."""
+    value = results.attrs.get("resolved_config")
+    if value is None or value == "":
+        return None
+    text = value.decode() if isinstance(value, bytes) else str(value)
+    try:
+        parsed = json.loads(text)
+    except ValueError:
+        return text
+    import yaml
+
+    return yaml.safe_dump(parsed, sort_keys=False, allow_unicode=True) if isinstance(parsed, dict) else text
