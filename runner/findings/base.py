@@ -9,7 +9,6 @@ import numpy as np
 
 from simrun.analysis.rows import ROUND_OFF_DAMPING
 
-
 WALL_TIME_NOISE = 0.1  # wall times closer than this fraction are not ranked (≈): timing noise, runs sharing the cores
 
 

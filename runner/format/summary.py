@@ -128,12 +128,7 @@ def summary_row_of(run_id: str, attrs, read) -> tuple:
     )
 
 
-def as_text(value) -> str:
-    """An attribute as text: h5py gives bytes for some strings."""
-    return value.decode() if isinstance(value, bytes) else str(value)
-
-
-# -- format 1: the drift reference and the capabilities ---------------------------------------------
+# -- format 1: the drift reference --------------------------------------------------------------------
 def drift_scale(energy: np.ndarray, kinetic: np.ndarray, potential: np.ndarray) -> float:
     """Format 1's drift reference (J): |E0|, else |KE0| + |PE0| (E0 = 0), else 1 J."""
     if energy.size and np.isfinite(energy[0]) and energy[0] != 0:
@@ -143,6 +138,12 @@ def drift_scale(energy: np.ndarray, kinetic: np.ndarray, potential: np.ndarray) 
         if np.isfinite(scale) and scale > 0:
             return scale
     return 1.0
+
+
+# -- attributes as Python ------------------------------------------------------------------------------
+def as_text(value) -> str:
+    """An attribute as text: h5py gives bytes for some strings."""
+    return value.decode() if isinstance(value, bytes) else str(value)
 
 
 def attribute_value(value):
