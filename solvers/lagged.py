@@ -22,14 +22,14 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from .dofs import FreeDofs
-from .linear import SPLU_ORDERING, SPLU_SPD_OPTIONS
+from .linear import FactorisationLog, sparse_lu
 
 
 class LaggedFactor:
     """The factorisation of one Newton matrix restricted to its free dofs; ``solve(rhs)`` -> p with p = 0 on fixed
     dofs, as a linear solver's."""
 
-    def __init__(self, matrix, free: FreeDofs, spd: bool):
+    def __init__(self, matrix, free: FreeDofs, spd: bool, log: FactorisationLog | None = None):
         self.free = free
         reduced = free.restrict_matrix(free.filter_matrix(matrix))
         if scipy.sparse.issparse(reduced):
@@ -38,14 +38,7 @@ class LaggedFactor:
                 reduced = reduced.sorted_indices()
             # CSR arrays read as CSC: the transpose, factored and solved with trans="T" (as the direct solver does)
             transposed = scipy.sparse.csc_matrix((reduced.data, reduced.indices, reduced.indptr), shape=reduced.shape)
-            factor = None
-            if spd:
-                try:
-                    factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS)
-                except RuntimeError:  # not definite after all: pivot
-                    factor = None
-            if factor is None:
-                factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING)
+            factor = sparse_lu(transposed, spd, log=log)[0]
             self._solve = lambda rhs: factor.solve(rhs, trans="T")
         else:
             lu = scipy.linalg.lu_factor(np.asarray(reduced, dtype=float), check_finite=False)

@@ -36,9 +36,85 @@ SPLU_ORDERING = "MMD_AT_PLUS_A"
 # SPD matrices need no pivoting: diagonal pivots in symmetric mode factor the cloth's matrix faster
 # (docs/performance.md).
 SPLU_SPD_OPTIONS = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-# cholesky on a matrix not known to be SPD: an LDL^T solution whose relative residual exceeds this
-# met a tiny pivot, and the pivoting LU solves again
+# A diagonal pivot is kept while it is at least this fraction of its column's largest entry: threshold pivoting
+# that leaves the symmetric ordering alone but where a pivot is (nearly) zero.
+THRESHOLD_PIVOT = 0.1
+# The paths of a sparse LU (SuperLU), in the order they are tried (docs/solvers.md, "Sparse direct solves"):
+# diagonal pivots in the symmetric fill-reducing ordering; threshold pivoting in that ordering; COLAMD with partial
+# pivoting, the last resort. Partial pivoting in the MMD ordering, the path before issue 30, destroys the ordering:
+# a 2,930-vertex mesh in its file's vertex order filled 43 million entries of L + U against 2.5 million (180x the
+# time). factorisation_path (per step) and factorisations (per run) say which path the factorisations took.
+FACTORISATION_PATHS = ("symmetric", "threshold", "colamd")
+SPLU_PATHS = (dict(permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS),
+              dict(permc_spec=SPLU_ORDERING, diag_pivot_thresh=THRESHOLD_PIVOT, options=dict(SymmetricMode=True)),
+              dict(permc_spec="COLAMD"))
+# a factorisation of a matrix not known to be SPD (without pivoting, or with threshold pivoting; CHOLMOD's LDL^T)
+# whose solution leaves a relative residual above this met a tiny pivot: the next path solves again
 INDEFINITE_RESIDUAL = 1e-8
+
+
+class FactorisationLog:
+    """How a run's sparse factorisations went: a count per path of FACTORISATION_PATHS (``counts``), and the last
+    path taken since ``take_step`` was asked (1 + its index; 0: no sparse factorisation)."""
+
+    def __init__(self):
+        self.counts = [0] * len(FACTORISATION_PATHS)
+        self._step = 0
+
+    def record(self, path: int) -> None:
+        self.counts[path] += 1
+        self._step = max(self._step, path + 1)
+
+    def take_step(self) -> int:
+        """The furthest path any factorisation took since the last call (0: none), for factorisation_path."""
+        step, self._step = self._step, 0
+        return step
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(zip(FACTORISATION_PATHS, self.counts))
+
+
+def attach_factorisation_log(solver) -> FactorisationLog | None:
+    """One FactorisationLog for the linear solvers of ``solver`` (a nonlinear solver or a fallback chain) that keep
+    one (``direct``, ``cholesky``), set as their ``log``; None when none of them factors sparse matrices."""
+    members = getattr(solver, "solvers", [solver])
+    linear = [getattr(member, "linear_solver", None) for member in members]
+    factoring = [one for one in linear if one is not None and hasattr(type(one), "log")]
+    if not factoring:
+        return None
+    log = FactorisationLog()
+    for one in factoring:
+        one.log = log
+    return log
+
+
+def sparse_lu(transposed, spd: bool, rhs: np.ndarray | None = None, log: FactorisationLog | None = None):
+    """A SuperLU factorisation of A, given A^T in CSC form (a CSR matrix's arrays read as CSC), by the first path of
+    SPLU_PATHS that factors it: for an SPD matrix, the symmetric path whenever it has no zero pivot; for any other,
+    the first path whose solution of ``rhs`` (or of A 1 without one) leaves a relative residual of at most
+    INDEFINITE_RESIDUAL, COLAMD's partial pivoting whatever it leaves. Returns (factor: solve with trans="T", the
+    solution of ``rhs`` or None); RuntimeError when every path meets an exactly singular matrix."""
+    matrix = transposed.T  # A itself, as CSR: no copy
+    probe = rhs if rhs is not None else matrix @ np.ones(matrix.shape[0])
+    last = len(SPLU_PATHS) - 1
+    for path, options in enumerate(SPLU_PATHS):
+        try:
+            factor = scipy.sparse.linalg.splu(transposed, **options)
+        except RuntimeError:  # a zero pivot (for an "SPD" matrix: not definite after all)
+            if path == last:
+                raise
+            continue
+        solution = factor.solve(probe, trans="T")
+        if path == last or (spd and path == 0) or _residual_met(matrix, solution, probe):
+            if log is not None:
+                log.record(path)
+            return factor, (solution if rhs is not None else None)
+    raise AssertionError("unreachable: the last path returns or raises")
+
+
+def _residual_met(matrix, solution: np.ndarray, rhs: np.ndarray) -> bool:
+    residual = float(np.linalg.norm(rhs - matrix @ solution))
+    return residual <= INDEFINITE_RESIDUAL * float(np.linalg.norm(rhs))  # False for NaN
 FLOAT64 = np.dtype(np.float64)  # the one native float64 dtype object: `dtype is FLOAT64` is the cheapest test
 EPSILON = float(np.finfo(float).eps)  # once: np.finfo is not free, and every dense solve compares rcond with it
 # A stationary iteration whose residual grows past this factor times |b| diverges (spectral radius > 1).
@@ -126,11 +202,13 @@ class ReducedSolver(LinearSolver):
 
 
 class DirectSolver(ReducedSolver):
-    """Sparse LU (SuperLU, MMD ordering; diagonal pivots in symmetric mode for SPD matrices), or
-    LAPACK for dense matrices (Cholesky for SPD ones, LU otherwise). Counts one iteration."""
+    """Sparse LU (SuperLU in the symmetric MMD ordering, by the first path of SPLU_PATHS that factors the matrix
+    accurately: ``sparse_lu``), or LAPACK for dense matrices (Cholesky for SPD ones, LU otherwise). Counts one
+    iteration. ``log`` (a FactorisationLog, or None) counts the paths its sparse factorisations took."""
 
     name = "direct"
     iterative = False
+    log: FactorisationLog | None = None
 
     def _solve(self, matrix, rhs, spd):
         if type(matrix) is not np.ndarray and scipy.sparse.issparse(matrix):  # the type test first: issparse is an ABC check
@@ -138,14 +216,7 @@ class DirectSolver(ReducedSolver):
                 matrix = matrix.sorted_indices()  # a copy: the problem's matrix may share its index arrays
             # a CSR matrix's arrays read as CSC are its transpose: factor A^T, solve with its transpose
             transposed = scipy.sparse.csc_matrix((matrix.data, matrix.indices, matrix.indptr), shape=matrix.shape)
-            if spd:
-                try:
-                    factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS)
-                except RuntimeError:  # not definite after all (a zero pivot): pivot as for any matrix
-                    factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING)
-            else:
-                factor = scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING)
-            return factor.solve(rhs, trans="T"), 1
+            return sparse_lu(transposed, spd, rhs, self.log)[1], 1
         return _dense_direct_solve(matrix, rhs, spd), 1
 
 
@@ -156,8 +227,9 @@ class CholeskySolver(ReducedSolver):
     A run's Newton matrices share one pattern, so the analysis is done on the first and reused for
     the rest of the run (the solver object lives as long as its run). CHOLMOD picks a supernodal
     LL^T for large matrices and a simplicial LDL^T for small ones. A matrix that is not positive
-    definite (plain Newton's raw Hessian of a buckled cloth) is solved by ``direct``'s pivoting LU
-    when LL^T fails or LDL^T leaves a residual above INDEFINITE_RESIDUAL; dense matrices (the small
+    definite (plain Newton's raw Hessian of a buckled cloth) is solved by ``direct``'s paths (``sparse_lu``:
+    the symmetric ordering first, pivoting only where it must) when LL^T fails or LDL^T leaves a residual above
+    INDEFINITE_RESIDUAL; ``log`` counts those LU paths, not CHOLMOD's own factorisations; dense matrices (the small
     systems) take ``direct``'s LAPACK path. Counts one iteration. CHOLMOD takes the matrix as
     symmetric and reads one triangle: every Newton matrix here (the Hessian of an incremental or
     segment potential) is. Needs the optional extra ``cholmod`` (README, "Optional: the CHOLMOD
@@ -167,6 +239,7 @@ class CholeskySolver(ReducedSolver):
     name = "cholesky"
     iterative = False
     optional = True
+    log: FactorisationLog | None = None
 
     @classmethod
     def missing(cls) -> str | None:
@@ -204,10 +277,10 @@ class CholeskySolver(ReducedSolver):
                 return self._lu_solve(transposed, rhs), 1
         return solution, 1
 
-    @staticmethod
-    def _lu_solve(transposed, rhs):
-        """A p = b by SuperLU with pivoting, from A^T in CSC form (as ``direct`` does)."""
-        return scipy.sparse.linalg.splu(transposed, permc_spec=SPLU_ORDERING).solve(rhs, trans="T")
+    def _lu_solve(self, transposed, rhs):
+        """A p = b by SuperLU for a matrix CHOLMOD could not factor accurately, from A^T in CSC form, with the
+        direct solver's care: the symmetric ordering first, pivoting only where a pivot needs it (``sparse_lu``)."""
+        return sparse_lu(transposed, False, rhs, self.log)[1]
 
     def _analysed_factor(self, matrix):
         pattern = self._pattern

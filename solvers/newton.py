@@ -197,7 +197,7 @@ class Newton(NonlinearSolver):
         """The direction of ``matrix`` factorised here, and the factorisation kept for the next iterations; the
         safeguards' direction (nothing kept) where it is singular or its direction does not descend."""
         try:
-            factor = LaggedFactor(matrix, state.free, spd)
+            factor = LaggedFactor(matrix, state.free, spd, getattr(self.linear_solver, "log", None))
             direction = factor.solve(-current.gradient)
         except (*LINEAR_FAILURES, RuntimeError):
             factor, direction = None, None

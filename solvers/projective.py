@@ -22,7 +22,7 @@ import scipy.sparse.linalg
 from .base import Advance, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
 from .line_search import accept, has_value
-from .linear import SPLU_ORDERING, SPLU_SPD_OPTIONS, CholeskySolver, cholmod_module
+from .linear import CholeskySolver, cholmod_module, sparse_lu
 
 # The auto estimate of rho is capped here: the Chebyshev weights approach 2 / (1 + sqrt(1 - rho^2)) -> 2, and
 # an estimate at or above 1 (an indefinite Hessian: compressed springs) would extrapolate without bound; at
@@ -183,7 +183,7 @@ class RestFactor:
 def factorise_spd(matrix) -> Callable[[np.ndarray], np.ndarray]:
     """The solve b -> A^{-1} b of a factorised symmetric positive definite matrix (dense or sparse).
 
-    A matrix that turns out not to be definite is factorised by SuperLU with pivoting (as ``direct`` does)."""
+    A matrix that turns out not to be definite takes the direct solver's paths (``sparse_lu``)."""
     if not scipy.sparse.issparse(matrix):
         dense = np.asarray(matrix, dtype=float)
         try:
@@ -198,11 +198,9 @@ def factorise_spd(matrix) -> Callable[[np.ndarray], np.ndarray]:
         try:
             return cholmod.cholesky(matrix).solve_A
         except cholmod.CholmodNotPositiveDefiniteError:
-            return scipy.sparse.linalg.splu(matrix, permc_spec=SPLU_ORDERING).solve
-    try:
-        return scipy.sparse.linalg.splu(matrix, permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS).solve
-    except RuntimeError:  # a zero pivot: not definite after all
-        return scipy.sparse.linalg.splu(matrix, permc_spec=SPLU_ORDERING).solve
+            pass
+    # the matrices here are symmetric: CSC read as A^T is A, so solving with trans="N" solves A p = b
+    return sparse_lu(matrix, True)[0].solve
 
 
 # ------------------------------------------------------------------------------------------------

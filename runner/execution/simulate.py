@@ -12,6 +12,7 @@ from simrun.format.run_result import RunResult
 from simrun.format.summary import Status, series_summary as _series_summary
 from simrun.integrators import State
 from simrun.solvers import EXPLICIT_STEP
+from simrun.solvers.linear import attach_factorisation_log
 
 
 class Recorder:
@@ -110,6 +111,11 @@ def simulate(run: Run) -> RunResult:
         "solver_index": np.zeros(step_count, dtype=np.int8),
         "safeguards": np.zeros(step_count, dtype=np.uint8),
     }
+    # per step, for a sparse system's direct solves: the furthest path a factorisation took (1 + its index in
+    # FACTORISATION_PATHS; 0: none), and per run the count of each
+    factorisations = attach_factorisation_log(solver) if system.hessian_pattern is not None else None
+    if factorisations is not None:
+        per_step["factorisation_path"] = np.zeros(step_count, dtype=np.int8)
     with_contact = system.has_contact
     if with_contact:  # per step: the smallest signed contact distance (m), active contacts, friction's loss (J)
         per_step.update(contact_distance=np.zeros(step_count), active_contacts=np.zeros(step_count, dtype=np.int32),
@@ -159,6 +165,8 @@ def simulate(run: Run) -> RunResult:
                     system.begin_step(dt * n, dt, state.x)
                 state, stats = step(system, state, dt, solver)
                 steps = n + 1
+                if factorisations is not None:
+                    per_step["factorisation_path"][n] = factorisations.take_step()
                 t = dt * steps  # the loop owns t: no accumulated round-off, whatever state.t says
                 if with_contact:
                     distance, active, lost = system.contact_record(previous.x, state.x, state.v, dt)
@@ -226,6 +234,8 @@ def simulate(run: Run) -> RunResult:
              "first_not_converged_step": first_not_converged, "diverged_step": diverged_step,
              "safeguard_steps": int(np.count_nonzero(safeguards[:steps])),
              **(_contact_attrs(per_step, steps) if with_contact else {}),
+             **({f"factorisations_{path}": count for path, count in factorisations.as_dict().items()}
+                if factorisations is not None else {}),
              **system.capabilities.as_attrs()}
     oscillator = system.capabilities.oscillator
     if oscillator is not None:  # the amplitude's decay per period, which the damping map compares with its prediction
