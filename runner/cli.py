@@ -13,6 +13,7 @@ import importlib
 import os
 import shlex
 import sys
+import warnings
 from pathlib import Path
 
 from simrun.commands import COMMANDS
@@ -38,8 +39,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _warning_line(message, category, filename, lineno, line=None) -> str:
+    """A warning meant for the user (its category says ``one_line``: a model mended on loading) as one line; any
+    other as Python writes it."""
+    if getattr(category, "one_line", False):
+        return f"simrun: warning: {message}\n"
+    return _python_warning_line(message, category, filename, lineno, line)
+
+
+_python_warning_line = warnings.formatwarning
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    warnings.formatwarning = _warning_line
     command_line = shlex.join(["simrun", *argv])
     if not argv:  # a command is needed: say which there are
         build_parser().print_help(sys.stderr)

@@ -15,6 +15,7 @@ import select
 import signal
 import threading
 import time
+import warnings
 
 import threadpoolctl
 
@@ -40,6 +41,10 @@ def _start_worker(threads: int, owner: int) -> None:
     # Ctrl-C reaches the whole process group: the main process handles it (it commits what finished and
     # stops the workers); a worker that took it too would die with a traceback of its own
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # what loading a model mended was said once, when the config was validated: not again by every worker
+    from simrun.systems.mass_spring.model import ModelWarning
+
+    warnings.simplefilter("ignore", ModelWarning)
     _limit_blas_threads(threads)
     _exit_with(owner)
 

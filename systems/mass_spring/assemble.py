@@ -9,13 +9,14 @@ one line (``system.pinned: vertex 99 does not exist; ...``). ``params`` is alway
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import numpy as np
 
 from ..constraints import PrescribedMotion, VertexConstraints, cross, filter_block, rotate
 from .files import find_file, load_model_file, lumped_area_masses
-from .model import ModelError, SpringModel
+from .model import ModelError, ModelWarning, SpringModel
 from ..contact.build import build_contact
 from .laws import Damping
 
@@ -121,10 +122,48 @@ def _masses(params, model: SpringModel) -> np.ndarray:
     if model.triangles is None:
         raise ModelError(f"mass: {'by: area' if spec.total is not None else 'density'} needs a model with triangles; "
                          "this one has none: use {total: kg} (equal shares) or {per_vertex: kg}")
-    areas = lumped_area_masses(model.vertices, model.triangles)
-    if np.any(areas <= 0):
-        raise ModelError(f"mass: vertex {int(np.flatnonzero(areas <= 0)[0])} touches no triangle of positive area, so area lumping gives it no mass")
+    areas = _areas_with_neighbours(model)
     return areas * spec.density if spec.density is not None else areas * (spec.total / float(np.sum(areas)))
+
+
+def _areas_with_neighbours(model: SpringModel) -> np.ndarray:
+    """The area (m^2) lumped to each vertex; a vertex that touches no triangle of positive area (a scanned mesh's
+    degenerate faces, a vertex no face uses) takes the mean of its spring neighbours' areas, or of every vertex's
+    where it has none, and a ModelWarning says so in one line, with the degenerate faces the file had."""
+    areas = lumped_area_masses(model.vertices, model.triangles)
+    empty = ~(areas > 0.0)
+    if not np.any(empty):
+        if model.degenerate_triangles:
+            _warn_once(f"{model.source}: {_count(model.degenerate_triangles, 'degenerate triangle')} (zero area) left "
+                       "out of the surface: no spring of zero length, no area")
+        return areas
+    if not np.any(~empty):
+        raise ModelError("mass: no triangle of the model has a positive area, so area lumping gives no vertex a mass")
+    i, j = model.springs[:, 0], model.springs[:, 1]
+    known = np.where(empty, 0.0, areas)
+    neighbours = np.bincount(i, weights=known[j], minlength=len(areas)) + np.bincount(j, weights=known[i], minlength=len(areas))
+    counted = np.bincount(i, weights=~empty[j], minlength=len(areas)) + np.bincount(j, weights=~empty[i], minlength=len(areas))
+    mean = float(np.mean(areas[~empty]))
+    filled = np.where(counted > 0, neighbours / np.maximum(counted, 1.0), mean)
+    areas = np.where(empty, filled, areas)
+    alone = int(np.count_nonzero(empty & (counted == 0)))
+    _warn_once(f"{model.source}: {_count(model.degenerate_triangles, 'degenerate triangle')} (zero area) left out of "
+               f"the surface; vertices without a triangle of positive area ({int(np.count_nonzero(empty))}) take the "
+               "mean area of their spring neighbours" + (f" ({alone} without any: of every vertex)" if alone else ""))
+    return areas
+
+
+_WARNED: set[str] = set()  # what was said already in this process: validation builds a model more than once
+
+
+def _warn_once(text: str) -> None:
+    if text not in _WARNED:
+        _WARNED.add(text)
+        warnings.warn(ModelWarning(text), stacklevel=3)
+
+
+def _count(number: int, one: str, many: str | None = None) -> str:
+    return f"{number} {one if number == 1 else (many or one + 's')}"
 
 
 def _damping(params) -> tuple[Damping, ...]:

@@ -1,4 +1,5 @@
-"""Model files: ``.npz`` arrays, and triangle/quad meshes in any format meshio reads, turned into a SpringModel.
+"""Model files: ``.npz`` arrays, and triangle/quad meshes in any format meshio or trimesh reads, turned into a
+SpringModel.
 
 A ``.npz`` holds ``vertices`` (n x 2 or n x 3) and ``springs`` (m x 2 ints), optionally ``rest_lengths``,
 ``stiffness`` (m,), ``masses`` (n,), ``kinds`` (m ints, with an optional ``kind_names`` string array, or
@@ -22,6 +23,7 @@ import contextlib
 import contextvars
 import hashlib
 import io
+import warnings
 import zipfile
 from dataclasses import replace
 from pathlib import Path
@@ -181,28 +183,96 @@ def file_digest(path: Path) -> str:
 
 
 # -- meshes ----------------------------------------------------------------------------------------
+# The mesh libraries, in the order they are asked: meshio keeps quads and polygons as the file has them; trimesh
+# reads what meshio refuses in the files common tools write (an OBJ whose texture-coordinate or normal count differs
+# from its vertex count, which is almost every textured export; a PLY with per-face colours; an ASCII STL), as
+# triangles, in the file's vertex order (process=False, maintain_order=True).
 def _read_mesh(path: Path) -> SpringModel:
+    reasons = []
+    for reader in (_meshio_faces, _trimesh_faces):
+        try:
+            points, triangles, quads = reader(path)
+        except ModelError as error:
+            reasons.append(str(error))
+            continue
+        return _mesh_model(path, points, triangles, quads)
+    raise ModelError(f"{path}: cannot read it as a mesh ({'; '.join(reasons)})")
+
+
+def _meshio_faces(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points, triangles, quads) through meshio; polygons of more than four corners are fanned into triangles."""
     import meshio  # only mesh files need it
 
     chatter = io.StringIO()
     try:
         # some of meshio's parsers print their complaint and call sys.exit (the PLY reader on a file that
         # is not PLY): caught, and their output kept for the message, so that a bad file is one line
-        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # its STL reader's size test overflows on other files
             mesh = meshio.read(path)
     except (Exception, SystemExit) as error:  # meshio's parsers raise ReadError, KeyError, ValueError, IndexError, ...
         said = " ".join(chatter.getvalue().split()) or f"{type(error).__name__}: {error}"
-        raise ModelError(f"{path}: cannot read it as a mesh ({said})") from None
-    faces = {kind: [block.data for block in mesh.cells if block.type == kind] for kind in ("triangle", "quad")}
-    triangles = np.concatenate(faces["triangle"]).astype(np.intp) if faces["triangle"] else np.zeros((0, 3), np.intp)
-    quads = np.concatenate(faces["quad"]).astype(np.intp) if faces["quad"] else np.zeros((0, 4), np.intp)
+        raise ModelError(f"meshio: {said}") from None
+    points = np.asarray(mesh.points, dtype=float)
+    blocks = {kind: [block.data for block in mesh.cells if block.type == kind] for kind in ("triangle", "quad", "polygon")}
+    polygons = [_fan(np.asarray(block, dtype=np.intp)) for block in blocks["polygon"]]
+    triangles = np.concatenate([*blocks["triangle"], *polygons]).astype(np.intp) if blocks["triangle"] or polygons \
+        else np.zeros((0, 3), np.intp)
+    quads = np.concatenate(blocks["quad"]).astype(np.intp) if blocks["quad"] else np.zeros((0, 4), np.intp)
     if len(triangles) + len(quads) == 0:
         found = sorted({block.type for block in mesh.cells if len(block.data)}) or ["none"]
-        raise ModelError(f"{path} has no triangles or quads (cells: {', '.join(found)})")
+        raise ModelError(f"meshio: no triangles or quads (cells: {', '.join(found)})")
+    faces = np.concatenate([triangles.ravel(), quads.ravel()])
+    if faces.min() < 0 or faces.max() >= len(points):  # meshio reads OBJ's relative (negative) indices as absolute
+        raise ModelError(f"meshio: face indices outside 0..{len(points) - 1}")
+    return points, triangles, quads
+
+
+def _trimesh_faces(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points, triangles, no quads) through trimesh, every vertex of the file kept in its order; an STL, which
+    stores each triangle's corners apart, has its coincident corners merged."""
+    import trimesh  # only the files meshio refuses need it
+
+    merge = path.suffix.lower() == ".stl"
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # its numpy on texture coordinates (an all-NaN slice) is not ours to say
+            mesh = trimesh.load(path, force="mesh", process=merge, maintain_order=not merge, skip_materials=True)
+    except Exception as error:  # trimesh's loaders raise ValueError, IndexError, KeyError, ...
+        raise ModelError(f"trimesh: {type(error).__name__}: {error}") from None
+    if len(mesh.faces) == 0:
+        raise ModelError("trimesh: no faces")
+    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.intp), np.zeros((0, 4), np.intp)
+
+
+def _fan(polygons: np.ndarray) -> np.ndarray:
+    """(p * (k - 2), 3) triangles of p polygons of k corners each: a fan from each polygon's first corner."""
+    k = polygons.shape[1]
+    return np.stack([np.repeat(polygons[:, :1], k - 2, axis=1), polygons[:, 1:-1], polygons[:, 2:]], axis=-1).reshape(-1, 3)
+
+
+def _mesh_model(path: Path, points: np.ndarray, triangles: np.ndarray, quads: np.ndarray) -> SpringModel:
+    """The model of a mesh: springs from its faces (``mesh_springs``). A scanned mesh's degenerate triangles (zero
+    area: a repeated, coincident or collinear corner) make no spring of zero length (coincident vertices are not
+    joined) and are left out of the surface, so that they count no area; the assembler gives a vertex that touches
+    only such faces its mass from its neighbours."""
     springs, kinds = mesh_springs(triangles, quads)
+    length = np.linalg.norm(points[springs[:, 0]] - points[springs[:, 1]], axis=1)
+    springs, kinds = springs[length > 0.0], kinds[length > 0.0]
     split = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]) if len(quads) else quads[:, :3]
-    return SpringModel(np.asarray(mesh.points, dtype=float), springs, kinds, MESH_KINDS,
-                       triangles=np.concatenate([triangles, split]), source=str(path))
+    surface = np.concatenate([triangles, split])
+    degenerate = ~(_triangle_areas(points, surface) > 0.0)
+    return SpringModel(points, springs, kinds, MESH_KINDS, triangles=surface[~degenerate], source=str(path),
+                       degenerate_triangles=int(np.count_nonzero(degenerate)))
+
+
+def _triangle_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(t,) area (m^2) of each triangle, in 2-D or 3-D."""
+    first, second, third = (vertices[triangles[:, corner]] for corner in range(3))
+    if vertices.shape[1] == 2:  # the cross product's z component (np.cross of 2-vectors is deprecated)
+        u, w = second - first, third - first
+        return 0.5 * np.abs(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0])
+    return 0.5 * np.linalg.norm(np.cross(second - first, third - first), axis=1)
 
 
 def mesh_springs(triangles: np.ndarray, quads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -251,10 +321,5 @@ def lumped_area_masses(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarra
     """
     vertices = np.asarray(vertices, dtype=float)
     triangles = np.asarray(triangles, dtype=np.intp)
-    first, second, third = (vertices[triangles[:, corner]] for corner in range(3))
-    if vertices.shape[1] == 2:  # the cross product's z component (np.cross of 2-vectors is deprecated)
-        u, w = second - first, third - first
-        area = 0.5 * np.abs(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0])
-    else:
-        area = 0.5 * np.linalg.norm(np.cross(second - first, third - first), axis=1)
+    area = _triangle_areas(vertices, triangles)
     return np.bincount(triangles.ravel(), weights=np.repeat(area / 3, 3), minlength=len(vertices))

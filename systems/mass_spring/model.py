@@ -17,6 +17,13 @@ class ModelError(ValueError):
     """A model that cannot be simulated: the message names the problem (the config path is added by the caller)."""
 
 
+class ModelWarning(UserWarning):
+    """What loading a model mended and the user should know (degenerate faces of a scanned mesh): the command line
+    prints it as one line (``one_line``); the sweep's workers, which build the model again, do not repeat it."""
+
+    one_line = True
+
+
 @dataclass(frozen=True, eq=False)
 class SpringModel:
     """The rest shape and springs of a mass-spring model.
@@ -47,6 +54,7 @@ class SpringModel:
     named_vertices: dict[str, np.ndarray] = field(default_factory=dict)
     grid_shape: tuple[int, int] | None = None
     source: str = ""
+    degenerate_triangles: int = 0  # zero-area faces of a mesh file, left out of springs and triangles (files.py)
 
     @property
     def dim(self) -> int:
