@@ -17,6 +17,7 @@ import warnings
 from pathlib import Path
 
 from simrun.commands import COMMANDS
+from simrun.commands.run import EXIT_INTERRUPTED
 from simrun.errors import ConfigError
 from simrun.execution.workers import may_use_local_pool, start_worker_server
 from simrun.version import __version__
@@ -73,6 +74,11 @@ def main(argv: list[str] | None = None) -> int:
         return args.handler(args)
     except ConfigError as error:  # config errors, a locked output folder, an unreadable results file, an unwritable output
         return _error(error)
+    except KeyboardInterrupt as interrupt:  # Ctrl-C: one line, saying what is complete (files are written whole)
+        said = str(interrupt) or (f"interrupted: nothing {args.command} writes is left half-written; run the same "
+                                  "command again")
+        print(f"simrun: {said}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:  # a reader that stopped early (`simrun list | head`) is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
         return 0

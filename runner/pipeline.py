@@ -37,10 +37,16 @@ ESTIMATE_AFTER_SECONDS = 5.0
 
 
 class Interrupted(KeyboardInterrupt):
-    """Ctrl-C during a sweep: what finished is in the file; the same call again runs the rest."""
+    """Ctrl-C during a sweep: what finished is in the file; the same call again runs the rest (or, once every run
+    is in, ``simrun plot`` draws the figures: none is left half-drawn)."""
 
-    def __init__(self, path: Path, kept: int, total: int):
-        super().__init__(f"interrupted: {kept} of {total} runs are in {path}; run the same command again to finish the rest")
+    def __init__(self, path: Path, kept: int, total: int, drawing: bool = False):
+        if drawing:
+            text = (f"interrupted while drawing the figures: all {total} runs are in {path}; "
+                    f"`simrun plot {path}` draws the figures")
+        else:
+            text = f"interrupted: {kept} of {total} runs are in {path}; run the same command again to finish the rest"
+        super().__init__(text)
         self.path, self.kept, self.total = path, kept, total
 
 
@@ -132,8 +138,11 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     if figures:
         from simrun.figures import draw_figures
 
-        with filling(output / FIGURES_NAME, "output") as folder:  # a failed drawing leaves no half figure
-            written = draw_figures(results, folder)
+        try:
+            with filling(output / FIGURES_NAME, "output") as folder:  # a failed drawing leaves no half figure
+                written = draw_figures(results, folder)
+        except KeyboardInterrupt:
+            raise Interrupted(path, len(results.runs), len(results.runs), drawing=True) from None
         results.figure_files = [output / FIGURES_NAME / drawn.name for drawn in written]
     return results
 

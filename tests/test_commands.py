@@ -145,6 +145,49 @@ def test_a_full_disk_while_writing_is_one_line_naming_the_path_and_leaves_nothin
     assert files_under(tmp_path) == set()
 
 
+@pytest.mark.parametrize("command", ["plot", "report", "animate"])
+def test_ctrl_c_while_writing_is_one_line_exit_130_and_leaves_nothing(tmp_path, capsys, monkeypatch, results_file,
+                                                                     command):
+    """Ctrl-C midway through a figure, the report or an animation: one line, exit 130, no traceback, and neither
+    the half-written file nor a temporary one is left."""
+    def half_then_interrupted(written: Path) -> None:
+        written.write_bytes(b"half a file")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("simrun.figures.draw_figures", lambda results, folder, **_: half_then_interrupted(Path(folder) / "a.png"))
+    monkeypatch.setattr("simrun.report.page.write_report", lambda path, output, **_: half_then_interrupted(Path(output)))
+    monkeypatch.setattr("simrun.figures.frames.write_gif", lambda results, run_id, output, **_: half_then_interrupted(Path(output)))
+    target = tmp_path / "out"
+    argv = {"plot": ["plot", str(results_file), "--output", str(target)],
+            "report": ["report", str(results_file), "--output", str(target / "report.html"), "--reference", "none"],
+            "animate": ["animate", str(results_file), "--output", str(target / "cloth.gif")]}[command]
+    assert main(argv) == 130
+    captured = capsys.readouterr()
+    assert captured.err == f"simrun: interrupted: nothing {command} writes is left half-written; run the same command again\n"
+    assert files_under(tmp_path) == set()
+
+
+def test_ctrl_c_while_the_figures_of_a_run_are_drawn_says_every_run_is_in(tmp_path, capsys, monkeypatch):
+    """Every run committed, then Ctrl-C in the figures: one line that says so and how to draw them, exit 130, the
+    results file whole and no figure folder."""
+    def interrupted(results, folder, **_):
+        (Path(folder) / "half.png").write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("simrun.figures.draw_figures", interrupted)
+    config = tmp_path / "spring.yaml"
+    config.write_text("name: spring\nsystem: {type: spring_mass}\nintegrators: [symplectic_euler]\nduration: 0.1\n"
+                      "sweep: {dt: [0.01, 0.02]}\n")
+    output = tmp_path / "out"
+    assert main([str(config), "--output", str(output), "-j", "1", "-q"]) == 130
+    line = capsys.readouterr().err
+    assert line == (f"simrun: interrupted while drawing the figures: all 2 runs are in {output / 'results.h5'}; "
+                    f"`simrun plot {output / 'results.h5'}` draws the figures\n")
+    assert not (output / "figures").exists() and len(simrun.load(output / "results.h5").runs) == 2
+    assert {str(path.relative_to(tmp_path)) for path in files_under(tmp_path)} == {
+        "spring.yaml", "out", "out/results.h5", "out/.simrun.lock"}  # the lock file stays, as after any run
+
+
 def test_writable_output_refuses_before_any_work(tmp_path):
     """The shared helper of the subcommands (and `show --output`): a file under a file, a folder given for a file."""
     from simrun.commands._options import writable_output
