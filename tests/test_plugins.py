@@ -83,6 +83,55 @@ def test_a_plugin_runs_on_dask(on_path, tmp_path):
     assert results.ran == {"ok": 2}
 
 
+def _runs_alike(first, second) -> None:
+    """The same runs with the same datasets, entry for entry, and the same attributes but for the times."""
+    assert list(first.runs) == list(second.runs)
+    for run_id, run in first.runs.items():
+        other = second.runs[run_id]
+        assert run.datasets == other.datasets
+        for key in run.datasets:
+            np.testing.assert_array_equal(run[key], other[key])
+        assert set(run.attrs) == set(other.attrs)
+        for key in set(run.attrs) - {"wall_time"}:
+            first_value, second_value = np.asarray(run.attrs[key]), np.asarray(other.attrs[key])
+            assert np.array_equal(first_value, second_value, equal_nan=first_value.dtype.kind == "f"), key
+
+
+CLUSTER = """
+import sys
+from distributed import LocalCluster
+
+if __name__ == "__main__":
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=50)
+    print(cluster.scheduler_address, flush=True)
+    sys.stdin.read()  # until the test closes it
+    cluster.close()
+"""
+
+
+def test_a_plugin_runs_on_a_dask_cluster_whose_workers_do_not_have_it(tmp_path, on_path):
+    """A cluster of process workers started in a process of its own, without the plug-in's folder on its path (as
+    `--scheduler tcp://...` to a cluster started elsewhere): simrun ships the module to the workers
+    (Client.upload_file), and the file is the serial run's."""
+    pytest.importorskip("distributed")
+    script = tmp_path / "cluster.py"
+    script.write_text(CLUSTER)
+    process = subprocess.Popen([sys.executable, str(script)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                               cwd=tmp_path, env={key: value for key, value in os.environ.items() if key != "PYTHONPATH"})
+    try:
+        address = process.stdout.readline().strip()
+        assert address.startswith("tcp://"), address
+        serial = simrun.run(config({"type": CHAIN, "count": 2}, tmp_path / "serial"), jobs=1, progress=False,
+                            figures=False)
+        on_dask = simrun.run(config({"type": CHAIN, "count": 2}, tmp_path / "dask"), executor="dask",
+                             scheduler=address, progress=False, figures=False)
+    finally:
+        process.stdin.close()
+        process.wait(timeout=60)
+    assert serial.ran == on_dask.ran == {"ok": 2}
+    _runs_alike(serial, on_dask)
+
+
 def test_the_type_is_kept_as_written_so_the_hash_is_the_files(on_path):
     """The resolved config (hash, provenance) holds the type as the user wrote it; equal configs hash equally,
     and a plug-in parameter changes the hash."""

@@ -9,8 +9,14 @@ completion nor the chunk a run was stepped in changes any run's data.
 from __future__ import annotations
 
 import concurrent.futures
+import io
 import logging
+import pickle
+import sys
+import tempfile
+import zipfile
 from collections.abc import Iterator
+from pathlib import Path
 
 from simrun.errors import ConfigError
 from simrun.execution.lanes import lane_chunks, simulate_lanes
@@ -60,6 +66,7 @@ def run_process_pool(tasks: list, jobs: int) -> Iterator[tuple]:
 def run_dask(tasks: list, jobs: int, scheduler: str | None) -> Iterator[tuple]:
     """Dask: an existing scheduler at `scheduler`, else a local cluster of `jobs` single-threaded workers."""
     try:
+        import cloudpickle  # dask's own dependency
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
         raise ConfigError("--executor dask: Dask is not installed; install it with  pip install 'simrun[dask]'  "
@@ -76,19 +83,69 @@ def run_dask(tasks: list, jobs: int, scheduler: str | None) -> Iterator[tuple]:
         raise ConfigError(f"--scheduler: cannot reach the Dask scheduler at {scheduler!r}: {error}") from None
     futures = []
     try:
+        shipped = _plugin_sources(tasks)  # a user's own system: its module travels with every task
         by_key = {}
         for task in tasks:
             key = f"simrun-lanes-{task[0].run_id}" if isinstance(task, list) else f"simrun-{task.run_id}"
-            future = client.submit(_work(task), task, key=key, pure=False)
+            # the task as bytes: the scheduler deserialises what it is given, and it has no plug-in's module; the
+            # worker unpickles it once the modules shipped with it are importable
+            future = client.submit(_work_pickled, shipped, cloudpickle.dumps(task), key=key, pure=False)
             futures.append(future)
             by_key[future.key] = task
         for future in as_completed(futures):
-            yield by_key[future.key], future.result()
+            try:
+                outcome = future.result()
+            except ImportError as error:  # a worker could not import (or unpickle a task that needs) a module
+                raise ConfigError(f"--executor dask: a worker cannot import {error.name or error!s}: install it where "
+                                  "the workers run (simrun ships a plug-in's module only when it is not installed, "
+                                  "e.g. a module beside the config)") from None
+            yield by_key[future.key], outcome
     finally:
         client.cancel(futures)
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+# plug-in modules a worker process wrote from its tasks, by name: each once per process
+_SHIPPED: dict[str, Path] = {}
+
+
+def _work_pickled(shipped: dict[str, tuple[str, bytes]], payload: bytes):
+    """A Dask task: the modules shipped with it made importable (written to a folder of this worker process and put
+    on its path, unless it has them), then the pickled task simulated (``_work``)."""
+    for name, (filename, data) in shipped.items():
+        if name in sys.modules or name in _SHIPPED:
+            continue
+        folder = Path(tempfile.mkdtemp(prefix="simrun-plugin-"))
+        (folder / filename).write_bytes(data)
+        sys.path.insert(0, str(folder / filename) if filename.endswith(".zip") else str(folder))
+        _SHIPPED[name] = folder
+    task = pickle.loads(payload)
+    return _work(task)(task)
+
+
+def _plugin_sources(tasks: list) -> dict[str, tuple[str, bytes]]:
+    """What a Dask worker needs to import the plug-in systems of ``tasks``: for each top-level module of a system's
+    parameter model or system class that is neither simrun's nor installed (under site-packages), its file's name and
+    bytes, or its package as a zip (imported from the zip)."""
+    runs = [run for task in tasks for run in (task if isinstance(task, list) else [task])]
+    names = {cls.__module__.split(".")[0] for run in runs for cls in (type(run.system), run.system.system_class)}
+    sources = {}
+    for name in sorted(names - {"simrun"}):
+        module = sys.modules.get(name)
+        source = Path(getattr(module, "__file__", None) or "")
+        if not source.is_file() or any(part in ("site-packages", "dist-packages") for part in source.parts):
+            continue  # installed (or built in): the workers must have it installed too
+        if source.name != "__init__.py":
+            sources[name] = (source.name, source.read_bytes())
+            continue
+        bundle = io.BytesIO()
+        with zipfile.ZipFile(bundle, "w") as archive:
+            for member in sorted(source.parent.rglob("*.py")):
+                archive.write(member, Path(name) / member.relative_to(source.parent))
+        sources[name] = (f"{name}.zip", bundle.getvalue())
+    return sources
 
 
 def run_local(tasks: list, jobs: int, scheduler: str | None = None) -> Iterator[tuple]:

@@ -192,11 +192,17 @@ def _read_mesh(path: Path) -> SpringModel:
     for reader in (_meshio_faces, _trimesh_faces):
         try:
             points, triangles, quads = reader(path)
+        except _NoFaces as error:  # read, but nothing to make springs of: no other reader will find faces
+            raise ModelError(f"{path} has {error}") from None
         except ModelError as error:
             reasons.append(str(error))
             continue
         return _mesh_model(path, points, triangles, quads)
     raise ModelError(f"{path}: cannot read it as a mesh ({'; '.join(reasons)})")
+
+
+class _NoFaces(ModelError):
+    """A mesh file read whole, without a triangle or quad."""
 
 
 def _meshio_faces(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -221,7 +227,7 @@ def _meshio_faces(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     quads = np.concatenate(blocks["quad"]).astype(np.intp) if blocks["quad"] else np.zeros((0, 4), np.intp)
     if len(triangles) + len(quads) == 0:
         found = sorted({block.type for block in mesh.cells if len(block.data)}) or ["none"]
-        raise ModelError(f"meshio: no triangles or quads (cells: {', '.join(found)})")
+        raise _NoFaces(f"no triangles or quads (cells: {', '.join(found)})")
     faces = np.concatenate([triangles.ravel(), quads.ravel()])
     if faces.min() < 0 or faces.max() >= len(points):  # meshio reads OBJ's relative (negative) indices as absolute
         raise ModelError(f"meshio: face indices outside 0..{len(points) - 1}")
