@@ -124,6 +124,15 @@ def test_a_missing_results_file_is_one_line_exit_2(tmp_path, capsys, command):
     assert files_under(tmp_path) == set()
 
 
+def _writing_command(monkeypatch, write, command: str, results_file: Path, target: Path) -> list[str]:
+    """``_argv`` of plot, report or animate writing under ``target``, its writer replaced by ``write(path)`` (the
+    figure, report or animation file it would write)."""
+    monkeypatch.setattr("simrun.figures.draw_figures", lambda results, folder, **_: write(Path(folder) / "a.png"))
+    monkeypatch.setattr("simrun.report.page.write_report", lambda path, output, **_: write(Path(output)))
+    monkeypatch.setattr("simrun.figures.frames.write_gif", lambda results, run_id, output, **_: write(Path(output)))
+    return _argv(command, results_file, target, target.parent)
+
+
 @pytest.mark.parametrize("command", ["plot", "report", "animate"])
 def test_a_full_disk_while_writing_is_one_line_naming_the_path_and_leaves_nothing(tmp_path, capsys, monkeypatch,
                                                                                     results_file, command):
@@ -133,14 +142,8 @@ def test_a_full_disk_while_writing_is_one_line_naming_the_path_and_leaves_nothin
         written.write_bytes(b"half a file")
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr("simrun.figures.draw_figures", lambda results, folder, **_: half_then_full(Path(folder) / "a.png"))
-    monkeypatch.setattr("simrun.report.page.write_report", lambda path, output, **_: half_then_full(Path(output)))
-    monkeypatch.setattr("simrun.figures.frames.write_gif", lambda results, run_id, output, **_: half_then_full(Path(output)))
     target = tmp_path / "out"
-    argv = {"plot": ["plot", str(results_file), "--output", str(target)],
-            "report": ["report", str(results_file), "--output", str(target / "report.html"), "--reference", "none"],
-            "animate": ["animate", str(results_file), "--output", str(target / "cloth.gif")]}[command]
-    assert main(argv) == 2
+    assert main(_writing_command(monkeypatch, half_then_full, command, results_file, target)) == 2
     assert_one_line_error(capsys, "--output", str(target), "No space left on device")
     assert files_under(tmp_path) == set()
 
@@ -154,14 +157,7 @@ def test_ctrl_c_while_writing_is_one_line_exit_130_and_leaves_nothing(tmp_path, 
         written.write_bytes(b"half a file")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("simrun.figures.draw_figures", lambda results, folder, **_: half_then_interrupted(Path(folder) / "a.png"))
-    monkeypatch.setattr("simrun.report.page.write_report", lambda path, output, **_: half_then_interrupted(Path(output)))
-    monkeypatch.setattr("simrun.figures.frames.write_gif", lambda results, run_id, output, **_: half_then_interrupted(Path(output)))
-    target = tmp_path / "out"
-    argv = {"plot": ["plot", str(results_file), "--output", str(target)],
-            "report": ["report", str(results_file), "--output", str(target / "report.html"), "--reference", "none"],
-            "animate": ["animate", str(results_file), "--output", str(target / "cloth.gif")]}[command]
-    assert main(argv) == 130
+    assert main(_writing_command(monkeypatch, half_then_interrupted, command, results_file, tmp_path / "out")) == 130
     captured = capsys.readouterr()
     assert captured.err == f"simrun: interrupted: nothing {command} writes is left half-written; run the same command again\n"
     assert files_under(tmp_path) == set()
