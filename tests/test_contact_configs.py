@@ -87,3 +87,24 @@ def test_a_cloths_obstacle_file_is_found_beside_its_config_and_hashed(tmp_path, 
     (path,) = [collider.file for collider in experiment.system.contact.colliders]
     assert Path(path).is_absolute() and Path(path).name == "floor.obj"
     assert list(experiment.system.input_files()) == ["contact.colliders[0].file"]
+
+
+def test_spot_drop_lands_on_an_unstructured_mesh_in_few_newton_iterations(tmp_path):
+    """spot_drop.yaml with backward Euler through its landing (to t = 0.15 s, the shell on the ground from
+    t = 0.03 s): every step converges, every step's distance to the ground is positive and the shell is within
+    dhat of it, the ground's friction has begun to slow the slide, each factorisation took the symmetric path, and
+    the landing costs few Newton iterations a step (about 8; the damping in the config is why: docs/performance.md)."""
+    results = simrun.run(CONFIGS / "spot_drop.yaml", output=tmp_path / "spot", figures=False, progress=False,
+                         jobs=1, overrides=["duration=0.15", "integrators=[backward_euler]"])
+    (run,) = results.runs.values()
+    assert run.attrs["status"] == "ok", run.attrs["message"]
+    distances = run["contact_distance"]
+    assert np.all(distances > 0.0) and distances.min() < 1e-3
+    landed = np.flatnonzero(distances < 1e-3)
+    assert landed[0] <= 4
+    iterations = run["newton_iterations"][landed[0]:]
+    assert iterations.mean() <= 15 and iterations.max() < 60, iterations
+    momentum = run["momentum"]
+    assert momentum[-1, 0] < 0.75 * momentum[0, 0]  # 1 kg thrown at 0.8 m/s: friction slows it
+    assert run.attrs["factorisations_symmetric"] > 0
+    assert run.attrs["factorisations_threshold"] == run.attrs["factorisations_colamd"] == 0

@@ -180,11 +180,12 @@ def _group_ends(group: int, timeout: float) -> bool:
 
 def test_kill_9_keeps_every_finished_run_and_the_rerun_resumes(tmp_path):
     """A real subprocess killed with SIGKILL mid-sweep: the file opens, holds only complete runs, and the
-    same command runs exactly the missing ones."""
+    same command runs exactly the missing ones. Neither the killed sweep's processes (its resource tracker, which
+    unlinks the pool's semaphores once simrun is gone) nor the resumed one print a warning."""
     config = write_config(tmp_path, SLOW_SWEEP, tmp_path / "out")
-    # a session of its own: its process group then holds simrun, the pool's fork server and workers
-    process = subprocess.Popen([*SIMRUN, str(config), "--no-plots", "-j", "2"], stdout=subprocess.PIPE, text=True,
-                               start_new_session=True)
+    # a session of its own: its process group then holds simrun, the pool's fork server, workers and resource tracker
+    process = subprocess.Popen([*SIMRUN, str(config), "--no-plots", "-j", "2"], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True)
     finished = 0
     deadline = time.monotonic() + 120
     for line in process.stdout:  # each "[k/N]" line is printed after its run was committed
@@ -197,6 +198,8 @@ def test_kill_9_keeps_every_finished_run_and_the_rerun_resumes(tmp_path):
     assert finished == 3
     # the workers and their fork server end with simrun (they would otherwise wait forever)
     assert _group_ends(process.pid, timeout=20), "pool processes outlived the killed simrun"
+    killed_err = process.stderr.read()
+    assert "resource_tracker" not in killed_err and "leaked" not in killed_err, killed_err
     with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
         kept = {run_id for run_id, group in file["runs"].items() if group.attrs.get("complete")}
         assert len(kept) >= 3
@@ -206,6 +209,7 @@ def test_kill_9_keeps_every_finished_run_and_the_rerun_resumes(tmp_path):
             assert group["t"][-1] == pytest.approx(40.0, rel=1e-3) and group.attrs["status"] == "ok"
     again = subprocess.run([*SIMRUN, str(config), "--no-plots", "-j", "2"], capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
+    assert again.stderr == "", again.stderr
     assert f"skipped {len(kept)} runs" in again.stdout and f"running {12 - len(kept)}" in again.stdout
     with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
         assert len(file["runs"]) == 12 and len(file["summary"]) == 12

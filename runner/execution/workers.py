@@ -13,6 +13,7 @@ import multiprocessing.forkserver
 import os
 import select
 import signal
+import sys
 import threading
 import time
 import warnings
@@ -22,6 +23,11 @@ import threadpoolctl
 EXECUTORS = ("process", "dask")  # the names of simrun.execution.executors.EXECUTOR_FUNCTIONS, light for the command line
 # what the command line also accepts: `--executor local` (the name before the pipeline API) is the process pool
 EXECUTOR_ALIASES = {"local": "process"}
+# The warning multiprocessing's resource tracker gives when it unlinks the semaphores of a pool whose process died
+# without closing them (kill -9 of simrun): the tracker is there to clean them up, and does; the warning is for
+# whoever wrote the pool, not for the user of a killed sweep. The tracker is a new interpreter that takes this
+# process's -W options (multiprocessing.util._args_from_interpreter_flags), so the filter is given there.
+TRACKER_WARNING_FILTER = "ignore:resource_tracker:UserWarning:multiprocessing.resource_tracker"
 # Thread-count variables of the BLAS libraries a run may load (CHOLMOD's OpenBLAS; MKL or OpenMP builds)
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -111,11 +117,19 @@ def start_worker_server() -> None:
 def _worker_context():
     """Workers forked from a clean server process: a plain fork would inherit the open results file
     (and the HDF5 lock on it); the server imports the simulation once, so each fork starts at once."""
+    _quiet_resource_tracker()
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(["simrun.execution.simulate", "simrun.execution.lanes"])
     return context
+
+
+def _quiet_resource_tracker() -> None:
+    """Before the pool's resource tracker starts (with the fork server or the pool): it is to clean up after a
+    killed sweep without a warning (TRACKER_WARNING_FILTER). Its other messages are kept."""
+    if TRACKER_WARNING_FILTER not in sys.warnoptions:
+        sys.warnoptions.append(TRACKER_WARNING_FILTER)
 
 
 def may_use_local_pool(argv: list[str]) -> bool:
