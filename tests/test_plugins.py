@@ -111,8 +111,9 @@ if __name__ == "__main__":
 
 def test_a_plugin_runs_on_a_dask_cluster_whose_workers_do_not_have_it(tmp_path, on_path):
     """A cluster of process workers started in a process of its own, without the plug-in's folder on its path (as
-    `--scheduler tcp://...` to a cluster started elsewhere): simrun ships the module to the workers
-    (Client.upload_file), and the file is the serial run's."""
+    `--scheduler tcp://...` to a cluster started elsewhere): simrun ships the module's source with every task, and
+    the file is the serial run's. A plug-in that imports a module of its own that simrun does not ship (it ships the
+    modules the system's classes are defined in) fails on the workers with one line naming that module, exit 2."""
     pytest.importorskip("distributed")
     script = tmp_path / "cluster.py"
     script.write_text(CLUSTER)
@@ -125,11 +126,33 @@ def test_a_plugin_runs_on_a_dask_cluster_whose_workers_do_not_have_it(tmp_path, 
                             figures=False)
         on_dask = simrun.run(config({"type": CHAIN, "count": 2}, tmp_path / "dask"), executor="dask",
                              scheduler=address, progress=False, figures=False)
+        helped = _plugin_with_a_helper(tmp_path / "helped")
+        code = subprocess.run([str(SIMRUN), str(helped), "--executor", "dask", "--scheduler", address, "--no-plots"],
+                              capture_output=True, text=True, cwd=tmp_path, timeout=300,
+                              env={**os.environ, "PYTHONPATH": os.pathsep.join([str(PLUGIN_FOLDER), str(helped.parent)])})
     finally:
         process.stdin.close()
         process.wait(timeout=60)
     assert serial.ran == on_dask.ran == {"ok": 2}
     _runs_alike(serial, on_dask)
+    assert code.returncode == 2, code.stderr
+    assert code.stderr.count("\n") == 1 and "Traceback" not in code.stderr, code.stderr
+    assert code.stderr.startswith("simrun: error: --executor dask: a worker cannot import chain_gravity:"), code.stderr
+
+
+def _plugin_with_a_helper(folder: Path) -> Path:
+    """A config beside its plug-in ``helped_chain``, whose module imports ``chain_gravity``, a module of the user's
+    beside it that no system class is defined in (so simrun does not ship it)."""
+    folder.mkdir()
+    (folder / "chain_gravity.py").write_text("G = 9.81\n")
+    (folder / "helped_chain.py").write_text(
+        "from typing import Literal\n\nimport chain_gravity  # noqa: F401\nfrom pendulum_chain import Chain, ChainParams\n\n\n"
+        "class HelpedChainParams(ChainParams):\n"
+        "    type: Literal['helped_chain:HelpedChainParams'] = 'helped_chain:HelpedChainParams'\n\n\n"
+        "HelpedChainParams.system_class = Chain\n")
+    path = folder / "helped.yaml"
+    path.write_text(yaml.safe_dump(config({"type": "helped_chain:HelpedChainParams", "count": 1}, folder / "out")))
+    return path
 
 
 def test_the_type_is_kept_as_written_so_the_hash_is_the_files(on_path):

@@ -24,6 +24,7 @@ from simrun.execution.workers import (BLAS_THREAD_VARIABLES, _limit_blas_threads
                                       process_pool)
 from simrun.experiment.config import ConfigError, parse_yaml, validate_experiment
 from simrun.experiment.sweep import expand_runs
+from simrun.results import fits_writer
 from simrun.results.lock import OutputLock
 
 SIMRUN = [sys.executable, "-m", "simrun.cli"]
@@ -255,6 +256,39 @@ def test_ctrl_c_keeps_what_finished_and_exits_130(tmp_path, jobs):
     with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
         assert len(file["runs"]) >= 2
         assert all(group.attrs.get("complete") for group in file["runs"].values())
+
+
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_ctrl_c_in_a_calibration_keeps_the_finished_fits_and_the_rerun_resumes(tmp_path, jobs):
+    """SIGINT to `simrun fit` (calibrate_spring.yaml, 10 fits of a few seconds each) after its second fit: exit 130,
+    one line and no traceback; the file holds every fit that was reported, each with its fitted run (the fit with
+    the exact solution has none); the same
+    command resumes from them."""
+    config = Path(__file__).resolve().parents[1] / "configs" / "calibrate_spring.yaml"
+    argv = [*SIMRUN, "fit", str(config), "--output", str(tmp_path / "fit"), "--no-plots", "-j", jobs,
+            "--set", "integrators=[backward_euler,implicit_midpoint,rk4]", "--set", "sweep.dt=[0.002,0.0025,0.003]"]
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    reported = 0
+    for line in process.stdout:
+        reported += line.startswith("[")
+        if reported == 2:
+            break
+    os.killpg(process.pid, signal.SIGINT)
+    rest, err = process.communicate(timeout=60)
+    reported += sum(line.startswith("[") for line in rest.splitlines())
+    assert process.returncode == 130, err
+    assert err == ("simrun: interrupted: the finished fits are in the results file; run the same command again to "
+                   "finish the rest\n"), err
+    assert _group_ends(process.pid, timeout=20)
+    with h5py.File(tmp_path / "fit" / "results.h5", "r") as file:
+        done = fits_writer.completed(file)
+        assert len(done) == reported and 2 <= reported < 10
+        assert done - {"exact"} <= {run_id for run_id, group in file["runs"].items() if group.attrs.get("complete")}
+    again = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, start_new_session=True)
+    header = again.stdout.readline()
+    os.killpg(again.pid, signal.SIGKILL)
+    again.wait()
+    assert "10 fits of system.stiffness, system.damping" in header and f"(resuming: {reported} done)" in header, header
 
 
 def test_ctrl_c_on_the_process_pool_ends_the_workers_quietly(tmp_path):

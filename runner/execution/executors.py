@@ -97,8 +97,8 @@ def run_dask(tasks: list, jobs: int, scheduler: str | None) -> Iterator[tuple]:
                 outcome = future.result()
             except ImportError as error:  # a worker could not import (or unpickle a task that needs) a module
                 raise ConfigError(f"--executor dask: a worker cannot import {error.name or error!s}: install it where "
-                                  "the workers run (simrun ships a plug-in's module only when it is not installed, "
-                                  "e.g. a module beside the config)") from None
+                                  "the workers run, or make it part of the plug-in's package (simrun ships the module "
+                                  "or package that defines a plug-in system, when it is not installed)") from None
             yield by_key[future.key], outcome
     finally:
         client.cancel(futures)
