@@ -128,14 +128,16 @@ def _masses(params, model: SpringModel) -> np.ndarray:
 
 def _areas_with_neighbours(model: SpringModel) -> np.ndarray:
     """The area (m^2) lumped to each vertex; a vertex that touches no triangle of positive area (a scanned mesh's
-    degenerate faces, a vertex no face uses) takes the mean of its spring neighbours' areas, or of every vertex's
-    where it has none, and a ModelWarning says so in one line, with the degenerate faces the file had."""
+    degenerate faces) takes the mean of its spring neighbours' areas, and one that no spring joins (a vertex no face
+    uses: the published Stanford bunny has 1,113) the mean of every vertex's; a ModelWarning says so in one line,
+    with the degenerate faces the file had."""
     areas = lumped_area_masses(model.vertices, model.triangles)
     empty = ~(areas > 0.0)
+    said = ([f"{_count(model.degenerate_triangles, 'degenerate triangle')} (zero area) left out of the surface: no "
+             "spring of zero length, no area"] if model.degenerate_triangles else [])
     if not np.any(empty):
-        if model.degenerate_triangles:
-            _warn_once(f"{model.source}: {_count(model.degenerate_triangles, 'degenerate triangle')} (zero area) left "
-                       "out of the surface: no spring of zero length, no area")
+        if said:
+            _warn_once(f"{model.source}: {said[0]}")
         return areas
     if not np.any(~empty):
         raise ModelError("mass: no triangle of the model has a positive area, so area lumping gives no vertex a mass")
@@ -143,13 +145,22 @@ def _areas_with_neighbours(model: SpringModel) -> np.ndarray:
     known = np.where(empty, 0.0, areas)
     neighbours = np.bincount(i, weights=known[j], minlength=len(areas)) + np.bincount(j, weights=known[i], minlength=len(areas))
     counted = np.bincount(i, weights=~empty[j], minlength=len(areas)) + np.bincount(j, weights=~empty[i], minlength=len(areas))
-    mean = float(np.mean(areas[~empty]))
-    filled = np.where(counted > 0, neighbours / np.maximum(counted, 1.0), mean)
+    joined = np.bincount(model.springs.ravel(), minlength=len(areas)) > 0
+    filled = np.where(counted > 0, neighbours / np.maximum(counted, 1.0), float(np.mean(areas[~empty])))
     areas = np.where(empty, filled, areas)
-    alone = int(np.count_nonzero(empty & (counted == 0)))
-    _warn_once(f"{model.source}: {_count(model.degenerate_triangles, 'degenerate triangle')} (zero area) left out of "
-               f"the surface; vertices without a triangle of positive area ({int(np.count_nonzero(empty))}) take the "
-               "mean area of their spring neighbours" + (f" ({alone} without any: of every vertex)" if alone else ""))
+    near = int(np.count_nonzero(empty & (counted > 0)))
+    unused = int(np.count_nonzero(empty & ~joined))
+    others = int(np.count_nonzero(empty)) - near - unused  # joined only to vertices without area themselves
+    if near:
+        said.append(f"{_count(near, 'vertex', 'vertices')} without a triangle of positive area take the mean area of "
+                    "their spring neighbours")
+    if others:
+        said.append(f"{_count(others, 'vertex', 'vertices')} whose spring neighbours have no area either take the "
+                    "mean area of every vertex")
+    if unused:
+        said.append(f"{_count(unused, 'vertex', 'vertices')} that no face uses: free particles (no spring; kept, so "
+                    "that the file's vertex numbers hold) with the mean area of every vertex")
+    _warn_once(f"{model.source}: " + "; ".join(said))
     return areas
 
 

@@ -248,7 +248,25 @@ def _trimesh_faces(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise ModelError(f"trimesh: {type(error).__name__}: {error}") from None
     if len(mesh.faces) == 0:
         raise ModelError("trimesh: no faces")
-    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.intp), np.zeros((0, 4), np.intp)
+    points = np.asarray(mesh.vertices, dtype=float)
+    if path.suffix.lower() == ".obj":
+        points = _with_trailing_obj_vertices(path, points)
+    return points, np.asarray(mesh.faces, dtype=np.intp), np.zeros((0, 4), np.intp)
+
+
+def _with_trailing_obj_vertices(path: Path, points: np.ndarray) -> np.ndarray:
+    """``points`` (trimesh's vertices of an OBJ, in the file's order) with the file's vertices after the last one a
+    face uses, which trimesh leaves out of a textured OBJ: a scan's unused vertices keep their numbers. The file's
+    ``v`` lines (x y z, then optional w or colour) are the only part read here; the faces are trimesh's."""
+    with path.open("rb") as file:
+        lines = [line for line in file if line.startswith(b"v ")]
+    if len(lines) <= len(points):
+        return points
+    try:
+        extra = np.array([line.split()[1:4] for line in lines[len(points):]], dtype=float)
+    except ValueError:
+        raise ModelError(f"trimesh: {path.name} has vertex lines that are not x y z") from None
+    return np.concatenate([points, extra.reshape(-1, 3)])
 
 
 def _fan(polygons: np.ndarray) -> np.ndarray:
