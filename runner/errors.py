@@ -15,3 +15,13 @@ class OutputLocked(ConfigError):
 
 class ResultsFileError(ConfigError):
     """A results file that cannot be read or resumed: missing, not HDF5, not simrun's, or of an unknown format version."""
+
+
+class WorkerLost(ConfigError):
+    """A worker process of the local pool ended abruptly (killed: out of memory, a signal): the runs that finished are
+    in the results file, and the same command resumes."""
+
+    def __init__(self, doing: str):
+        super().__init__(f"a worker process ended abruptly while {doing} (killed by the system: out of memory? a "
+                         "signal?); what finished is in the results file: run the same command again to resume the "
+                         "rest, with fewer --jobs if memory ran out")

@@ -482,3 +482,53 @@ def test_random_text_is_parsed_or_refused_cleanly(text):
     except ConfigError as error:  # up to five errors, one line each
         lines = str(error).split("\n")
         assert 1 <= len(lines) <= 5 and all(lines)
+
+
+KILLED_CHAIN = '''
+import multiprocessing
+import os
+import signal
+
+from pendulum_chain import Chain, ChainParams
+
+
+class KilledChain(Chain):
+    """The example chain; with count 2, a worker that builds it is killed (as the kernel kills one out of memory)."""
+
+    def __init__(self, p):
+        if p.count == 2 and multiprocessing.parent_process() is not None:
+            os.kill(os.getpid(), signal.SIGKILL)
+        super().__init__(p)
+
+
+class KilledChainParams(ChainParams):
+    type: str = "killed_chain:KilledChainParams"
+
+
+KilledChainParams.system_class = KilledChain
+'''
+
+
+def test_a_worker_killed_mid_sweep_is_one_line_and_the_finished_runs_stay(tmp_path, monkeypatch, capsys):
+    """A pool worker killed by a signal (the kernel's OOM killer) while it builds a run: one line saying so and what
+    to do, exit 2, no traceback (the pool fails every pending run alike, so which run it was is not known); every run the file holds is complete, and the lock went with the sweep."""
+    (tmp_path / "killed_chain.py").write_text(KILLED_CHAIN)
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "plugins"))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), str(Path(__file__).parent / "plugins")]))
+    config = write_config(tmp_path, """\
+        name: killed
+        system: {type: "killed_chain:KilledChainParams"}
+        integrators: [symplectic_euler]
+        duration: 0.05
+        sweep: {dt: [1.0e-4], system.count: [1, 3, 2]}
+        """, tmp_path / "out")
+    assert main([str(config), "--no-plots", "-j", "2", "-q", "--lanes", "off"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert err.startswith("simrun: error: a worker process ended abruptly while running the sweep (killed by the system"), err
+    assert "run the same command again" in err
+    with h5py.File(tmp_path / "out" / "results.h5", "r") as file:
+        assert all(group.attrs.get("complete") for group in file["runs"].values())
+    with OutputLock(tmp_path / "out"):  # free again
+        pass

@@ -13,6 +13,7 @@ they finish; then the predicted fits (the spring's root-find), the transfer tabl
 from __future__ import annotations
 
 import concurrent.futures
+import concurrent.futures.process
 import hashlib
 import math
 from collections.abc import Iterator
@@ -25,7 +26,7 @@ from simrun.calibration.engine import FitTask, Model, at_times, fit_one, on_step
 from simrun.calibration.keys import check_parameters, get_value, key_parts, system_at, system_mapping
 from simrun.calibration.observations import load_observations
 from simrun.calibration.predicted import predicted_values
-from simrun.errors import ConfigError
+from simrun.errors import ConfigError, WorkerLost
 from simrun.execution.simulate import simulate
 from simrun.execution.workers import default_jobs, process_pool, stop_workers
 from simrun.experiment.config import _build_integrator, config_file_of, load_experiment
@@ -193,7 +194,11 @@ def _execute(tasks: list[FitTask], runs_by_id: dict, jobs: int) -> Iterator[tupl
     try:
         futures = [pool.submit(fit_and_simulate, task, runs_by_id.get(task.fit_id)) for task in tasks]
         for future in concurrent.futures.as_completed(futures):
-            yield future.result()
+            try:
+                outcome = future.result()
+            except concurrent.futures.process.BrokenProcessPool:
+                raise WorkerLost("fitting") from None
+            yield outcome
         finished = True
     finally:
         if not finished:

@@ -9,6 +9,7 @@ completion nor the chunk a run was stepped in changes any run's data.
 from __future__ import annotations
 
 import concurrent.futures
+import concurrent.futures.process
 import io
 import logging
 import pickle
@@ -18,7 +19,7 @@ import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from simrun.errors import ConfigError
+from simrun.errors import ConfigError, WorkerLost
 from simrun.execution.lanes import lane_chunks, simulate_lanes
 from simrun.execution.simulate import simulate
 from simrun.execution.workers import EXECUTORS, process_pool, stop_workers
@@ -53,7 +54,11 @@ def run_process_pool(tasks: list, jobs: int) -> Iterator[tuple]:
         ordered = sorted(tasks, key=_size, reverse=True)
         futures = {pool.submit(_work(task), task): task for task in ordered}
         for future in concurrent.futures.as_completed(futures):
-            yield futures[future], future.result()
+            try:
+                outcome = future.result()
+            except concurrent.futures.process.BrokenProcessPool:  # which run's worker died is not known: it fails them all
+                raise WorkerLost("running the sweep") from None
+            yield futures[future], outcome
         finished = True
     finally:
         if not finished:  # Ctrl-C (the workers ignore it) or a consumer that stopped: no run in flight is waited for

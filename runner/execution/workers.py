@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import contextlib
 import multiprocessing
+import multiprocessing.context
 import multiprocessing.forkserver
+import multiprocessing.spawn
 import os
 import select
 import signal
@@ -116,13 +119,65 @@ def start_worker_server() -> None:
 
 def _worker_context():
     """Workers forked from a clean server process: a plain fork would inherit the open results file
-    (and the HDF5 lock on it); the server imports the simulation once, so each fork starts at once."""
+    (and the HDF5 lock on it); the server imports the simulation once, so each fork starts at once. The workers do
+    not run the caller's script again (``_WithoutMain``)."""
     _quiet_resource_tracker()
     if "forkserver" not in multiprocessing.get_all_start_methods():
-        return multiprocessing.get_context("spawn")
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["simrun.execution.simulate", "simrun.execution.lanes"])
-    return context
+        return _SPAWN_CONTEXT
+    _FORKSERVER_CONTEXT.set_forkserver_preload(["simrun.execution.simulate", "simrun.execution.lanes"])
+    return _FORKSERVER_CONTEXT
+
+
+# A new process of multiprocessing's spawn and forkserver methods first imports the main module of its parent, to
+# find what was defined there: it runs the caller's script again, as __mp_main__, so that a script calling simrun.run
+# at its top level, without `if __name__ == "__main__":`, would start a pool inside each worker (which Python
+# refuses: BrokenProcessPool). simrun's tasks are simrun's classes and the plug-ins' (pickled by module path), never
+# the script's, so its workers start without it. (A notebook's main module has no file and was never imported.)
+MAIN_KEYS = ("init_main_from_path", "init_main_from_name")
+
+
+@contextlib.contextmanager
+def _main_left_out():
+    """multiprocessing's preparation data for a new process, without the parent's main module, while it starts."""
+    prepared = multiprocessing.spawn.get_preparation_data
+
+    def without_main(name):
+        data = prepared(name)
+        for key in MAIN_KEYS:
+            data.pop(key, None)
+        return data
+
+    multiprocessing.spawn.get_preparation_data = without_main
+    try:
+        yield
+    finally:
+        multiprocessing.spawn.get_preparation_data = prepared
+
+
+class _ForkServerWorker(multiprocessing.context.ForkServerProcess):
+    @staticmethod
+    def _Popen(process_obj):
+        with _main_left_out():
+            return multiprocessing.context.ForkServerProcess._Popen(process_obj)
+
+
+class _SpawnWorker(multiprocessing.context.SpawnProcess):
+    @staticmethod
+    def _Popen(process_obj):
+        with _main_left_out():
+            return multiprocessing.context.SpawnProcess._Popen(process_obj)
+
+
+class _ForkServerContext(multiprocessing.context.ForkServerContext):
+    Process = _ForkServerWorker
+
+
+class _SpawnContext(multiprocessing.context.SpawnContext):
+    Process = _SpawnWorker
+
+
+_FORKSERVER_CONTEXT = _ForkServerContext() if "forkserver" in multiprocessing.get_all_start_methods() else None
+_SPAWN_CONTEXT = _SpawnContext()
 
 
 def _quiet_resource_tracker() -> None:
