@@ -80,6 +80,10 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     if lanes not in LANE_MODES:
         raise ConfigError(f"--lanes: unknown {lanes!r}; valid: " + ", ".join(LANE_MODES))
     experiment, config_text = load_experiment(config, list(overrides))
+    if experiment.fit is not None:  # a calibration's sweep alone would silently leave out what it is for
+        where = config if isinstance(config, (str, Path)) and Path(str(config)).suffix else "CONFIG"
+        raise ConfigError(f"fit: this config is a calibration (it has a fit block): `simrun fit {where}` fits it "
+                          "(simrun.fit from Python); to run its sweep without fitting, --set fit=null")
     runs = expand_runs(experiment)
     output = Path(output) if output is not None else experiment.output_dir
     check_writable(output)

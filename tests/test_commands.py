@@ -22,6 +22,7 @@ import yaml
 
 import simrun
 from simrun.cli import main
+from simrun.errors import ConfigError
 from simrun.experiment.config import load_experiment, validate_experiment
 from simrun.experiment.sweep import config_hash, expand_runs, family_labels
 from simrun.format.layout import RESULTS_NAME
@@ -470,3 +471,16 @@ def test_the_config_s_git_commit_is_recorded_with_a_dirty_mark(tmp_path):
     simrun.run(config, jobs=1, progress=False, figures=False, force=True)
     with h5py.File(tmp_path / "out" / RESULTS_NAME, "r") as file:
         assert file.attrs["config_git_commit"] == commit + "+dirty"
+
+
+def test_run_on_a_calibration_refuses_in_one_line_naming_simrun_fit(tmp_path, capsys):
+    """`simrun run` (and simrun.run) on a config with a fit block would run its sweep and leave out the fit: one line
+    pointing to `simrun fit` and to --set fit=null, exit 2, nothing written; with fit=null the sweep runs."""
+    config = Path(__file__).resolve().parents[1] / "configs" / "calibrate_spring.yaml"
+    assert main([str(config), "--output", str(tmp_path / "out")]) == 2
+    assert_one_line_error(capsys, "fit: this config is a calibration", f"`simrun fit {config}`", "--set fit=null")
+    assert files_under(tmp_path) == set()
+    with pytest.raises(ConfigError, match="simrun fit CONFIG"):
+        simrun.run(yaml.safe_load(config.read_text()), output=tmp_path / "out")
+    assert main([str(config), "--output", str(tmp_path / "out"), "--set", "fit=null", "--set", "sweep.dt=[0.1]",
+                 "--set", "integrators=[rk4]", "-q", "--no-plots"]) == 0
