@@ -21,14 +21,17 @@ BENCHMARKS = (small_steps, lanes, cloth_newton, lagged_newton, cloth_explicit, m
               graphics_solvers, contact, calibration, parallel_sweep, cloth_iteration)
 
 
+# the table's columns, wide enough for every row's name and target, so that each row is printed as it is measured
+NAME_WIDTH, TARGET_WIDTH = 68, 14
+
+
 def main() -> None:
-    print(f"simrun benchmarks: python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}")
-    rows = [row for benchmark in BENCHMARKS for row in benchmark.rows()]
-    width = max(len(name) for name, *_ in rows)
-    target_width = max(len("target"), *(len(target) for _, _, target, _ in rows))
-    print(f"{'what':<{width}}  {'ratio':>7}  {'target':<{target_width}}  absolute")
-    for name, ratio, target, detail in rows:
-        print(f"{name:<{width}}  {ratio:7.2f}  {target:<{target_width}}  {detail}")
+    print(f"simrun benchmarks: python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}; "
+          f"{len(BENCHMARKS)} benchmarks, each row printed once measured", flush=True)
+    print(f"{'what':<{NAME_WIDTH}}  {'ratio':>7}  {'target':<{TARGET_WIDTH}}  absolute", flush=True)
+    for benchmark in BENCHMARKS:
+        for name, ratio, target, detail in benchmark.rows():
+            print(f"{name:<{NAME_WIDTH}}  {ratio:7.2f}  {target:<{TARGET_WIDTH}}  {detail}", flush=True)
 
 
 if __name__ == "__main__":
