@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+import math
 import os
 import warnings
 from abc import ABC, abstractmethod
@@ -119,6 +120,11 @@ FLOAT64 = np.dtype(np.float64)  # the one native float64 dtype object: `dtype is
 EPSILON = float(np.finfo(float).eps)  # once: np.finfo is not free, and every dense solve compares rcond with it
 # A stationary iteration whose residual grows past this factor times |b| diverges (spectral radius > 1).
 DIVERGED_FACTOR = 1e8
+# A stationary iteration's rate is measured over windows of this many iterations: it diverges when its residual grew
+# over two windows in a row, and cannot converge when that rate would need more than HOPELESS_FACTOR times the
+# iterations it has left (it would end far from its tolerance after running them all).
+RATE_WINDOW = 10
+HOPELESS_FACTOR = 4.0
 
 
 def _diagonal(matrix) -> np.ndarray:
@@ -188,17 +194,38 @@ class ReducedSolver(LinearSolver):
         residual = rhs.copy()
         target = self._target(rhs)
         limit = DIVERGED_FACTOR * float(np.linalg.norm(rhs))
+        norms = np.empty(self.max_iterations + 1)
         iterations = 0
         while iterations < self.max_iterations:
-            norm = float(np.linalg.norm(residual))
+            norm = norms[iterations] = float(np.linalg.norm(residual))
             if norm <= target:
                 break
             if not norm <= limit:
                 raise np.linalg.LinAlgError(f"{self.name}: the iteration diverges (spectral radius of its iteration matrix > 1)")
+            if iterations >= 2 * RATE_WINDOW and iterations % RATE_WINDOW == 0:
+                self._check_rate(norms[iterations - 2 * RATE_WINDOW:iterations + 1:RATE_WINDOW], target, iterations)
             solution += correction(residual)
             residual = rhs - matrix @ solution
             iterations += 1
         return solution, iterations
+
+    def _check_rate(self, norms: np.ndarray, target: float, iterations: int) -> None:
+        """Stop a stationary iteration that cannot reach ``target`` in its budget: its residual, once the fast
+        components have decayed, changes by the spectral radius rho of its iteration matrix per iteration. ``norms``:
+        the residual norms RATE_WINDOW and 2 RATE_WINDOW iterations ago, and now. Raises LinAlgError when it grew over
+        both windows (rho >= 1: it diverges, if only slowly) or when even the slower window's rate would need more
+        than HOPELESS_FACTOR times the iterations left."""
+        before, middle, now = norms
+        if not (now > 0.0 and middle > 0.0 and before > 0.0):
+            return
+        rate = max(now / middle, middle / before) ** (1.0 / RATE_WINDOW)
+        if now >= middle >= before:
+            raise np.linalg.LinAlgError(f"{self.name}: the iteration diverges (its residual grew by {rate:.4g} per "
+                                        f"iteration over {2 * RATE_WINDOW} iterations: spectral radius >= 1)")
+        left = self.max_iterations - iterations
+        if rate < 1.0 and math.log(target / now) / math.log(rate) > HOPELESS_FACTOR * left:
+            raise np.linalg.LinAlgError(f"{self.name}: cannot reach its tolerance in max_iterations {self.max_iterations}: "
+                                        f"its residual falls by {rate:.6g} per iteration (spectral radius near 1)")
 
 
 class DirectSolver(ReducedSolver):

@@ -317,3 +317,18 @@ def test_dask_gives_the_datasets_of_the_process_pool(tmp_path, tiny_config):
     on_dask = simrun.run(tiny_config, output=tmp_path / "dask", executor="dask", jobs=1, progress=False, figures=False)
     assert on_dask.ran == on_processes.ran == {"ok": 2}
     assert_same_runs(on_processes, on_dask)
+
+
+def test_a_run_over_its_wall_time_budget_stops_not_converged_with_that_reason(tmp_path):
+    """record.max_wall_time: a run that would take far longer stops at its first step past the budget, not_converged,
+    its message naming the budget; what it recorded up to there is kept, and it is stepped alone (not as a lane)."""
+    import simrun
+
+    config = {"name": "budget", "system": {"type": "cloth", "resolution": [16, 16]}, "integrators": ["backward_euler"],
+              "duration": 100.0, "sweep": {"dt": [0.01]}, "record": {"max_wall_time": 0.5}}
+    results = simrun.run(config, output=tmp_path / "out", jobs=1, progress=False, figures=False)
+    (run,) = results.runs.values()
+    assert run.status == "not_converged"
+    assert "over record.max_wall_time 0.5 s" in run.message and run.message.startswith("stopped at t = ")
+    assert 1 <= run.steps < 10_000 and run.wall_time < 5.0
+    assert run["t"][-1] == pytest.approx(run.steps * 0.01)

@@ -698,3 +698,46 @@ def test_a_chain_takes_the_one_newton_step_with_the_next_solver_when_the_linear_
     np.testing.assert_allclose(y, [-1.0, -0.5], rtol=1e-12)  # the projected matrix's step
     with pytest.raises(np.linalg.LinAlgError):
         FallbackChain([Newton(linear_solver="mpcg")]).newton_step(Indefinite(), np.zeros(2))
+
+
+class _CountingMatrix(np.ndarray):
+    """A dense matrix that counts its products with a vector (one per iteration of a stationary method)."""
+
+    products = 0
+
+    def __matmul__(self, other):
+        _CountingMatrix.products += 1
+        return np.asarray(self) @ other
+
+
+def _jacobi_matrix(radius: float, size: int = 40) -> np.ndarray:
+    """An SPD matrix of unit diagonal whose Jacobi iteration matrix I - A has spectral radius ``radius``: A = (1 - c) I
+    + c 1 1^T with c = radius / (size - 1) has the eigenvalues 1 + radius (along 1) and 1 - c, so I - A has -radius
+    and c."""
+    c = radius / (size - 1)
+    return (1.0 - c) * np.eye(size) + c * np.ones((size, size))
+
+
+@pytest.mark.parametrize("radius, outcome", [(1.002, "diverges"), (0.9995, "cannot reach"), (0.6, None)])
+def test_a_stationary_iteration_that_cannot_converge_stops_within_a_few_windows(radius, outcome):
+    """Point Jacobi on SPD matrices whose iteration matrix I - D^-1 A has spectral radius 1.002 (it diverges, but its
+    residual passes 1e8 |b| only after ~9,000 iterations), 0.9995 (it converges, in ~40,000 iterations: hopeless in
+    a budget of 2,000) and 0.6: the first two raise LinAlgError saying which within 100 iterations, the third
+    converges to its tolerance as before."""
+    from simrun.solvers.linear import Jacobi
+
+    matrix = _jacobi_matrix(radius)
+    measured = float(np.max(np.abs(np.linalg.eigvalsh(np.eye(40) - matrix))))
+    assert np.all(np.linalg.eigvalsh(matrix) > 0.0)  # SPD, so that only the iteration's radius can fail it
+    assert measured == pytest.approx(radius)
+    rhs = np.random.default_rng(4).standard_normal(40)
+    solver = Jacobi(tolerance=1e-10, max_iterations=2000)
+    _CountingMatrix.products = 0
+    counting = matrix.view(_CountingMatrix)
+    if outcome is None:
+        solution, iterations = solver._solve(counting, rhs, spd=True)
+        assert np.linalg.norm(rhs - matrix @ solution) <= 1e-10 * np.linalg.norm(rhs) and iterations < 200
+        return
+    with pytest.raises(np.linalg.LinAlgError, match=outcome):
+        solver._solve(counting, rhs, spd=True)
+    assert _CountingMatrix.products <= 100

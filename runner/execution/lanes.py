@@ -51,6 +51,8 @@ def lane_key(run: Run):
     lanes_class = vars(system_class).get("lanes_class")
     if lanes_class is None or run.integrator.name not in LANE_INTEGRATORS:
         return None
+    if run.record.max_wall_time is not None:  # a budget per run: lanes step together, so each is stepped alone
+        return None
     if not run.integrator.explicit and lane_refusal(run.solver) is not None:
         return None
     solver = "" if run.integrator.explicit else run.solver.model_dump_json()

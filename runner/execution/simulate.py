@@ -155,6 +155,8 @@ def simulate(run: Run) -> RunResult:
     status, message, t_diverged, not_converged_steps = Status.OK, "", None, 0
     first_not_converged = diverged_step = 0  # 1-based step numbers; 0: none
     steps = 0
+    max_wall_time = run.record.max_wall_time
+    over_budget = False  # stopped at record.max_wall_time
     start = time.perf_counter()
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -221,10 +223,18 @@ def simulate(run: Run) -> RunResult:
                     message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
                     record_stop(t, state, sampled, framed)
                     break
+                if max_wall_time is not None and not last and time.perf_counter() - start > max_wall_time:
+                    over_budget = True
+                    message = (f"stopped at t = {t:.6g} s (step {steps} of {step_count}): {time.perf_counter() - start:.3g} s "
+                               f"of wall time, over record.max_wall_time {max_wall_time:g} s")
+                    record_stop(t, state, sampled, framed)
+                    break
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = Status.FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start
-    if status is Status.OK and not_converged_steps and not accept_not_converged:
+    if status is Status.OK and over_budget:
+        status = Status.NOT_CONVERGED
+    elif status is Status.OK and not_converged_steps and not accept_not_converged:
         status = Status.NOT_CONVERGED
         if not message:
             limits = "max_iterations" + (" or time_budget" if getattr(run.solver, "time_budget", None) else "")

@@ -132,6 +132,9 @@ class RecordParams(BaseModel):
     series: bool = Field(True, description="keep the recorded series (samples, per-step solver counts, frames); false keeps "
                                           "only the summary's numbers and each run's scalars: a map of thousands of runs")
 
+    max_wall_time: float | None = Field(None, gt=0, description="a run's budget of wall time (s): a run still stepping "
+                                        "after it stops there, not_converged, with what it recorded so far (a run "
+                                        "stepped alone: runs with a budget are not stepped as lanes)")
     frames_every: int | None = Field(None, ge=1, description="cloth: keep the vertex positions every k-th step")
     max_frames: int = Field(200, ge=2, description="cloth, when `frames_every` is not given: at most this many frames per run")
     error_time: float | Literal["auto"] = Field(
