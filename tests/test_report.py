@@ -135,7 +135,7 @@ def test_report_is_one_self_contained_html_page(orders, orders_report):
         assert caption.split(".")[0] in text
     with h5py.File(orders, "r") as file:  # config and provenance are on the page
         assert file.attrs["config_hash"] in orders_report
-    assert list(page.sections) == ["findings", "summary", "orders", "stability", "determinants", "figures", "provenance"]
+    assert list(page.sections) == ["findings", "figures", "summary", "orders", "stability", "determinants", "provenance"]
 
 
 def test_observed_orders_in_the_report_equal_the_methods_orders(orders, orders_report):
@@ -332,7 +332,7 @@ def test_a_cloth_report_leaves_out_what_does_not_apply(cloth, tmp_path):
     output = tmp_path / "cloth.html"
     assert report_command.handle(report_args(cloth, output=str(output), reference="none")) == 0
     page = parse(output.read_text())
-    assert list(page.sections) == ["findings", "summary", "figures", "provenance"]
+    assert list(page.sections) == ["findings", "figures", "summary", "provenance"]
     findings_text = " ".join(page.sections["findings"])
     assert "no run is on the undamped test equation" in findings_text
     assert "no exact solution and no reference solution was asked for" in findings_text
@@ -348,7 +348,7 @@ def test_a_cloth_report_leaves_out_what_does_not_apply(cloth, tmp_path):
     # with a reference the errors are known: orders (against it) come back, stability and determinants do not
     assert report_command.handle(report_args(cloth, output=str(output))) == 0
     page = parse(output.read_text())
-    assert list(page.sections) == ["findings", "summary", "orders", "figures", "provenance"]
+    assert list(page.sections) == ["findings", "figures", "summary", "orders", "provenance"]
     assert "reference" in " ".join(page.sections["findings"])
 
 

@@ -223,7 +223,7 @@ def quickstart_page(quickstart) -> Page:
 
 def test_the_report_opens_with_findings_linked_to_what_shows_them(quickstart_page, found):
     assert quickstart_page.sections[0] == "findings"
-    assert quickstart_page.sections[:6] == ["findings", "summary", "orders", "stability", "determinants", "figures"]
+    assert quickstart_page.sections[:6] == ["findings", "figures", "summary", "orders", "stability", "determinants"]
     for finding in found:
         assert finding.link_anchor.removeprefix("#") in quickstart_page.ids, finding.sentence
     for href in quickstart_page.hrefs:

@@ -41,6 +41,41 @@ def _and(items: list[str]) -> str:
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
+def across_settings(members: list[tuple[str, str]], settings: dict[str, dict]) -> str:
+    """Who of a sweep over settings (other swept keys than dt): ``members`` (integrator label, group title) that
+    share one sentence, worded across the settings instead of one by one. Labels with the same settings are named
+    together; their settings as "at every setting of k1 and k2 (N)" or "at M of N settings (k1 a … b, k2 c … d)".
+    ``settings``: each group title's swept values."""
+    by_label: dict[str, set[str]] = {}
+    for label, title in members:
+        by_label.setdefault(label, set()).add(title)
+    together: dict[frozenset, list[str]] = {}
+    for label, titles in by_label.items():
+        together.setdefault(frozenset(titles), []).append(label)
+    return "; ".join(f"{_and(labels)} {_settings_text(titles, settings)}" for titles, labels in together.items())
+
+
+def _settings_text(titles: frozenset, settings: dict[str, dict]) -> str:
+    keys = list(next(iter(settings.values()), {}))
+    names = " and ".join(keys) if len(keys) < 3 else ", ".join(keys[:-1]) + " and " + keys[-1]
+    if len(titles) == len(settings):
+        return f"at every setting of {names} ({len(settings):,})"
+    if len(titles) == 1:
+        (title,) = titles
+        return f"at {title}"
+    ranges = []
+    for key in keys:
+        values = [settings[title][key] for title in titles if title in settings]
+        numbers = [value for value in values if isinstance(value, (int, float)) and not isinstance(value, bool)]
+        if len(numbers) == len(values):
+            low, high = min(numbers), max(numbers)
+            ranges.append(f"{key} {low:.3g}" + (f" … {high:.3g}" if high != low else ""))
+        else:
+            distinct = list(dict.fromkeys(str(value) for value in values))
+            ranges.append(f"{key} {_and(distinct)}")
+    return f"at {len(titles):,} of {len(settings):,} settings ({', '.join(ranges)})"
+
+
 def energy_lost_per_period(damping_over_w: float) -> float:
     """Fraction of the energy lost over one period T = 2 pi / w at the damping rate d = (d/w) w: 1 - exp(-2 pi d/w);
     negative for a gain."""

@@ -3,7 +3,9 @@ what could not be measured (the topics of ``simrun.findings`` before contact, co
 
 from __future__ import annotations
 
+import json
 import math
+from collections import Counter
 
 import numpy as np
 
@@ -11,8 +13,8 @@ from simrun.analysis import oscillator as analysis
 from simrun.analysis.rows import (DAMPING_TOLERANCE, ORDER_TOLERANCE, OrderRow, SummaryRow, energy_reference_text,
                                   error_runs)
 from simrun.analysis.runs import test_equation_runs
-from simrun.findings.base import (MAX_NAMED, WALL_TIME_NOISE, Finding, _and, _dts, _per_period_list, _who, drift_text,
-                                  energy_lost_per_period)
+from simrun.findings.base import (MAX_NAMED, WALL_TIME_NOISE, Finding, _and, _dts, _per_period_list, _who,
+                                  across_settings, drift_text, energy_lost_per_period)
 from simrun.format.summary import Status
 
 DAMPING_BUDGET = 0.01  # the damping budget of the ranking: at most this fraction of the energy gained or lost per period
@@ -24,10 +26,22 @@ BUDGET_BISECTION_STEPS = 40  # in log h w, for the largest h w within the dampin
 SMALLEST_BUDGET_HW = 1e-8  # where the budget search looks below the predicted grid: within any budget at small h w
 
 
+# -- a sweep over many settings ---------------------------------------------------------------------
+def _many_settings(data) -> dict[str, dict]:
+    """Each group title's swept values where the groups are more than a sentence names (a map: its findings are said
+    across the settings, ``across_settings``), else {}."""
+    if len(data.groups) <= MAX_NAMED:
+        return {}
+    return {title: json.loads(runs[0].group or "{}") for title, runs in data.groups}
+
+
 # -- stability --------------------------------------------------------------------------------------
 def stability_findings(data, rows, predictions, several) -> list[Finding]:
     drift = {row.run_id: row.max_rel_energy_drift for row in rows}
     per_label, all_bounded = [], []
+    # a sweep over many settings (a map): each group's sentence in h w alone, so that groups alike share one sentence
+    settings = _many_settings(data)
+    frequencies = {run.frequency for _, runs in data.groups for run in runs if run.frequency}
     for title, runs in data.groups:
         for label in data.labels:
             mine = sorted((run for run in runs if run.label == label), key=lambda run: run.dt)
@@ -48,7 +62,7 @@ def stability_findings(data, rows, predictions, several) -> list[Finding]:
             if prediction is not None:
                 limit = prediction.stability_limit
                 evidence.update(predicted_limit_hw=limit, predicted_limit_dt=limit / frequency, frequency=frequency)
-                parts.append(_predicted_stability(limit, frequency, prediction))
+                parts.append(_predicted_stability(limit, frequency if len(frequencies) == 1 else None, prediction))
                 beyond = [run for run in mine if not run.status.stopped and run.dt * frequency > limit * (1 + 1e-9)]
                 if beyond:
                     growth = max(drift[run.run_id] for run in beyond)
@@ -61,14 +75,40 @@ def stability_findings(data, rows, predictions, several) -> list[Finding]:
             anchor = "#stability" if prediction is not None else "#figure-stability_map"
             per_label.append((_who(title, label, several), "; ".join(parts), anchor, evidence))
     result = []
-    if all_bounded:
-        dts = sorted({dt for _, _, reached in all_bounded for dt in reached})
-        labels = list(dict.fromkeys(_who(title, label, several) for title, label, _ in all_bounded))
-        whom = "Every run" if not per_label else f"Every run of {_and(labels)}"
-        result.append(Finding(f"{whom} reached its end without diverging (measured; dt up to {max(dts):g} s).",
-                              "#figure-stability_map",
-                              {"integrators": labels, "bounded_dts": dts, "diverged_dts": []}, "stability"))
-    return _said_once(per_label) + result
+    if settings:  # more settings than a sentence names: say it across them
+        return _said_across(per_label, settings) + _all_bounded(all_bounded, per_label, several, settings)
+    return _said_once(per_label) + _all_bounded(all_bounded, per_label, several, {})
+
+
+def _all_bounded(all_bounded, per_label, several, settings) -> list[Finding]:
+    """The runs without a prediction that all reached their end, in one sentence."""
+    if not all_bounded:
+        return []
+    dts = sorted({dt for _, _, reached in all_bounded for dt in reached})
+    labels = list(dict.fromkeys(_who(title, label, several) for title, label, _ in all_bounded))
+    if not per_label:
+        whom = "Every run"
+    elif settings:
+        whom = "Every run of " + across_settings([(label, title) for title, label, _ in all_bounded], settings)
+    else:
+        whom = f"Every run of {_and(labels)}"
+    return [Finding(f"{whom} reached its end without diverging (measured; dt up to {max(dts):g} s).",
+                    "#figure-stability_map", {"integrators": labels, "bounded_dts": dts, "diverged_dts": []}, "stability")]
+
+
+def _said_across(items: list[tuple[str, str, str, dict]], settings: dict[str, dict]) -> list[Finding]:
+    """(who, what, anchor, evidence) of a sweep over many settings as findings: one sentence for each thing said, its
+    integrators and settings worded across the sweep (``across_settings``), the largest groups first."""
+    alike: dict[tuple[str, str], list[dict]] = {}
+    for _, what, anchor, evidence in items:
+        alike.setdefault((what, anchor), []).append(evidence)
+    result = []
+    for (what, anchor), members in sorted(alike.items(), key=lambda item: -len(item[1])):
+        who = across_settings([(item["integrator"], item["group"]) for item in members], settings)
+        evidence = {"integrators": list(dict.fromkeys(item["integrator"] for item in members)),
+                    "settings": len({item["group"] for item in members}), "each": members[:MAX_NAMED]}
+        result.append(Finding(f"{who}: {what}.", anchor, evidence, "stability"))
+    return result
 
 
 def _said_once(items: list[tuple[str, str, str, dict]]) -> list[Finding]:
@@ -110,12 +150,14 @@ def _measured_stability(reached, diverged, failed) -> str:
     return text
 
 
-def _predicted_stability(limit: float, frequency: float, prediction) -> str:
+def _predicted_stability(limit: float, frequency: float | None, prediction) -> str:
+    """The predicted limit in h w, and in dt where the sweep has one frequency (``frequency``; None: several)."""
     if limit == 0:
         return "predicted: unstable at every step size (spectral radius ρ > 1 at every h w)"
     if math.isinf(limit):
         return f"predicted: stable at every h w (ρ ≤ 1 up to h w = {prediction.hw[-1]:g})"
-    return f"predicted: stable up to h w = {limit:.4g} (dt = {limit / frequency:.4g} s at w = {frequency:.4g} rad/s)"
+    in_dt = f" (dt = {limit / frequency:.4g} s at w = {frequency:.4g} rad/s)" if frequency else ""
+    return f"predicted: stable up to h w = {limit:.4g}{in_dt}"
 
 
 def largest_dt_findings(data, several) -> list[Finding]:
@@ -142,13 +184,40 @@ def largest_dt_findings(data, several) -> list[Finding]:
         result.append(Finding(sentence + " (measured).", "#figure-stability_map",
                               {"group": title, "dt": largest, "bounded": bounded, "diverged": diverged, "failed": failed},
                               "stability"))
+    settings = _many_settings(data)
+    return _largest_dt_across(result, settings) if settings and result else result
+
+
+def _largest_dt_across(found: list[Finding], settings: dict[str, dict]) -> list[Finding]:
+    """The largest-dt findings of a sweep over many settings: one per outcome (who reached the end, who diverged,
+    who failed), with the settings it holds at, the most common first."""
+    alike: dict[tuple, list[Finding]] = {}
+    for finding in found:
+        evidence = finding.evidence
+        key = (evidence["dt"], tuple(evidence["bounded"]), tuple(evidence["diverged"]), tuple(evidence["failed"]))
+        alike.setdefault(key, []).append(finding)
+    result = []
+    for (dt, bounded, diverged, failed), members in sorted(alike.items(), key=lambda item: -len(item[1])):
+        where = across_settings([("", finding.evidence["group"]) for finding in members], settings).strip()
+        sentence = (f"At the largest dt, {dt:g} s, {where}: only {_and(list(bounded))} reached the end without diverging"
+                    if bounded else f"At the largest dt, {dt:g} s, {where}: no method reached the end")
+        if diverged:
+            sentence += f"; {_and(list(diverged))} diverged"
+        if failed:
+            sentence += f"; {_and(list(failed))} failed"
+        result.append(Finding(sentence + " (measured).", "#figure-stability_map",
+                              {"dt": dt, "bounded": list(bounded), "diverged": list(diverged), "failed": list(failed),
+                               "settings": len(members)}, "stability"))
     return result
 
 
 # -- artificial damping -------------------------------------------------------------------------------
 def damping_findings(data, predictions, several) -> list[Finding]:
     result = []
-    for title, runs in data.groups:
+    groups = data.groups
+    if _many_settings(data):  # the predicted damping depends on h w alone: one sentence per method, over the sweep's h w
+        groups = [(f"over the h w of all {len(groups):,} settings", [run for _, runs in groups for run in runs])]
+    for title, runs in groups:
         for label in data.labels:
             if label not in predictions:
                 continue
@@ -297,9 +366,31 @@ def accuracy_findings(data, several) -> list[Finding]:
             if missing:
                 sentence += f"; not reached at any dt run by {_and(missing)}"
             result.append(Finding(sentence + ".", "#figure-work_precision",
-                                  {"group": title, "budget": budget,
+                                  {"group": title, "budget": budget, "budget_fraction": budget / scale, "against": against,
                                    "ranking": [(run.label, run.wall_time, run.dt, errors[id(run)][0]) for run in ranking],
                                    "not_reached": missing}, "accuracy"))
+    return _accuracy_across(result, len(data.groups)) if _many_settings(data) and result else result
+
+
+def _accuracy_across(found: list[Finding], settings: int) -> list[Finding]:
+    """The accuracy rankings of a sweep over many settings, one sentence per error budget (a fraction of the length
+    scale): how often each method was the cheapest within it, and how often no run of it reached it."""
+    by_budget: dict[float, list[Finding]] = {}
+    for finding in found:
+        by_budget.setdefault(round(finding.evidence["budget_fraction"], 12), []).append(finding)
+    result = []
+    for fraction, members in sorted(by_budget.items(), reverse=True):
+        first = Counter(finding.evidence["ranking"][0][0] for finding in members if finding.evidence["ranking"])
+        missing = Counter(label for finding in members for label in finding.evidence["not_reached"])
+        cheapest = ", ".join(f"{label} at {count:,}" for label, count in first.most_common())
+        sentence = (f"Error ≤ {100 * fraction:g} % of the length scale against {members[0].evidence['against']}, at "
+                    f"{len(members):,} of {settings:,} settings: the cheapest method within it (measured wall time of "
+                    f"the whole run) was {cheapest or 'none'}")
+        if missing:
+            sentence += "; not reached at any dt run by " + ", ".join(f"{label} at {count:,}" for label, count in missing.most_common())
+        result.append(Finding(sentence + ".", "#figure-work_precision",
+                              {"budget_fraction": fraction, "cheapest": dict(first), "not_reached": dict(missing),
+                               "settings": len(members)}, "accuracy"))
     return result
 
 
@@ -384,13 +475,15 @@ def not_measured_findings(data, orders: list[OrderRow], several: bool) -> list[F
             why = "no run reached its error time"
         result.append(Finding(f"Not measured: errors, observed orders and the accuracy ranking, because {why}.",
                               "#summary", {"missing": ["errors", "orders"], "why": why}, "not measured"))
-    unfitted: dict[str, list[str]] = {}
+    unfitted: dict[str, list[OrderRow]] = {}
     for row in orders:
         if not np.isfinite(row.observed) and not row.exact:
-            unfitted.setdefault(row.reason or "not enough asymptotic points", []).append(
-                _who(row.group, row.integrator, several))
-    for reason, labels in unfitted.items():
-        result.append(Finding(f"Not measured: the observed order of {_and(labels)}: {reason}.", "#orders",
+            unfitted.setdefault(row.reason or "not enough asymptotic points", []).append(row)
+    settings = _many_settings(data)
+    for reason, missing in unfitted.items():
+        labels = [_who(row.group, row.integrator, several) for row in missing]
+        who = across_settings([(row.integrator, row.group) for row in missing], settings) if settings else _and(labels)
+        result.append(Finding(f"Not measured: the observed order of {who}: {reason}.", "#orders",
                               {"integrators": labels, "reason": reason}, "not measured"))
     return result
 

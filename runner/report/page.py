@@ -1,15 +1,16 @@
 """`simrun report`'s page: a results file as one self-contained HTML file.
 
-Figures are embedded as base64 PNG, styles inline, no script, no link to any other file. The page opens
-with the findings (``simrun.findings``: the answers, each linked to the table or figure that shows it,
-and what could not be measured), then the tables that apply to the file: the summary of the runs, the
-observed orders (runs with a known error), the predicted stability limits against what the runs did
-(runs on the undamped test equation), the determinant of each method's one-step map on the spring
-against the lectures' closed forms (runs with one degree of freedom); then every figure the file
-supports with its caption (the cloth's snapshots as one grid of runs x times), and the provenance with
-the config as written beside the resolved one. Like the figures, it is made from the results file alone
-(``simrun.results``); the tables come from ``simrun.analysis.rows``, the errors of runs without an exact
-solution from ``simrun.analysis.reference`` on request.
+Figures are embedded as base64 PNG, styles inline, no script, no link to any other file. The page answers first:
+at most ANSWER_FINDINGS findings (``simrun.findings``: each linked to the table or figure that shows it), ranked
+by topic, with every finding and the error and cost of every run behind <details>; then every figure the file
+supports with its caption (the cloth's snapshots as one grid of runs x times); then the tables that apply to the
+file, each collapsed when longer than COLLAPSE_ROWS rows: the summary of the runs, the observed orders (runs with a
+known error), the predicted stability limits against what the runs did (runs on the undamped test equation), the
+determinant of each method's one-step map on the spring against the lectures' closed forms (runs with one degree
+of freedom); and the provenance, with the config as written beside the resolved one (collapsed). A map of 42,000
+runs is then about three screens long before what is collapsed (tests/test_report_scale.py). Like the figures, it
+is made from the results file alone (``simrun.results``); the tables come from ``simrun.analysis.rows``, the
+errors of runs without an exact solution from ``simrun.analysis.reference`` on request.
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ tbody tr:nth-child(even) { background: #fafbfc; }
 pre { background: #f6f8fa; padding: 0.8rem 1rem; overflow: auto; font-size: 0.8rem; border-radius: 4px; max-height: 40rem; margin: 0; }
 .configs { display: grid; grid-template-columns: minmax(0, 1fr) minmax(0, 1fr); gap: 1rem; }
 .configs pre { white-space: pre-wrap; overflow-wrap: anywhere; }
-figure { margin: 1.6rem 0 2.4rem; } figure img { max-width: 100%; height: auto; border: 1px solid #eceef2; }
+figure { margin: 1.6rem 0 2.4rem; }
+figure img { max-width: 100%; max-height: 85vh; width: auto; height: auto; border: 1px solid #eceef2; }
 figcaption { color: #3c4452; font-size: 0.9rem; max-width: 70rem; margin-top: 0.4rem; }
 figcaption b { color: #1d2330; }
 dl { display: grid; grid-template-columns: max-content minmax(0, 1fr); gap: 0.2rem 1.2rem; font-size: 0.9rem; }
@@ -75,7 +77,14 @@ dt { color: #5a6270; } dd { margin: 0; overflow-wrap: anywhere; }
 ul.findings { padding-left: 1.2rem; max-width: 72rem; } ul.findings li { margin: 0.35rem 0; }
 ul.findings a.see { font-size: 0.8rem; white-space: nowrap; }
 .topic { color: #5a6270; font-size: 0.75rem; text-transform: uppercase; letter-spacing: 0.04em; margin-right: 0.3rem; }
+details { margin: 0.8rem 0; } details > summary { cursor: pointer; color: #2856a3; font-size: 0.9rem; }
+details[open] > summary { margin-bottom: 0.5rem; }
 """
+# Tables longer than this many rows are collapsed (HTML <details>) below the answer and the figures: the page opens on
+# what the file answers, and a map's 42,000 rows are one click away, not 100,000 pixels of scrolling.
+COLLAPSE_ROWS = 30
+# The answer at the top of the page: at most this many findings, the first of each topic first (in reading order).
+ANSWER_FINDINGS = 10
 
 
 def write_report(path: str | Path, output: str | Path, reference: str | None = "dop853", say=None) -> Path:
@@ -114,15 +123,18 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
                 plt.close(figure)
         found = findings(data, rows, orders)
     test_equation = any(np.isfinite(row.hw) for row in rows)
-    sections = [("summary", "Runs", _summary_section(rows))]
+    sections = [("figures", "Figures", _figures_section(figures, test_equation)),
+                ("summary", "Runs", _collapsed(_summary_section(rows), len(rows), "the table of runs"))]
     if orders:
-        sections.append(("orders", "Observed order of convergence", _orders_section(orders, reference_note, error_time_text(rows))))
+        sections.append(("orders", "Observed order of convergence",
+                         _collapsed(_orders_section(orders, reference_note, error_time_text(rows)), len(orders),
+                                    "the observed orders")))
     if stability:
-        sections.append(("stability", "Stability limits: predicted and observed", _stability_section(stability)))
+        sections.append(("stability", "Stability limits: predicted and observed",
+                         _collapsed(_stability_section(stability), len(stability), "the stability limits")))
     if determinants:
         sections.append(("determinants", "Determinant of the one-step map (one degree of freedom: the mass on a spring)",
-                         _determinant_section(determinants)))
-    sections.append(("figures", "Figures", _figures_section(figures, test_equation)))
+                         _collapsed(_determinant_section(determinants), len(determinants), "the determinants")))
     sections.append(("provenance", "Provenance and config", _provenance_section(results, path)))
     anchors = {f"#{key}" for key, _, _ in sections} | {f"#figure-{name}" for _, name, _ in figures}
     sections.insert(0, ("findings", "Findings", _findings_section(found, anchors, rows, data.dt_names)))
@@ -215,19 +227,54 @@ def _anchor_name(anchor: str) -> str:
 
 
 def _findings_section(found: list[Finding], anchors: set[str], rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
-    """The findings as a list, each linked to what shows it (the runs table when that is not on the page),
-    then the error (or energy change) and cost of every run as one integrators x dt table."""
-    items = []
-    for finding in found:
+    """The answer: at most ANSWER_FINDINGS findings (``answer``), each linked to what shows it (the runs table when
+    that is not on the page); every finding, when there are more, and the error (or energy change) and cost of every
+    run as one integrators x dt table follow, collapsed where long."""
+    def item(finding: Finding) -> str:
         anchor = finding.link_anchor if finding.link_anchor in anchors else "#summary"
         kind = ' class="missing"' if finding.topic == "not measured" else ""
         topic = f'<span class="topic">{_e(finding.topic)}</span>' if finding.topic and finding.topic != "not measured" else ""
-        items.append(f'<li{kind}>{topic}{_e(finding.sentence)} '
-                     f'<a class="see" href="{_e(anchor)}">→ {_e(_anchor_name(anchor))}</a></li>')
-    parts = [f'<ul class="findings">{"".join(items)}</ul>'] if items else ['<p class="note">The file holds no runs.</p>']
+        return (f'<li{kind}>{topic}{_e(finding.sentence)} '
+                f'<a class="see" href="{_e(anchor)}">→ {_e(_anchor_name(anchor))}</a></li>')
+
+    if not found:
+        parts = ['<p class="note">The file holds no runs.</p>']
+    else:
+        first = answer(found)
+        parts = [f'<ul class="findings">{"".join(item(finding) for finding in first)}</ul>']
+        if len(first) < len(found):
+            parts.append(f'<details><summary>Every finding ({len(found)}, in reading order)</summary>'
+                         f'<ul class="findings">{"".join(item(finding) for finding in found)}</ul></details>')
     if rows:
-        parts.append(_glance(rows, dt_names))
+        keys = len({(row.group, row.integrator) for row in rows})
+        parts.append(_collapsed(_glance(rows, dt_names), keys, "the error and cost of every run at each dt"))
     return "".join(parts)
+
+
+def answer(found: list[Finding]) -> list[Finding]:
+    """The findings the page opens with, in reading order (a map's finding first): the first of each topic, then the
+    second of each, and so on, at most ANSWER_FINDINGS in all. The counts of findings left out ("… and N more") stay
+    in the full list, and so does what could not be measured, unless the file answers little else."""
+    said = [finding for finding in found if "more" not in finding.evidence]
+    answers = [finding for finding in said if finding.topic != "not measured"]
+    if len(answers) >= ANSWER_FINDINGS // 2:  # what could not be measured is a caveat: the full list says it
+        said = answers
+    by_topic: dict[str, list[Finding]] = {}
+    for finding in said:
+        by_topic.setdefault(finding.topic, []).append(finding)
+    chosen: set[int] = set()
+    for rank in range(max((len(items) for items in by_topic.values()), default=0)):  # round by round over the topics
+        for items in by_topic.values():
+            if rank < len(items) and len(chosen) < ANSWER_FINDINGS:
+                chosen.add(id(items[rank]))
+    return [finding for finding in said if id(finding) in chosen]
+
+
+def _collapsed(content: str, rows: int, what: str) -> str:
+    """``content`` as it is, or inside a closed <details> when it holds more than COLLAPSE_ROWS rows."""
+    if rows <= COLLAPSE_ROWS:
+        return content
+    return f"<details><summary>Show {_e(what)} ({rows:,} rows)</summary>{content}</details>"
 
 
 def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
@@ -486,7 +533,7 @@ def _figures_section(figures: list[tuple[Figure, str, str]], test_equation: bool
     calibrated = any(FIGURES[name].needs == CALIBRATION for name in drawn)  # else its figures are not this file's kind
     missing = [f"{name.replace('_', ' ')} (needs {entry.needs})" for name, entry in FIGURES.items()
                if name not in drawn and (calibrated or entry.needs != CALIBRATION)]
-    parts = [f'<p class="note">Not drawn for this file: {_e("; ".join(missing))}.</p>'] if missing else []
+    parts = []
     for entry, name, data in figures:
         title = name.replace("_", " ")
         text = caption(entry, test_equation)
@@ -494,6 +541,9 @@ def _figures_section(figures: list[tuple[Figure, str, str]], test_equation: bool
             text += " Rows: the runs shown; columns: times spread over the run, all at one scale."
         parts.append(f'<figure id="figure-{_e(name)}"><img alt="{_e(title)}" src="data:image/png;base64,{data}">'
                      f"<figcaption><b>{_e(title)}.</b> {_e(text)}</figcaption></figure>")
+    if missing:
+        parts.append(f'<details><summary>Figures not drawn for this file ({len(missing)})</summary>'
+                     f'<p class="note">Not drawn for this file: {_e("; ".join(missing))}.</p></details>')
     return "".join(parts)
 
 
@@ -527,7 +577,7 @@ def _provenance_section(results: Results, path: Path) -> str:
     else:
         configs = ('<div class="configs"><div><h3>Config as written (after --set overrides)</h3>'
                    f"{written}</div><div><h3>Resolved (every default filled in)</h3><pre>{_e(resolved)}</pre></div></div>")
-    return f"<dl>{listing}</dl>{configs}"
+    return f"<dl>{listing}</dl><details><summary>Show the config (as written, and resolved)</summary>{configs}</details>"
 
 
 def _missing() -> str:
