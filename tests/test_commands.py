@@ -484,3 +484,27 @@ def test_run_on_a_calibration_refuses_in_one_line_naming_simrun_fit(tmp_path, ca
         simrun.run(yaml.safe_load(config.read_text()), output=tmp_path / "out")
     assert main([str(config), "--output", str(tmp_path / "out"), "--set", "fit=null", "--set", "sweep.dt=[0.1]",
                  "--set", "integrators=[rk4]", "-q", "--no-plots"]) == 0
+
+
+@pytest.mark.parametrize("command", ["show", "plot", "report", "animate", "resume"])
+def test_a_truncated_results_file_is_one_line_saying_so(tmp_path, capsys, results_file, command):
+    """The first half of a results file (a copy cut short, a write killed by a full disk): every reader says it is
+    truncated, with its size against the size HDF5 recorded, and a resume into its folder says so and how to start
+    over; exit 2, nothing written."""
+    data = results_file.read_bytes()
+    folder = tmp_path / "cut"
+    folder.mkdir()
+    truncated = folder / RESULTS_NAME
+    truncated.write_bytes(data[: len(data) // 2])
+    if command == "resume":
+        config = write(tmp_path, CLOTH + f"output: {folder}\n")
+        argv = [str(config), "-q", "-j", "1"]
+    else:
+        argv = _argv(command, truncated, tmp_path / "out", tmp_path)
+    before = files_under(tmp_path)
+    assert main(argv) == 2
+    line = assert_one_line_error(capsys, f"is truncated: {len(data) // 2:,} of its {len(data):,} bytes",
+                                 "interrupted process")
+    if command == "resume":
+        assert "start over with --force" in line
+    assert files_under(tmp_path) - before <= {folder / ".simrun.lock"}

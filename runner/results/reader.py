@@ -19,6 +19,7 @@ import contextlib
 import functools
 import json
 import math
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -359,6 +360,18 @@ class Results:
                 self._file = None
 
 
+def unreadable_reason(path: Path, error: OSError) -> str:
+    """Why HDF5 cannot open ``path``, in words: a truncated file (its size against the size HDF5 recorded), else
+    HDF5's own reason (the part of h5py's message in parentheses)."""
+    text = str(error)
+    truncated = re.search(r"truncated file: eof = (\d+).*stored_eof = (\d+)", text)
+    if truncated:
+        size, expected = (int(value) for value in truncated.groups())
+        return f"is truncated: {size:,} of its {expected:,} bytes (written by an interrupted process, or copied in part?)"
+    reason = re.search(r"\((.*)\)", text)
+    return f"cannot be opened: {reason.group(1) if reason else text or error.__class__.__name__}"
+
+
 def load(path: str | Path) -> Results:
     """Open a results file: its root attributes and every run's attributes now, datasets on first use.
 
@@ -376,7 +389,7 @@ def load(path: str | Path) -> Results:
     try:
         file = h5py.File(path, "r")
     except OSError as error:
-        raise ResultsFileError(f"results: {str(path)!r} cannot be opened ({error.__class__.__name__})") from None
+        raise ResultsFileError(f"results: {str(path)!r} {unreadable_reason(path, error)}") from None
     with file:
         if "runs" not in file:
             raise ResultsFileError(f"results: {str(path)!r} is an HDF5 file without /runs: not a simrun results file")

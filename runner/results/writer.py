@@ -30,6 +30,7 @@ from simrun.format.run_result import RunResult
 from simrun.format.size import estimate_run_parts
 from simrun.format.summary import SUMMARY_DTYPE, as_text, summary_row
 from simrun.results.lock import existing_ancestor
+from simrun.results.reader import unreadable_reason
 from simrun.version import __version__
 
 if TYPE_CHECKING:
@@ -135,8 +136,8 @@ def open_writer(path: Path, config_text: str, digest: str, name: str, force: boo
             with h5py.File(path, "r") as file:
                 existing = str(file.attrs.get("config_hash", "")) or None
         except OSError as error:
-            raise ResultsFileError(f"output: {str(path)!r} cannot be opened ({error.__class__.__name__}); "
-                                   "start over with --force") from None
+            raise ResultsFileError(f"output: {str(path)!r} {unreadable_reason(path, error)}: start over with --force "
+                                   "(what it holds is lost), or choose another --output") from None
         if existing != digest:
             raise ConfigError(f"output: {str(path)!r} holds the results of a different config; "
                               "start over with --force, or choose another --output")
