@@ -286,14 +286,20 @@ def test_check_system_passes_the_example_plugin(tmp_path):
     assert done.stderr == ""
 
 
-def test_check_system_fails_a_wrong_gradient_and_a_round_off_energy_reference(on_path, capsys):
-    """A 0.1 % wrong gradient fails the gradient and Hessian checks; an energy reference of round-off (the
-    chain released from horizontal with E_ref = |KE0| + |PE0| ~ 1e-16 J) fails the energy reference and the
-    short run, which the runner would mark diverged after one step. Exit status 1, every line printed."""
+def test_check_system_names_the_wrong_derivative_and_a_round_off_energy_reference(on_path, capsys):
+    """A 0.1 % wrong gradient fails the gradient check alone: the Hessian is not dg/dx of it, but it is the second
+    derivative of the energy, and the Hessian check says so; a 0.1 % wrong Hessian (the gradient right) fails the
+    Hessian check alone. An energy reference of round-off (the chain released from horizontal with E_ref = |KE0| +
+    |PE0| ~ 1e-16 J) fails the energy reference and the short run, which the runner would mark diverged after one
+    step. Exit status 1, every line printed."""
     assert main(["check-system", "broken_systems:WrongGradientParams"]) == 1
     out = capsys.readouterr().out
-    assert {line.split()[1] for line in out.splitlines() if line.startswith("FAIL")} == {"gradient", "hessian"}
-    assert "relative FD error 1.0e-03 > 1e-06" in out
+    assert {line.split()[1] for line in out.splitlines() if line.startswith("FAIL")} == {"gradient"}
+    assert "relative FD error 1.0e-03 > 1e-06" in out and "(the gradient is what is wrong)" in out
+    assert main(["check-system", "broken_systems:WrongHessianParams"]) == 1
+    out = capsys.readouterr().out
+    assert {line.split()[1] for line in out.splitlines() if line.startswith("FAIL")} == {"hessian"}
+    assert "nor d2P/dx2 (relative error of the energy's second differences 1.0e-03 > 1e-05)" in out
     assert len([line for line in out.splitlines() if line[:4] in ("PASS", "FAIL", "SKIP")]) == 1 + len(CHECKS)
     assert main(["check-system", "broken_systems:RoundOffReferenceParams"]) == 1
     failed = [line for line in capsys.readouterr().out.splitlines() if line.startswith("FAIL")]

@@ -37,6 +37,20 @@ class WrongGradientParams(ChainParams):
 WrongGradientParams.system_class = WrongGradientChain
 
 
+class WrongHessianChain(Chain):
+    """d2P/dx2 0.1 % too large, the gradient right."""
+
+    def hessian(self, x, project_spd=False):
+        return 1.001 * super().hessian(x, project_spd)
+
+
+class WrongHessianParams(ChainParams):
+    type: str = "broken_systems:WrongHessianParams"
+
+
+WrongHessianParams.system_class = WrongHessianChain
+
+
 class RoundOffReferenceChain(Chain):
     """E_ref = |KE0| + |PE0| with no floor: a chain released from horizontal has PE0 ~ 1e-17 J of round-off."""
 
