@@ -308,3 +308,35 @@ def test_a_2d_model_with_triangles_fills_them_under_its_springs(tmp_path):
     finally:
         for _, figure in figures:
             plt.close(figure)
+
+
+@pytest.mark.parametrize("config, kinds, marks", [
+    ("twist", {"pinned": 3, "prescribed": 3}, {"s": "squares: pinned vertices", "^": "triangles: vertices on a prescribed path"}),
+    ("curtain", {"pinned": 1, "prescribed": 1, "sliding": 4},
+     {"s": "squares: pinned vertices", "D": "diamonds: sliding vertices", "^": "triangles: vertices on a prescribed path"}),
+])
+def test_held_vertices_are_named_by_what_holds_them(tmp_path, config, kinds, marks):
+    """twist.yaml's far end turns on a prescribed path (its middle vertex on the axis does not move, and is still
+    no pinned vertex); curtain.yaml's top slides on a rail between a pinned corner and a pulled one: the run stores each
+    vertex's kind (model_constraints), and the frames mark each kind with its own marker, named in the title."""
+    import simrun
+    from simrun.format.layout import VERTEX_KINDS
+
+    configs = Path(__file__).resolve().parents[1] / "configs"
+    overrides = ["duration=0.02", "integrators=[backward_euler]"]
+    if config == "curtain":
+        overrides += ["system.model={grid: {resolution: [6, 5], size: [1.0, 0.8]}}", "sweep.solver.mpcg_start=[zero]"]
+    results = simrun.run(configs / f"{config}.yaml", output=tmp_path / "out", jobs=1, progress=False, figures=False,
+                         overrides=overrides)
+    (run,) = results.runs.values()
+    stored = run.model_constraints
+    assert {name: int(np.count_nonzero(stored == value)) for name, value in VERTEX_KINDS.items() if np.any(stored == value)} == kinds
+    (_, figure), *others = snapshots(figure_data(results))
+    try:
+        title = figure.get_suptitle()
+        drawn = {line.get_marker() for axes in figure.axes for line in axes.get_lines()} - {"o"}
+        assert drawn == set(marks) and all(note in title for note in marks.values()), (drawn, title)
+        assert "never move" not in title
+    finally:
+        for _, each in [(None, figure), *others]:
+            plt.close(each)

@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from simrun.experiment.config import Run
+from simrun.format.layout import VERTEX_KINDS
 from simrun.format.run_result import RunResult
 from simrun.format.summary import Status, series_summary as _series_summary
 from simrun.integrators import State
@@ -259,6 +260,9 @@ def simulate(run: Run) -> RunResult:
         model["model_edges"] = system.frame_edges
         if system.frame_triangles is not None:
             model["model_triangles"] = system.frame_triangles
+        kinds = vertex_constraint_kinds(system)
+        if kinds is not None:
+            model["model_constraints"] = kinds
     result = RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
         per_step={key: value[:steps] for key, value in per_step.items()},
@@ -283,6 +287,25 @@ def _contact_attrs(per_step: dict[str, np.ndarray], steps: int) -> dict[str, flo
     return {"min_contact_distance": float(np.min(distances)) if steps else float("inf"),
             "max_active_contacts": int(np.max(per_step["active_contacts"][:steps])) if steps else 0,
             "friction_work": float(np.sum(per_step["friction_work"][:steps]))}
+
+
+def vertex_constraint_kinds(system) -> np.ndarray | None:
+    """(vertices,) int8 (``simrun.format.layout.VERTEX_KINDS``): each vertex of a system with frames free (0), pinned
+    (1), on a prescribed path (2) or sliding (3: some of its directions held, a rail or a plane); None where every
+    vertex is free. From the system's fixed dofs and its VertexConstraints, so that the figures name each kind."""
+    dim = int(getattr(system, "vertex_dim", 0) or 0)
+    fixed = np.asarray(getattr(system, "fixed_dofs", ()), dtype=np.intp)
+    if dim <= 0 or system.dof_count % dim:
+        return None
+    count = system.dof_count // dim
+    held = np.bincount(fixed // dim, minlength=count)[:count] if fixed.size else np.zeros(count, dtype=np.intp)
+    kinds = np.where(held == dim, VERTEX_KINDS["pinned"], np.where(held > 0, VERTEX_KINDS["sliding"], 0)).astype(np.int8)
+    constraints = getattr(system, "constraints", None)
+    if constraints is not None:
+        if getattr(constraints, "sliding", None) is not None:
+            kinds[constraints.sliding.vertices] = VERTEX_KINDS["sliding"]
+        kinds[constraints.moving_vertices] = VERTEX_KINDS["prescribed"]
+    return kinds if kinds.any() else None
 
 
 def _moving_dofs(system) -> np.ndarray:

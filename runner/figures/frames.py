@@ -4,7 +4,8 @@ Any run with ``frames`` (frames, vertices, d) is drawn from the file alone: a 2-
 the x-y plane at equal aspect, its springs as lines over its triangles (lightly filled where it has them); a
 3-D model in perspective, its triangles shaded where it has them (a grid as today's shaded surface), else its
 springs as lines. The springs and triangles are the run's ``model_edges`` and ``model_triangles`` (derived from
-the grid for files written before them). Vertices that never move (pinned) are marked.
+the grid for files written before them). Held vertices are marked by kind: pinned, on a prescribed path, sliding
+(``model_constraints``; files written before it mark the vertices that never move).
 The contact colliders are drawn beneath the model (figures/colliders.py).
 """
 
@@ -22,6 +23,7 @@ from simrun.analysis.runs import format_value
 from simrun.figures._data import FigureData
 from simrun.figures.colliders import (COLLIDER_NOTE, COLLIDER_REACH, collider_boxes, collider_text, draw_collider,
                                       run_colliders)
+from simrun.format.layout import VERTEX_KINDS
 from simrun.format.summary import Status
 from simrun.results import Results, StoredRun
 
@@ -41,6 +43,11 @@ SURFACE_COLOUR, EDGE_COLOUR, SPRING_COLOUR = "#4c72b0", "#1f3552", "#2b4a7e"
 FIXED_COLOUR = "#222222"
 # Springs of a big model (a 64 x 64 grid has ~24 000) merge into a blue area: thinner lines the more there are.
 SPRING_WIDTH = {100: 1.2, 1000: 0.7}  # at most this many springs -> line width (pt); beyond: 0.35 pt
+# How the held vertices are marked (``StoredRun.model_constraints``), and the note that names each mark shown; files
+# written before the kinds were stored mark the vertices that never move, as pinned.
+HELD_MARKS = {VERTEX_KINDS["pinned"]: ("s", 1.0, "squares: pinned vertices"),
+              VERTEX_KINDS["prescribed"]: ("^", 1.15, "triangles: vertices on a prescribed path"),
+              VERTEX_KINDS["sliding"]: ("D", 0.8, "diamonds: sliding vertices")}
 FIXED_NOTE = "squares: vertices that never move"
 # The view box: no side shorter than this share of the longest (a rope or a flat cloth in 3-D would otherwise be a
 # sliver whose ticks overlap; 2-D views keep equal aspect, so a thin model stays thin), and a margin around the
@@ -90,7 +97,7 @@ def snapshots(data: FigureData) -> list[tuple[str, object]] | None:
         # a diverged run's last frame is the blow-up: frame the view on the frames before it
         shown = picks[:-1] if run.status is Status.DIVERGED and len(picks) > 1 else picks
         limits = _limits(frames[shown], collider_boxes(run, times[shown]))
-        fixed = _fixed_vertices(frames)
+        fixed = _fixed_vertices(run, frames)
         figure = plt.figure(figsize=(3.2 * len(picks), 3.6))
         drawn: set[int] = set()
         for column, index in enumerate(picks):
@@ -138,12 +145,14 @@ def snapshot_grid(data: FigureData):
         extent = ", ".join(f"{name} {round(low[axis], 2) + 0.0:g} to {round(high[axis], 2) + 0.0:g} m"
                            for axis, name in enumerate("xyz"[:dim]))
         extents.append(f"{dim}-D models {extent}" if len(limits) > 1 else extent)
-    fixed = [_fixed_vertices(run["frames"]) for run in runs]
+    fixed = [_fixed_vertices(run, run["frames"]) for run in runs]
     columns = len(times)
     width, height = SNAPSHOT_CELL
     figure = plt.figure(figsize=(columns * width, len(runs) * height + SNAPSHOT_TITLE_HEIGHT))
     title, body = figure.subfigures(2, 1, height_ratios=[SNAPSHOT_TITLE_HEIGHT, len(runs) * height])
-    marked = f"; {FIXED_NOTE}" if any(mask.any() for mask in fixed) else ""
+    notes = list(dict.fromkeys(part for run, kinds in zip(runs, fixed) if kinds.any()
+                               for part in held_note(run, kinds).split("; ")))
+    marked = "".join(f"; {note}" for note in notes)
     marked += f"; {COLLIDER_NOTE}" if any(run_colliders(run) for run in runs) else ""
     title.suptitle(f"{data.name}: snapshots (rows: runs; columns: times{marked})\nevery cell the same box: "
                    + "; ".join(extents), fontsize=10, y=0.75)
@@ -195,7 +204,7 @@ def write_gif(results: Results, run_id: str, output, fps: int = 20):
     # a diverged run's last frame is the blow-up: frame the view on the frames before it
     framed = indices[:-1] if run.status is Status.DIVERGED and len(indices) > 1 else indices
     limits = _limits(frames[framed], collider_boxes(run, times[framed]))
-    fixed = _fixed_vertices(frames)
+    fixed = _fixed_vertices(run, frames)
     colliders = collider_text(run)
     figure = plt.figure(figsize=(5, 4.5))
     axes = figure.add_subplot(**_projection(run))
@@ -225,19 +234,40 @@ def _model_text(run: StoredRun, fixed: np.ndarray) -> str:
         parts.append(f"{len(run.model_triangles)} triangles " + ("shaded" if run.vertex_dim == 3 else "filled"))
     if run.model_edges is not None and not (_surface(run) and run.vertex_dim == 3):
         parts.append(f"{len(run.model_edges)} springs as lines")
-    return ", ".join(parts) + (f"; {FIXED_NOTE}" if fixed.any() else "")
+    return ", ".join(parts) + (f"; {held_note(run, fixed)}" if fixed.any() else "")
 
 
 def _surface(run: StoredRun) -> bool:
     return run.model_triangles is not None and len(run.model_triangles) > 0
 
 
-def _fixed_vertices(frames: np.ndarray) -> np.ndarray:
-    """(vertices,) bool: the vertices at the same place in every frame (pinned ones), none when nothing moves."""
+def _fixed_vertices(run: StoredRun, frames: np.ndarray) -> np.ndarray:
+    """(vertices,) int8: the kind of each held vertex (HELD_MARKS; 0 free), as the run stored it; for files written
+    before that, the vertices at the same place in every frame as pinned (none when nothing moves)."""
+    kinds = run.model_constraints
+    if kinds is not None and kinds.shape == (frames.shape[1],):
+        return kinds
     if frames.shape[0] < 2:
-        return np.zeros(frames.shape[1], dtype=bool)
+        return np.zeros(frames.shape[1], dtype=np.int8)
     still = np.all(frames == frames[:1], axis=(0, 2))
-    return still if not still.all() else np.zeros_like(still)
+    return (still if not still.all() else np.zeros_like(still)).astype(np.int8) * VERTEX_KINDS["pinned"]
+
+
+def held_note(run: StoredRun, kinds: np.ndarray) -> str:
+    """What the marks of ``kinds`` mean ("squares: pinned vertices; triangles: ..."), or FIXED_NOTE for a file
+    without the stored kinds."""
+    if run.model_constraints is None:
+        return FIXED_NOTE
+    return "; ".join(HELD_MARKS[kind][2] for kind in sorted(HELD_MARKS) if np.any(kinds == kind))
+
+
+def _draw_held(axes, frame: np.ndarray, kinds: np.ndarray, near: np.ndarray, size: float) -> None:
+    """The held vertices near the box, one marker per kind (HELD_MARKS)."""
+    for kind, (marker, scale, _) in HELD_MARKS.items():
+        chosen = near & (kinds == kind)
+        if chosen.any():
+            axes.plot(*(frame[chosen, axis] for axis in range(frame.shape[1])), linestyle="none", marker=marker,
+                      markersize=size * scale, color=FIXED_COLOUR)
 
 
 def _spring_width(count: int) -> float:
@@ -286,10 +316,9 @@ def _draw_2d(axes, frame: np.ndarray, run: StoredRun, fixed: np.ndarray, near: n
     if run.model_edges is not None:
         axes.add_collection(LineCollection(frame[_within(run.model_edges, near)], colors=SPRING_COLOUR,
                                            linewidths=_spring_width(len(run.model_edges))), autolim=False)
-    free, still = near & ~fixed, near & fixed
+    free = near & (fixed == 0)
     axes.plot(frame[free, 0], frame[free, 1], linestyle="none", marker="o", markersize=2.5, color=EDGE_COLOUR)
-    if still.any():
-        axes.plot(frame[still, 0], frame[still, 1], linestyle="none", marker="s", markersize=4.5, color=FIXED_COLOUR)
+    _draw_held(axes, frame, fixed, near, 4.5)
 
 
 def _draw_3d(axes, frame: np.ndarray, run: StoredRun, fixed: np.ndarray, near: np.ndarray) -> None:
@@ -308,13 +337,10 @@ def _draw_3d(axes, frame: np.ndarray, run: StoredRun, fixed: np.ndarray, near: n
         if run.model_edges is not None:
             axes.add_collection3d(Line3DCollection(frame[_within(run.model_edges, near)], colors=SPRING_COLOUR,
                                                    linewidths=_spring_width(len(run.model_edges))), autolim=False)
-        free = near & ~fixed
+        free = near & (fixed == 0)
         axes.plot(frame[free, 0], frame[free, 1], frame[free, 2], linestyle="none", marker="o", markersize=2,
                   color=EDGE_COLOUR)
-    still = near & fixed
-    if still.any():
-        axes.plot(frame[still, 0], frame[still, 1], frame[still, 2], linestyle="none", marker="s", markersize=3.5,
-                  color=FIXED_COLOUR)
+    _draw_held(axes, frame, fixed, near, 3.5)
 
 
 def _within(elements: np.ndarray, near: np.ndarray) -> np.ndarray:

@@ -10,3 +10,6 @@ LANE_TABLE = "runs"  # a chunk's table: a row per run, a field per attribute
 # attributes a run has only sometimes, stored in a chunk's columns as NaN where the run has none; `error` is there
 # exactly when `error_time` is (and may itself be NaN: no exact solution, or one that overflowed)
 OPTIONAL_LANE_COLUMNS = ("t_diverged", "error_time")
+
+# model_constraints: what each vertex of a run with frames is held to (runner/execution/simulate.py); 0: free
+VERTEX_KINDS = {"pinned": 1, "prescribed": 2, "sliding": 3}

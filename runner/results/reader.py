@@ -247,6 +247,15 @@ class StoredRun:
             return np.asarray(self["model_triangles"], dtype=np.int32).reshape(-1, 3)
         return None if "model_edges" in self.datasets else _compat().grid_model(self)[1]
 
+    @functools.cached_property
+    def model_constraints(self) -> np.ndarray | None:
+        """(vertices,) int8: what each vertex is held to (``simrun.format.layout.VERTEX_KINDS``: pinned, on a
+        prescribed path, sliding; 0 free), for runs with frames whose model has any; None for files written before it
+        (the figures then mark the vertices that never move) and for models without constraints."""
+        if "model_constraints" in self.datasets:
+            return np.asarray(self["model_constraints"], dtype=np.int8).ravel()
+        return None
+
     @property
     def dof_count(self) -> int:
         """Degrees of freedom of the run's system."""
