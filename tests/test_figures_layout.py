@@ -181,3 +181,26 @@ def test_a_long_panel_title_of_swept_settings_breaks_between_settings():
                                  "solver.time_budget = 0.002,", "system.resolution = " + "x" * (PANEL_TITLE_WIDTH + 5)]
     assert title.replace("\n", " ") == settings_title(swept)
     assert settings_title({"solver.type": "newton"}, width=PANEL_TITLE_WIDTH) == "solver.type = newton"
+
+
+def test_one_start_state_has_one_budget_line(tmp_path):
+    """slope.yaml (the square on the slope at mu = 0.05 and 0.11, three methods, one start state): each method slides
+    its own distance down, so each run's lowest gravity energy differs; the budget counts gravity from one zero for
+    every run, and every panel's dashed budget line is the same (it was three different lines)."""
+    import simrun
+    from pathlib import Path
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "slope.yaml"
+    results = simrun.run(config, output=tmp_path / "slope", jobs=1, progress=False, figures=False,
+                         overrides=["duration=0.3"])
+    lowest = {round(float(np.min(run["gravity_energy"])), 9) for run in results.runs.values()}
+    assert len(lowest) > 1  # the runs did slide different distances
+    figures = [(name, figure) for name, figure in drawn(results.path) if name == "energy_budget"]
+    try:
+        ((_, figure),) = figures
+        lines = [line for ax in figure.axes for line in ax.get_lines() if line.get_linestyle() == "--"]
+        assert len(lines) == len(results.runs)
+        levels = np.array([line.get_ydata() for line in lines])
+        np.testing.assert_allclose(levels, np.broadcast_to(levels[0], levels.shape), rtol=1e-12)
+    finally:
+        close(figures)

@@ -211,7 +211,13 @@ def energy_budget(data: FigureData):
     short = [run for _, run in candidates if run.t.size < 2]
     if short:
         notes.append("no budget (fewer than two samples): " + ", ".join(data.series_of(run).name for run in short))
-    budgets = {run.run_id: _budget(run) for _, run in chosen}
+    raw = {run.run_id: _budget_terms(run) for _, run in chosen}
+    # potential terms that can be negative (gravity) are counted from one zero for every run: the lowest value any
+    # run reached, so that runs from one start state have one budget, whatever distance each then slid or fell
+    offsets = {key: min(float(terms[key].min()) for _, terms in raw.values() if key in terms and terms[key].size)
+               for key in SHIFTED_TERMS if any(key in terms and terms[key].size for _, terms in raw.values())}
+    offsets = {key: value for key, value in offsets.items() if value < 0}
+    budgets = {run.run_id: _budget(run, *raw[run.run_id], offsets) for _, run in chosen}
     # runs of one section with the same budget to round-off (e.g. linear solvers that all converge): one panel
     panels: list[tuple[str, RunData, list[RunData]]] = []
     for title, run in chosen:
@@ -301,10 +307,13 @@ def _budget_dt(runs: list[RunData]) -> float:
     return min(complete, key=lambda dt: abs(math.log(dt / middle)))
 
 
-def _budget(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
-    """(t, energy terms (each >= 0), budget over t): potential terms that can be negative (gravity) are counted
-    from their lowest value in the run, and the budget is E0 minus those offsets, plus the work that vertices
-    on prescribed paths have done on the system by t (a moving pin puts energy in)."""
+# the potential terms that can be negative (gravity: relative to where z = 0 happens to be)
+SHIFTED_TERMS = ("spring_energy", "gravity_energy", "contact_energy", "potential_energy")
+
+
+def _budget_terms(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(t, energy terms) of a run, cut where any stops being finite: kinetic, potential (springs, gravity, contact, or
+    the potential as one), the dissipated work."""
     stored = run.stored
     t = run.t
     parts = ("spring_energy", "gravity_energy", "contact_energy") if "spring_energy" in stored else ("potential_energy",)
@@ -312,13 +321,18 @@ def _budget(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray
     count = min([t.size] + [values.size for values in terms.values()])
     finite = np.all([np.isfinite(values[:count]) for values in terms.values()], axis=0) & np.isfinite(t[:count])
     stop = int(np.argmin(finite)) if not finite.all() else count
-    t = t[:stop]
-    terms = {key: values[:stop] for key, values in terms.items()}
-    for key in parts:
-        if key in terms and terms[key].size and terms[key].min() < 0:
-            terms[key] = terms[key] - float(terms[key].min())
+    return t[:stop], {key: values[:stop] for key, values in terms.items()}
+
+
+def _budget(run: RunData, t: np.ndarray, terms: dict[str, np.ndarray], offsets: dict[str, float]
+            ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """(t, energy terms (each >= 0), budget over t): potential terms that can be negative are counted from
+    ``offsets`` (the figure's lowest value of each, over every run: one zero for all), and the budget is E0 minus
+    those offsets, plus the work that vertices on prescribed paths have done on the system by t (a moving pin puts
+    energy in)."""
+    terms = {key: values - offsets[key] if key in offsets else values for key, values in terms.items()}
     start = sum(float(values[0]) for key, values in terms.items() if key not in DISSIPATED) if t.size else 0.0
     budget = np.full(t.size, start if start > 0 else 1.0)
-    if "prescribed_work" in stored:
-        budget = budget + stored.series("prescribed_work")[: t.size]
+    if "prescribed_work" in run.stored:
+        budget = budget + run.stored.series("prescribed_work")[: t.size]
     return t, terms, budget
