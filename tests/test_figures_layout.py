@@ -204,3 +204,29 @@ def test_one_start_state_has_one_budget_line(tmp_path):
         np.testing.assert_allclose(levels, np.broadcast_to(levels[0], levels.shape), rtol=1e-12)
     finally:
         close(figures)
+
+
+def test_solver_iterations_are_named_by_solver_and_settings_at_one_dt_told_apart(tmp_path):
+    """realtime_solvers.yaml (one dt: each series a point): the iteration figure calls its axis solver iterations and
+    names what each solver counts, not "Newton"; L-BFGS's two initial Hessians, drawn as line styles elsewhere, are
+    told apart at a single dt by their markers (their fill, where the integrators take the colours and line styles tell
+    the settings apart)."""
+    import simrun
+    from pathlib import Path
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "realtime_solvers.yaml"
+    results = simrun.run(config, output=tmp_path / "rt", jobs=1, progress=False, figures=False,
+                         overrides=["duration=0.05", "sweep.solver.time_budget=[0.004]", "sweep.solver.chebyshev_rho=[0.0]",
+                                    "integrators=[backward_euler, {type: xpbd, substeps: 5}]"])
+    figures = [(name, figure) for name, figure in drawn(results.path) if name == "newton_iterations_vs_dt"]
+    try:
+        ((_, figure),) = figures
+        words = " ".join(text.get_text() for text in figure.findobj(Text))
+        assert "solver iterations per step" in words and "Newton iterations" not in words
+        assert "lbfgs: L-BFGS" in words and "vbd: VBD sweep" in words and "projective_dynamics: local-global" in words
+        (lbfgs,) = [ax for ax in figure.axes if "lbfgs" in ax.get_title()]
+        points = {(line.get_marker(), line.get_fillstyle(), line.get_color()) for line in lbfgs.get_lines()
+                  if line.get_marker() not in ("None", "", None)}
+        assert len(points) == 2, points
+    finally:
+        close(figures)

@@ -195,6 +195,13 @@ def iteration_name(rows: list[SummaryRow]) -> str:
     return kinds.pop() if len(kinds) == 1 else "solver"
 
 
+def run_iteration_names(runs) -> dict[str, str]:
+    """What the solver iterations of these runs (implicit ones) count, by solver type: {"newton": "Newton",
+    "lbfgs": "L-BFGS", ...} (fallbacks included): a figure names them rather than call every iteration Newton's."""
+    kinds = {kind for run in runs if not run.explicit for kind in solver_text(run.stored.solver).split("+") if kind}
+    return {kind: SOLVER_ITERATION_NAMES.get(kind, kind) for kind in sorted(kinds)}
+
+
 def mixed_solvers(rows: list[SummaryRow]) -> bool:
     return len(_iteration_kinds(rows)) > 1
 

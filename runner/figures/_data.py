@@ -18,6 +18,8 @@ from simrun.results import Results
 MAX_LINES = 8
 # Line styles that tell the values of a swept key apart when colour already tells the integrators apart.
 SETTING_LINESTYLES = ("-", "--", "-.", ":")
+# with them, the markers' fills: a sweep at one dt draws points, which a line style cannot tell apart
+SETTING_FILLS = ("full", "none", "left", "bottom")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,6 +33,7 @@ class Series:
     marker: str
     linestyle: str
     family: str  # the integrator's name: labels of one family share small multiples
+    fillstyle: str = "full"  # the marker's fill, per setting where line styles tell settings apart (a single dt: no line)
 
 
 @dataclasses.dataclass
@@ -124,7 +127,8 @@ def _lay_out(data: FigureData) -> None:
                          marker=LABEL_MARKERS[number % len(LABEL_MARKERS)], linestyle="-")
         else:
             style = dict(name=f"{label}, {setting}" if setting else label, colour=data.colours[label],
-                         marker=data.markers[label], linestyle=SETTING_LINESTYLES[number % len(SETTING_LINESTYLES)])
+                         marker=data.markers[label], linestyle=SETTING_LINESTYLES[number % len(SETTING_LINESTYLES)],
+                         fillstyle=SETTING_FILLS[number % len(SETTING_FILLS)])
         series[(label, setting)] = Series(label, setting, family=families[label], **style)
     data.series = list(series.values())
     data._series_of = {id(run): series[(run.label, settings[id(run)])] for run in data.runs}

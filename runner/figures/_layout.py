@@ -214,7 +214,7 @@ def series_style(series: Series, number: int = 0, markers: bool = True) -> dict:
     """Colour, line style and marker of a line; later lines get smaller markers, so coinciding points show as rings."""
     style = {"color": series.colour, "ls": series.linestyle}
     if markers:
-        style.update(marker=series.marker, ms=max(4.0, 8.0 - MARKER_SHRINK * number))
+        style.update(marker=series.marker, ms=max(4.0, 8.0 - MARKER_SHRINK * number), fillstyle=series.fillstyle)
     return style
 
 
@@ -246,6 +246,7 @@ def series_handles(data: FigureData, shown: list[Series], merged: dict | None = 
         if one.setting not in seen:
             seen.add(one.setting)
             handles.append(Line2D([], [], color="0.35", lw=lw, ls=one.linestyle,
+                                  **({"marker": "o", "fillstyle": one.fillstyle, "ms": LEGEND_MARKER_SIZE} if markers else {}),
                                   label=f"{' × '.join(data.line_keys)} = {one.setting}"))
     return handles
 

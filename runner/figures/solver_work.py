@@ -6,6 +6,7 @@ import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
 
+from simrun.analysis.rows import run_iteration_names
 from simrun.analysis.runs import RunData
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData
@@ -19,8 +20,9 @@ STOPPED_HANDLE = dict(ls="none", marker="o", mfc="white", mec="0.4", mew=1.6, ms
 
 
 def newton_iterations_vs_dt(data: FigureData):
-    """Mean (and largest) Newton iterations per step against dt, implicit integrators only; one panel per
-    setting and family of lines."""
+    """Mean (and largest) solver iterations per step against dt, implicit integrators only; one panel per
+    setting and family of lines. The axis names the iteration (Newton's, L-BFGS's, a local-global or VBD sweep),
+    "solver iterations" with a note naming each where the solvers mix."""
     def counted(run: RunData) -> bool:
         return not run.explicit and run.newton_iterations.size > 0
 
@@ -87,11 +89,16 @@ def newton_iterations_vs_dt(data: FigureData):
     if marked & {Status.DIVERGED, Status.FAILED}:
         handles.append(Line2D([], [], **STOPPED_HANDLE))
     handles += layout.status_handles(marked & {Status.NOT_CONVERGED}, "")
-    layout.label_outer(axes, rows, "time step dt (s)", "Newton iterations per step")
+    names = run_iteration_names([run for panel in panels for run in panel.runs])
+    counted_as = set(names.values())
+    what = counted_as.pop() if len(counted_as) == 1 else "solver"
+    layout.label_outer(axes, rows, "time step dt (s)", f"{what} iterations per step")
     layout.figure_legend(figure, handles, data.legend_title)
-    layout.suptitle(figure, data, "Newton iterations against time step")
+    layout.suptitle(figure, data, f"{what[0].upper()}{what[1:]} iterations against time step")
     explicit = sorted({run.label for run in data.runs if run.explicit})
-    layout.add_notes(figure, notes + [f"explicit methods (no solver): {', '.join(explicit)}" if explicit else "",
+    each = ("an iteration is, for " + "; ".join(f"{kind}: {name}" for kind, name in names.items())
+            if what == "solver" else "")
+    layout.add_notes(figure, notes + [each, f"explicit methods (no solver): {', '.join(explicit)}" if explicit else "",
                                       layout.SAME_CURVE_NOTE if merged else ""])
     return figure
 
