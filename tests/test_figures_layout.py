@@ -230,3 +230,24 @@ def test_solver_iterations_are_named_by_solver_and_settings_at_one_dt_told_apart
         assert len(points) == 2, points
     finally:
         close(figures)
+
+
+def test_many_settings_at_one_dt_wrap_into_rows_not_one_tall_column(tmp_path):
+    """realtime_solvers.yaml has one dt and a dozen settings: energy over time was one column of 11 panels (870 x
+    4950 px); the panels now wrap into rows of at most four, each titled with its setting and dt."""
+    import simrun
+    from pathlib import Path
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "realtime_solvers.yaml"
+    results = simrun.run(config, output=tmp_path / "rt", jobs=1, progress=False, figures=False,
+                         overrides=["duration=0.05", "integrators=[backward_euler]"])
+    figures = [(name, figure) for name, figure in drawn(results.path) if name == "energy_over_time"]
+    try:
+        ((_, figure),) = figures
+        width, height = figure.get_size_inches()
+        columns = {round(ax.get_position().x0, 3) for ax in figure.axes if ax.get_lines()}
+        assert len(figure.axes) >= 9 and len(columns) == 4 and height < 1.5 * width, (len(figure.axes), columns)
+        titles = [ax.get_title() for ax in figure.axes if ax.get_lines()]
+        assert all("dt = 0.0167 s" in title and "solver.type = " in title for title in titles), titles
+    finally:
+        close(figures)

@@ -118,8 +118,9 @@ def summary_panels(data: FigureData, keep=None, notes: list[str] | None = None) 
 def dt_grid(data: FigureData, keep=None) -> tuple[list[list[Panel]], list[str]]:
     """Small multiples: a row per section and family of lines, a column per time step; (rows, notes).
 
-    With one row the time steps wrap onto rows of PANEL_COLUMNS. At most MAX_DT_PANELS time steps
-    (fewer with several rows), spread over the range: the notes say how many of how many are shown."""
+    With one row the time steps wrap onto rows of PANEL_COLUMNS, and so do the settings where each row would hold
+    one panel (one time step). At most MAX_DT_PANELS time steps (fewer with several rows), spread over the range:
+    the notes say how many of how many are shown."""
     blocks = summary_panels(data, keep)
     notes = []
     if len(blocks) > MAX_PANEL_ROWS:
@@ -140,6 +141,11 @@ def dt_grid(data: FigureData, keep=None) -> tuple[list[list[Panel]], list[str]]:
             rows += [row[start:start + PANEL_COLUMNS] for start in range(0, len(row), PANEL_COLUMNS)]
         elif row:
             rows.append(row)
+    if len(rows) > 2 and all(len(row) == 1 for row in rows):
+        # one time step and many settings: a column of rows one panel wide would be a strip 5,000 px tall; the panels
+        # wrap into rows instead, each titled with its setting and its time step
+        rows = wrap([Panel(f"{row[0].row}\n{row[0].title}" if row[0].row else row[0].title, row[0].runs, row[0].series)
+                     for row in rows])
     return rows, notes
 
 
