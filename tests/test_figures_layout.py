@@ -251,3 +251,38 @@ def test_many_settings_at_one_dt_wrap_into_rows_not_one_tall_column(tmp_path):
         assert all("dt = 0.0167 s" in title and "solver.type = " in title for title in titles), titles
     finally:
         close(figures)
+
+
+def test_measured_contours_stay_visible_where_the_predicted_ones_lie_on_them(tmp_path):
+    """The damping map draws each method's measured contours as white bands under the predicted black dashes, wider
+    than them: where the two coincide (every implicit method here, to round-off) both show. The legend says so, and
+    so does the shipped config's comment it answers to."""
+    from matplotlib.collections import Collection
+    from matplotlib.colors import to_rgba
+    from pathlib import Path
+
+    import simrun
+
+    config = {"name": "map", "system": {"type": "spring_mass", "mass": 1.0, "damping_ratio": 0.0, "x0": 1.0},
+              "integrators": ["backward_euler", "bdf2"], "duration": 4.0,
+              "sweep": {"dt": [0.01], "system.stiffness": {"logspace": [0.0, 4.0, 8]},
+                        "system.damping_ratio": {"linspace": [0.0, 0.9, 6]}}}
+    results = simrun.run(config, output=tmp_path / "map", jobs=1, progress=False, figures=False)
+    figures = [(name, figure) for name, figure in drawn(results.path) if name == "damping_map"]
+    try:
+        ((_, figure),) = figures
+        panels = [ax for ax in figure.axes if ax.get_title().split("\n")[0] in ("backward_euler", "bdf2")]
+        assert len(panels) == 2
+        for ax in panels:
+            sets = [item for item in ax.findobj(Collection) if hasattr(item, "levels")]
+            white = [item for item in sets if np.allclose(item.get_edgecolor()[0], to_rgba("w"))]
+            black = [item for item in sets if np.allclose(item.get_edgecolor()[0], to_rgba("k"))]
+            assert white and black
+            assert min(item.get_linewidth()[0] for item in white) > 2 * max(item.get_linewidth()[0] for item in black)
+            assert max(item.get_zorder() for item in white) < min(item.get_zorder() for item in black)
+        legend = " ".join(text.get_text() for text in figure.legends[0].get_texts())
+        assert "measured (white band)" in legend and "on the white band where they agree" in legend
+    finally:
+        close(figures)
+    comment = (Path(__file__).resolve().parents[1] / "configs" / "damping_map.yaml").read_text()
+    assert "measured contours (white bands) under the predicted ones (black dashes)" in comment

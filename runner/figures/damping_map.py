@@ -3,8 +3,8 @@
 Runs of a linear oscillator (a system that declares one: the spring, damped or not, with ``natural_frequency`` w
 and ``damping_ratio`` zeta) carry the decay per period they measured (``decay_per_period``: (V(t)/V(0))^(pi/(w t))
 at their last usable sample, V the modal energy). One panel per method: the measured decay as colour (log10, one
-scale for all panels; growth red, diverged cells hatched), its contours (white) over the predicted ones (black
-dashed) from the method's amplification matrix at every point (probed with the points as lanes:
+scale for all panels; growth red, diverged cells hatched), its contours as white bands under the predicted ones
+(black dashed, narrower: where they agree the dashes lie on the band, and both show) from the method's amplification matrix at every point (probed with the points as lanes:
 analysis.amplification_matrices), the predicted stability boundary rho = 1 (thick red), and the physical decay
 e^(-2 pi zeta) of the exact motion (orange dots, zeta < 1) for reference.
 Each run is a cell; the panel title counts the cells a run did not fill (missing, failed) and the diverged ones.
@@ -16,6 +16,7 @@ import math
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.colors import Normalize
 
 from simrun.analysis.damping_map import FLOOR_DECADES, exact_decades, map_cells, predicted_decades
@@ -29,6 +30,9 @@ GROWTH_COLOUR = "#d62728"
 # undamped runs measure 1 + 1e-14), drawn as 0
 GROWTH_ROUNDOFF = 1e-6
 CONTOUR_LEVELS = (-3.0, -2.0, -1.0, -0.3, -0.1, -0.03, -0.01)
+# The measured contours are wider than the predicted dashes drawn over them: where a method does what its
+# amplification matrix predicts, the black dashes lie on a white band and both stay visible
+MEASURED_WIDTH, PREDICTED_WIDTH = 2.2, 0.9
 
 
 def damping_map(data: FigureData):
@@ -67,11 +71,11 @@ def damping_map(data: FigureData):
         finite = np.isfinite(measured)
         if finite.sum() >= 4 and np.ptp(measured[finite]) > 0:
             ax.contour(grid_hw, grid_zeta, np.where(finite, measured, np.nan), levels=CONTOUR_LEVELS, colors="w",
-                       linewidths=0.8)
+                       linewidths=MEASURED_WIDTH, zorder=2)
         if predicted is not None:
             predicted = predicted.reshape(grid_hw.shape)
             ax.contour(grid_hw, grid_zeta, np.clip(predicted, FLOOR_DECADES * 2, None), levels=CONTOUR_LEVELS,
-                       colors="k", linewidths=1.0, linestyles="--")
+                       colors="k", linewidths=PREDICTED_WIDTH, linestyles="--", zorder=3)
             if np.any(predicted > 1e-9) and np.any(predicted < 0.0):  # rho = 1 between: the boundary
                 ax.contour(grid_hw, grid_zeta, predicted, levels=[1e-9], colors=GROWTH_COLOUR, linewidths=2.6)
         else:
@@ -93,8 +97,10 @@ def damping_map(data: FigureData):
     layout.label_outer(axes, rows, "h w (time step × natural frequency)", "damping ratio ζ = d / (2 m w)")
     colourbar = figure.colorbar(image, ax=axes, shrink=0.6, pad=0.02, extend="both")
     colourbar.set_label("log₁₀ amplitude factor per period 2π/w, measured\n(red: growth; ≤ −4 shown as −4)", fontsize=9)
-    handles = [plt.Line2D([], [], color="0.55", lw=0.8, label="measured (white contours)"),
-               plt.Line2D([], [], color="k", lw=1.0, ls="--", label="predicted, ρ(A)^(2π/hw)"),
+    handles = [plt.Line2D([], [], color="w", lw=MEASURED_WIDTH, label="measured (white band)",
+                          path_effects=[patheffects.withStroke(linewidth=MEASURED_WIDTH + 1.2, foreground="0.45")]),
+               plt.Line2D([], [], color="k", lw=PREDICTED_WIDTH, ls="--",
+                          label="predicted, ρ(A)^(2π/hw), dashed\n(on the white band where they agree)"),
                plt.Line2D([], [], color=GROWTH_COLOUR, lw=2.6, label="stability boundary ρ = 1"),
                plt.Line2D([], [], color="orange", lw=1.3, ls=":", label="exact motion, e^(−2πζ)")]
     layout.figure_legend(figure, handles, "contours at log₁₀ " + ", ".join(f"{level:g}" for level in CONTOUR_LEVELS))
