@@ -140,11 +140,14 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     results = load(path)
     results.ran = dict(sorted(ran.items()))
     if figures:
+        from simrun.analysis.reference import automatic_reference, reference_errors
         from simrun.figures import draw_figures
 
         try:
+            reference = automatic_reference(results)  # a convergence study without an exact solution: DOP853's
+            errors = reference_errors(results, reference, say=say) if reference else None
             with filling(output / FIGURES_NAME, "output") as folder:  # a failed drawing leaves no half figure
-                written = draw_figures(results, folder)
+                written = draw_figures(results, folder, reference_errors=errors)
         except KeyboardInterrupt:
             raise Interrupted(path, len(results.runs), len(results.runs), drawing=True) from None
         results.figure_files = [output / FIGURES_NAME / drawn.name for drawn in written]

@@ -203,7 +203,7 @@ def test_writable_output_refuses_before_any_work(tmp_path):
 # -- 3. an option's value is never the results file -------------------------------------------------------
 @pytest.mark.parametrize("argv, reference", [
     (["plot", "--reference", "dop853", "r.h5"], "dop853"),
-    (["plot", "r.h5"], "none"),
+    (["plot", "r.h5"], "auto"),
     (["report", "--reference", "none", "r.h5"], "none"),
     (["report", "r.h5"], "dop853"),
 ])

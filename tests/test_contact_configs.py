@@ -108,3 +108,32 @@ def test_spot_drop_lands_on_an_unstructured_mesh_in_few_newton_iterations(tmp_pa
     assert momentum[-1, 0] < 0.75 * momentum[0, 0]  # 1 kg thrown at 0.8 m/s: friction slows it
     assert run.attrs["factorisations_symmetric"] > 0
     assert run.attrs["factorisations_threshold"] == run.attrs["factorisations_colamd"] == 0
+
+
+def test_the_penetration_figure_shows_the_penalty_inside_and_ipc_outside(tmp_path):
+    """penalty_vs_ipc.yaml's point, drawn: the contact-distance figure has a penalty panel whose lines go below 0 and
+    an IPC panel whose lines never do, its note naming exactly the penalty runs as penetrating; the y axis is in mm."""
+    import warnings
+
+    import matplotlib.pyplot as plt
+
+    from simrun.figures import figure_data
+    from simrun.figures.contact import contact_distance
+
+    results = simrun.run(_config("penalty_vs_ipc", duration=0.4), output=tmp_path / "pvi", figures=False,
+                         progress=False, jobs=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        figure = contact_distance(figure_data(results))
+        figure.canvas.draw()
+    try:
+        panels = {ax.get_ylabel().split("\n")[0]: ax for ax in figure.axes if ax.get_lines()}
+        penalty, ipc = panels["system.contact.method = penalty"], panels["system.contact.method = ipc"]
+        lowest = {name: min(float(np.min(line.get_ydata())) for line in ax.get_lines()[:-1])
+                  for name, ax in (("penalty", penalty), ("ipc", ipc))}
+        assert lowest["penalty"] < 0.0 < lowest["ipc"]
+        assert "(mm)" in penalty.get_ylabel() or "(mm)" in " ".join(text.get_text() for text in figure.texts)
+        note = next(text.get_text() for text in figure.texts if text.get_text().startswith("penetrating"))
+        assert note.count("system.contact.method = penalty") == 3 and "ipc" not in note
+    finally:
+        plt.close(figure)

@@ -114,3 +114,26 @@ def test_the_error_is_the_phase_space_distance_from_the_exact_motion(tmp_path):
         steps = round(run.error_time / run.dt)
         expected = abs((1 - 1j * run.dt) ** -steps - np.exp(1j * steps * run.dt))
         assert run.error == pytest.approx(expected, rel=1e-9), run.run_id
+
+
+def test_a_convergence_study_without_an_exact_solution_draws_its_convergence_by_default(tmp_path):
+    """cloth_convergence.yaml (a cloth, no exact solution) at three time steps: `simrun run` draws the convergence
+    figure against DOP853 without being asked (reference auto), and so does `simrun plot`; a file of one or two time
+    steps, or with contact, gets no reference (auto is none there: a reference costs more than the runs)."""
+    from pathlib import Path
+
+    import simrun
+    from simrun.analysis.reference import automatic_reference
+    from simrun.cli import main
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "cloth_convergence.yaml"
+    results = simrun.run(config, output=tmp_path / "conv", jobs=1, progress=False,
+                         overrides=["system.resolution=[4,4]", "duration=0.02", "sweep.dt=[0.0025,0.005,0.01]",
+                                    "integrators=[backward_euler, implicit_midpoint]"])
+    assert automatic_reference(results) == "DOP853"
+    assert {path.stem for path in results.figure_files} >= {"convergence", "work_precision"}
+    assert main(["plot", str(results.path), "--output", str(tmp_path / "again")]) == 0
+    assert (tmp_path / "again" / "convergence.png").is_file()
+    two = simrun.run(config, output=tmp_path / "two", jobs=1, progress=False, figures=False,
+                     overrides=["system.resolution=[4,4]", "duration=0.02", "sweep.dt=[0.005,0.01]"])
+    assert automatic_reference(two) is None

@@ -23,7 +23,24 @@ if TYPE_CHECKING:
 REFERENCE_METHODS = ("DOP853", "Radau", "BDF", "LSODA", "RK45")
 REFERENCE_RTOL = 1e-10
 REFERENCE_ATOL = 1e-12
-REFERENCE_CHOICES = "none, " + ", ".join(name.lower() for name in REFERENCE_METHODS) + ", or a run_id of the file"
+REFERENCE_CHOICES = ("auto, none, " + ", ".join(name.lower() for name in REFERENCE_METHODS)
+                     + ", or a run_id of the file")
+# ``auto``: a file that studies convergence (one method at this many time steps or more) without an exact solution
+# gets DOP853's reference; any other file none (a reference costs more than the runs)
+CONVERGENCE_DTS = 3
+
+
+def automatic_reference(results: "Results") -> str | None:
+    """The reference ``auto`` stands for: "DOP853" where the runs without an exact solution study convergence (a
+    method at CONVERGENCE_DTS time steps or more) on a smooth system (no contact: IPC's barrier and friction are no
+    ODE's forces), else None."""
+    needing = [run for run in results.runs.values() if not np.isfinite(run.error) and not run.status.stopped]
+    if not needing or any(run.attrs.get("max_active_contacts") is not None for run in needing):
+        return None
+    steps: dict[str, set[float]] = {}
+    for run in needing:
+        steps.setdefault(run.label, set()).add(run.dt)
+    return "DOP853" if max(len(dts) for dts in steps.values()) >= CONVERGENCE_DTS else None
 
 
 def reference_positions(system, times, method: str = "DOP853", rtol: float = REFERENCE_RTOL,

@@ -14,7 +14,7 @@ def add_parser(commands) -> None:
     plot.add_argument("results", nargs="?", help="a results file, e.g. results/quickstart/results.h5")
     plot.add_argument("--output", help=f"figure folder (default: {FIGURES_NAME}/ beside the results file)")
     plot.add_argument("--list", action="store_true", help="list the figures simrun draws, with what each needs, and exit")
-    add_reference_option(plot)  # simrun plot RESULTS --reference dop853|...|none|RUN_ID
+    add_reference_option(plot, default="auto")  # simrun plot RESULTS --reference auto|dop853|...|none|RUN_ID
     plot.set_defaults(handler=handle)
 
 
@@ -33,10 +33,15 @@ def handle(args) -> int:
     field = "--output" if args.output else "output"
     out = writable_output(Path(args.output) if args.output else results.path.parent / FIGURES_NAME, field, kind="folder")
     errors = None
-    if args.reference is not None and args.reference.lower() != "none":
+    reference = args.reference
+    if reference is not None and reference.lower() == "auto":
+        from simrun.analysis.reference import automatic_reference
+
+        reference = automatic_reference(results)
+    if reference is not None and reference.lower() != "none":
         from simrun.analysis.reference import reference_errors
 
-        errors = reference_errors(results, args.reference, say=say)
+        errors = reference_errors(results, reference, say=say)
     with writing_folder(out, field) as folder:
         written = draw_figures(results, folder, reference_errors=errors)
     print(f"figures: {out}  ({len(written)} files)")

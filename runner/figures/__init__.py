@@ -21,6 +21,7 @@ from simrun.analysis.runs import RunData
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, figure_data
 from simrun.figures.calibration import fitted_parameters_vs_dt, observed_vs_fitted, transfer_errors
+from simrun.figures.contact import contact_distance
 from simrun.figures.convergence import convergence, work_precision
 from simrun.figures.cost import cost_vs_accuracy
 from simrun.figures.damping_map import damping_map
@@ -133,6 +134,11 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "integrator's own numerical dissipation, an orange band above it a numerical gain. With damping 0 the gap "
            "is all of the drift; with damping it separates the model's loss from the method's.",
            "runs with at least two samples", from_series=True),
+    Figure("contact_distance", contact_distance,
+           "The smallest signed distance to the colliders (and between the model's own triangles, with self-contact) "
+           "at every step, in mm; shaded below 0, where a vertex is inside. Look for a penalty's penetration, deeper "
+           "the softer its stiffness, against IPC's positive gap (which never reaches 0), and for the landing steps.",
+           "runs with contact", from_series=True),
     Figure("snapshots", snapshots,
            "The model at four times of the run (from its stored frames), with the contact colliders drawn in grey "
            "(translucent, beneath the model) where they are at each time; the title names anything not drawn.",
