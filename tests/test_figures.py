@@ -33,7 +33,8 @@ TEST_EQUATION = {"artificial_damping", "spectral_radius_and_period"}
 CALIBRATION_FIGURES = {name for name, entry in FIGURES.items() if entry.needs == CALIBRATION}
 MAPS = {"damping_map"}  # a sweep over h w and the damping ratio: tests/test_lanes.py draws it
 SOLVER_SWEEPS = {"cost_vs_accuracy"}  # drawn where solver.type is swept
-ALWAYS = set(FIGURES) - TEST_EQUATION - CALIBRATION_FIGURES - MAPS - SOLVER_SWEEPS - {"orbits", "snapshots"}
+CONTACT = {"contact_distance"}  # runs with contact: tests/test_contact_configs.py
+ALWAYS = set(FIGURES) - TEST_EQUATION - CALIBRATION_FIGURES - MAPS - SOLVER_SWEEPS - CONTACT - {"orbits", "snapshots"}
 EULERS = ["forward_euler", "symplectic_euler", "backward_euler"]
 SPRING = {"system": {"type": "spring_mass", "stiffness": 100.0}, "integrators": EULERS,
           "duration": 2.0, "sweep": {"dt": [0.01, 0.05, 0.25]}}

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from simrun.analysis import oscillator as analysis
-from simrun.analysis.runs import RunSet, predictions_for, test_equation_runs
+from simrun.analysis.runs import (SOLVER_ITERATION_NAMES, RunSet, predictions_for, solver_text,
+                                  test_equation_runs)
 from simrun.format.summary import Status
 
 # Observed and declared order agree when they differ by at most this (the tests' tolerance).
@@ -29,10 +30,6 @@ ZERO_DAMPING = 1e-9
 # Without a closed form to check, determinant rows are listed only up to this many.
 MAX_DETERMINANT_ROWS = 60
 
-# What a solver's iterations are called in the tables: the solver's own name for its iteration.
-SOLVER_ITERATION_NAMES = {"newton": "Newton", "projected_newton": "Newton", "lbfgs": "L-BFGS",
-                          "gradient_descent": "gradient descent", "jacobi_chebyshev": "Jacobi-Chebyshev",
-                          "projective_dynamics": "local-global", "vbd": "VBD sweep"}
 
 
 @dataclass
@@ -178,11 +175,6 @@ def _predicted_damping(method, hw: float) -> float:
 
 
 # -- what the columns are called --------------------------------------------------------------------
-def solver_text(solver: dict) -> str:
-    """A run's solver type and its fallbacks, e.g. "newton+projected_newton"."""
-    fallbacks = [item.get("type", "") if isinstance(item, dict) else str(item) for item in solver.get("fallback") or []]
-    return "+".join(filter(None, [str(solver.get("type", ""))] + fallbacks))
-
 
 def _iteration_kinds(rows: list[SummaryRow]) -> set[str]:
     return {SOLVER_ITERATION_NAMES.get(kind, kind) for row in rows for kind in row.solver.split("+") if kind}
@@ -193,13 +185,6 @@ def iteration_name(rows: list[SummaryRow]) -> str:
     solvers of one kind (fallbacks included), "solver" when they mix (a solver column then tells them apart)."""
     kinds = _iteration_kinds(rows)
     return kinds.pop() if len(kinds) == 1 else "solver"
-
-
-def run_iteration_names(runs) -> dict[str, str]:
-    """What the solver iterations of these runs (implicit ones) count, by solver type: {"newton": "Newton",
-    "lbfgs": "L-BFGS", ...} (fallbacks included): a figure names them rather than call every iteration Newton's."""
-    kinds = {kind for run in runs if not run.explicit for kind in solver_text(run.stored.solver).split("+") if kind}
-    return {kind: SOLVER_ITERATION_NAMES.get(kind, kind) for kind in sorted(kinds)}
 
 
 def mixed_solvers(rows: list[SummaryRow]) -> bool:

@@ -266,6 +266,25 @@ def predictions_for(data: RunSet, runs: list[RunData] | None = None) -> dict[str
     return {label: oscillator.predict(method, low, high) for label, method in methods.items()}
 
 
+# What a solver's iterations are called in the tables: the solver's own name for its iteration.
+SOLVER_ITERATION_NAMES = {"newton": "Newton", "projected_newton": "Newton", "lbfgs": "L-BFGS",
+                          "gradient_descent": "gradient descent", "jacobi_chebyshev": "Jacobi-Chebyshev",
+                          "projective_dynamics": "local-global", "vbd": "VBD sweep"}
+
+
+def solver_text(solver: dict) -> str:
+    """A run's solver type and its fallbacks, e.g. "newton+projected_newton"."""
+    fallbacks = [item.get("type", "") if isinstance(item, dict) else str(item) for item in solver.get("fallback") or []]
+    return "+".join(filter(None, [str(solver.get("type", ""))] + fallbacks))
+
+
+def run_iteration_names(runs) -> dict[str, str]:
+    """What the solver iterations of these runs (implicit ones) count, by solver type: {"newton": "Newton",
+    "lbfgs": "L-BFGS", ...} (fallbacks included): a figure names them rather than call every iteration Newton's."""
+    kinds = {kind for run in runs if not run.explicit for kind in solver_text(run.stored.solver).split("+") if kind}
+    return {kind: SOLVER_ITERATION_NAMES.get(kind, kind) for kind in sorted(kinds)}
+
+
 def settings_title(swept: dict, width: int | None = None) -> str:
     """"key = value, ..."; with ``width``, broken into lines of at most that many characters between settings
     (a panel's title: three swept solver keys side by side run into the neighbouring panels' titles)."""

@@ -6,8 +6,7 @@ import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
 
-from simrun.analysis.rows import run_iteration_names
-from simrun.analysis.runs import RunData
+from simrun.analysis.runs import RunData, run_iteration_names
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData
 from simrun.format.summary import Status

@@ -19,7 +19,8 @@ import math
 
 import numpy as np
 
-from simrun.analysis.rows import SummaryRow, energy_reference_text, error_time_text, solver_text
+from simrun.analysis.rows import SummaryRow, energy_reference_text, error_time_text
+from simrun.analysis.runs import solver_text
 from simrun.analysis.units import real_time_text
 from simrun.experiment.sweep import LINEAR_SOLVER_KEYS
 from simrun.findings.base import WALL_TIME_NOISE, Finding, _and, drift_text
