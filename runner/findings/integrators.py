@@ -74,7 +74,6 @@ def stability_findings(data, rows, predictions, several) -> list[Finding]:
                     parts.append(f"diverged below the predicted limit at dt = {_dts(below)}")
             anchor = "#stability" if prediction is not None else "#figure-stability_map"
             per_label.append((_who(title, label, several), "; ".join(parts), anchor, evidence))
-    result = []
     if settings:  # more settings than a sentence names: say it across them
         return _said_across(per_label, settings) + _all_bounded(all_bounded, per_label, several, settings)
     return _said_once(per_label) + _all_bounded(all_bounded, per_label, several, {})
