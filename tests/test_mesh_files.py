@@ -113,6 +113,16 @@ def test_an_stl_has_its_corners_merged_into_vertices(tmp_path, binary):
     assert len(model.vertices) == 6 and model.spring_count == 12 + 3
 
 
+def _built_with_warnings(path, vertices, faces):
+    """The mass-spring system of a Blender-shaped OBJ of these vertices and faces (1 kg by area), and the
+    ModelWarnings its loading gave."""
+    path.write_text(blender_obj(np.array(vertices, dtype=float), faces))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        system = MassSpringParams(type="mass_spring", model=str(path), mass={"total": 1.0}).build()
+    return system, [str(warning.message) for warning in caught if issubclass(warning.category, ModelWarning)]
+
+
 def test_degenerate_triangles_of_a_scanned_mesh_load_with_one_warning(tmp_path):
     """A fan of four triangles around vertex 4, plus a sliver (1, 5, 1) with a repeated corner and a zero-area
     triangle of coincident vertices 6 = 7: the model loads with the default config. No spring has zero length,
@@ -120,12 +130,7 @@ def test_degenerate_triangles_of_a_scanned_mesh_load_with_one_warning(tmp_path):
     spring neighbours, and one ModelWarning line says so."""
     vertices = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0.5, 0.5, 0), (2, 0, 0), (0, 2, 0), (0, 2, 0)]
     faces = [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [1, 5, 1], [3, 6, 7]]
-    path = tmp_path / "scan.obj"
-    path.write_text(blender_obj(np.array(vertices, dtype=float), faces))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        system = MassSpringParams(type="mass_spring", model=str(path), mass={"total": 1.0}).build()
-    said = [str(warning.message) for warning in caught if issubclass(warning.category, ModelWarning)]
+    system, said = _built_with_warnings(tmp_path / "scan.obj", vertices, faces)
     assert len(said) == 1 and "2 degenerate triangles" in said[0] and "3 vertices without a triangle" in said[0], said
     assert system.vertex_count == 8 and np.all(system.vertex_masses > 0) and np.isclose(system.vertex_masses.sum(), 1.0)
     assert np.all(system.rest_length > 0)
@@ -140,12 +145,7 @@ def test_vertices_no_face_uses_are_kept_as_free_particles_with_one_warning(tmp_p
     them apart from the vertices of degenerate faces."""
     vertices = [(0, 0, 0), (9, 9, 9), (1, 0, 0), (1, 1, 0), (0, 1, 0), (8, 8, 8)]
     faces = [[0, 2, 3], [0, 3, 4]]
-    path = tmp_path / "unused.obj"
-    path.write_text(blender_obj(np.array(vertices, dtype=float), faces))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        system = MassSpringParams(type="mass_spring", model=str(path), mass={"total": 1.0}).build()
-    said = [str(warning.message) for warning in caught if issubclass(warning.category, ModelWarning)]
+    system, said = _built_with_warnings(tmp_path / "unused.obj", vertices, faces)
     assert len(said) == 1 and "2 vertices that no face uses: free particles" in said[0], said
     assert "degenerate" not in said[0] and "neighbours" not in said[0]
     assert system.vertex_count == 6
