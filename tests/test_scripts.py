@@ -49,3 +49,32 @@ def test_simrun_fit_at_a_scripts_top_level_runs_on_the_pool(tmp_path):
     assert done.returncode == 0, done.stderr
     assert done.stderr == "", done.stderr
     assert done.stdout.strip() == str(["converged"] * 5)
+
+
+def test_a_plugin_defined_in_a_guarded_script_runs_on_the_pool(tmp_path):
+    """A plug-in system defined in the script itself (type "__main__:..."), which runs simrun under
+    `if __name__ == "__main__":`: its runs need the script's classes, so those workers import it, as multiprocessing
+    does; both runs are in."""
+    plugins = Path(__file__).resolve().parent / "plugins"
+    done = _run_script(tmp_path, f"""
+        import sys
+        from typing import Literal
+
+        sys.path.insert(0, {str(plugins)!r})
+        import simrun
+        from pendulum_chain import Chain, ChainParams
+
+
+        class ScriptChainParams(ChainParams):
+            type: Literal["__main__:ScriptChainParams"] = "__main__:ScriptChainParams"
+
+
+        ScriptChainParams.system_class = Chain
+
+        if __name__ == "__main__":
+            config = {{"name": "script", "system": {{"type": "__main__:ScriptChainParams", "count": 1}},
+                      "integrators": ["symplectic_euler", "implicit_midpoint"], "duration": 0.05, "sweep": {{"dt": [1e-4]}}}}
+            print(simrun.run(config, output="out", jobs=2, progress=False, figures=False).ran)
+        """)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "{'ok': 2}"

@@ -28,7 +28,7 @@ from simrun.calibration.observations import load_observations
 from simrun.calibration.predicted import predicted_values
 from simrun.errors import ConfigError, WorkerLost
 from simrun.execution.simulate import simulate
-from simrun.execution.workers import default_jobs, process_pool, stop_workers
+from simrun.execution.workers import default_jobs, defined_in_main, process_pool, stop_workers
 from simrun.experiment.config import _build_integrator, config_file_of, load_experiment
 from simrun.experiment.sweep import config_hash, expand_runs, resolved_config
 from simrun.format.layout import RESULTS_NAME
@@ -189,7 +189,8 @@ def _execute(tasks: list[FitTask], runs_by_id: dict, jobs: int) -> Iterator[tupl
         for task in tasks:
             yield fit_and_simulate(task, runs_by_id.get(task.fit_id))
         return
-    pool = process_pool(min(jobs, len(tasks)))
+    pool = process_pool(min(jobs, len(tasks)), needs_main=defined_in_main(
+        item for run in runs_by_id.values() for item in (run.system, run.system.system_class)))
     finished = False
     try:
         futures = [pool.submit(fit_and_simulate, task, runs_by_id.get(task.fit_id)) for task in tasks]
@@ -276,7 +277,9 @@ def _transfer(experiment, tasks: list[FitTask], stored, steps: list[tuple], jobs
             work.append((task, values))
     if jobs <= 1 or len(work) <= 1:
         return [row for task, values in work for row in transfer_rows(task, values, steps, experiment.solver, factor)]
-    pool = process_pool(min(jobs, len(work)))  # the project's workers: not forks holding the open results file
+    # the project's workers: not forks holding the open results file
+    system = experiment.system
+    pool = process_pool(min(jobs, len(work)), needs_main=defined_in_main([system, system.system_class]))
     try:
         chunks = pool.map(transfer_rows, [task for task, _ in work], [values for _, values in work],
                           [steps] * len(work), [experiment.solver] * len(work), [factor] * len(work))

@@ -22,7 +22,7 @@ from pathlib import Path
 from simrun.errors import ConfigError, WorkerLost
 from simrun.execution.lanes import lane_chunks, simulate_lanes
 from simrun.execution.simulate import simulate
-from simrun.execution.workers import EXECUTORS, process_pool, stop_workers
+from simrun.execution.workers import EXECUTORS, defined_in_main, process_pool, stop_workers
 from simrun.experiment.config import Run
 
 __all__ = ["EXECUTORS", "EXECUTOR_FUNCTIONS", "LANE_MODES", "execute", "run_serial", "run_process_pool", "run_dask"]
@@ -47,7 +47,9 @@ def run_serial(tasks: list) -> Iterator[tuple]:
 def run_process_pool(tasks: list, jobs: int) -> Iterator[tuple]:
     """A local pool of `jobs` processes; pending tasks are cancelled and running ones ended when the
     consumer stops early (or Ctrl-C, which the workers ignore, stops it)."""
-    pool = process_pool(jobs)
+    runs = [run for task in tasks for run in (task if isinstance(task, list) else [task])]
+    pool = process_pool(jobs, needs_main=defined_in_main(item for run in runs
+                                                         for item in (run.system, run.system.system_class)))
     finished = False
     try:
         # the biggest tasks first (chunks of lanes), so that no worker is left with a long one at the end

@@ -39,11 +39,19 @@ def default_jobs() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-def process_pool(jobs: int) -> concurrent.futures.ProcessPoolExecutor:
-    """`jobs` worker processes, each with cores / jobs BLAS threads, each ending with this process."""
+def process_pool(jobs: int, needs_main: bool = False) -> concurrent.futures.ProcessPoolExecutor:
+    """`jobs` worker processes, each with cores / jobs BLAS threads, each ending with this process. ``needs_main``:
+    the tasks hold classes of the caller's main module (a plug-in system defined in the script that runs simrun), so
+    the workers import it, as multiprocessing does (the script then needs its `if __name__ == "__main__":`)."""
     threads = max(1, default_jobs() // jobs)
-    return concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=_worker_context(),
+    return concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=_worker_context(needs_main),
                                                   initializer=_start_worker, initargs=(threads, os.getpid()))
+
+
+def defined_in_main(objects) -> bool:
+    """Whether any of these objects (a run's system parameters, its system class) is defined in ``__main__``."""
+    return any(getattr(item if isinstance(item, type) else type(item), "__module__", "") == "__main__"
+               for item in objects)
 
 
 def _start_worker(threads: int, owner: int) -> None:
@@ -117,15 +125,16 @@ def start_worker_server() -> None:
         multiprocessing.forkserver.ensure_running()
 
 
-def _worker_context():
+def _worker_context(needs_main: bool = False):
     """Workers forked from a clean server process: a plain fork would inherit the open results file
     (and the HDF5 lock on it); the server imports the simulation once, so each fork starts at once. The workers do
-    not run the caller's script again (``_WithoutMain``)."""
+    not run the caller's script again (``_main_left_out``) unless the tasks need what it defines."""
     _quiet_resource_tracker()
     if "forkserver" not in multiprocessing.get_all_start_methods():
-        return _SPAWN_CONTEXT
-    _FORKSERVER_CONTEXT.set_forkserver_preload(["simrun.execution.simulate", "simrun.execution.lanes"])
-    return _FORKSERVER_CONTEXT
+        return multiprocessing.get_context("spawn") if needs_main else _SPAWN_CONTEXT
+    context = multiprocessing.get_context("forkserver") if needs_main else _FORKSERVER_CONTEXT
+    context.set_forkserver_preload(["simrun.execution.simulate", "simrun.execution.lanes"])
+    return context
 
 
 # A new process of multiprocessing's spawn and forkserver methods first imports the main module of its parent, to
