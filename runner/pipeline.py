@@ -147,7 +147,7 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
             reference = automatic_reference(results)  # a convergence study without an exact solution: DOP853's
             errors = reference_errors(results, reference, say=say) if reference else None
             with filling(output / FIGURES_NAME, "output") as folder:  # a failed drawing leaves no half figure
-                written = draw_figures(results, folder, reference_errors=errors)
+                written = draw_figures(results, folder, reference_errors=errors, jobs=jobs if executor == "process" else 1)
         except KeyboardInterrupt:
             raise Interrupted(path, len(results.runs), len(results.runs), drawing=True) from None
         results.figure_files = [output / FIGURES_NAME / drawn.name for drawn in written]

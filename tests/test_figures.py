@@ -183,3 +183,13 @@ def test_a_file_without_runs_gives_no_figures(tmp_path):
         file.create_group("runs")
     assert draw_figures(path, tmp_path / "figures") == []
     assert (tmp_path / "figures").is_dir()
+
+
+def test_figures_drawn_by_workers_are_the_files_drawn_in_one_process(spring, tmp_path):
+    """draw_figures with jobs=2 shares the figures out among two worker processes: the same files, byte for byte
+    (PNG and SVG, whose element ids are salted with a fixed string), in the same order."""
+    serial = draw_figures(spring, tmp_path / "one", jobs=1)
+    shared = draw_figures(spring, tmp_path / "two", jobs=2)
+    assert [path.name for path in shared] == [path.name for path in serial] and len(serial) >= 10
+    for one, two in zip(serial, shared):
+        assert one.read_bytes() == two.read_bytes(), one.name

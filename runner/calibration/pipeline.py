@@ -101,7 +101,7 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
         from simrun.figures import draw_figures
 
         with filling(output / FIGURES_NAME, "output") as folder:
-            written = draw_figures(results, folder)
+            written = draw_figures(results, folder, jobs=jobs)
         results.figure_files = [output / FIGURES_NAME / drawn.name for drawn in written]
     return results
 

@@ -15,6 +15,8 @@ def add_parser(commands) -> None:
     plot.add_argument("--output", help=f"figure folder (default: {FIGURES_NAME}/ beside the results file)")
     plot.add_argument("--list", action="store_true", help="list the figures simrun draws, with what each needs, and exit")
     add_reference_option(plot, default="auto")  # simrun plot RESULTS --reference auto|dop853|...|none|RUN_ID
+    plot.add_argument("-j", "--jobs", type=int, help="figures drawn at once (default: the number of cores, at most 4; 1: "
+                                                    "in this process)")
     plot.set_defaults(handler=handle)
 
 
@@ -29,6 +31,13 @@ def handle(args) -> int:
         from simrun.errors import ConfigError
 
         raise ConfigError("results: give a results file, e.g. simrun plot results/quickstart/results.h5 (or --list)")
+    from simrun.execution.workers import default_jobs
+
+    jobs = default_jobs() if args.jobs is None else args.jobs
+    if jobs < 1:
+        from simrun.errors import ConfigError
+
+        raise ConfigError(f"--jobs: must be >= 1, got {jobs}")
     results = load_results(args.results)
     field = "--output" if args.output else "output"
     out = writable_output(Path(args.output) if args.output else results.path.parent / FIGURES_NAME, field, kind="folder")
@@ -43,6 +52,6 @@ def handle(args) -> int:
 
         errors = reference_errors(results, reference, say=say)
     with writing_folder(out, field) as folder:
-        written = draw_figures(results, folder, reference_errors=errors)
+        written = draw_figures(results, folder, reference_errors=errors, jobs=jobs)
     print(f"figures: {out}  ({len(written)} files)")
     return 0

@@ -13,7 +13,7 @@ drawn); ``simrun plot --list``, the report and the tests all read the registry.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +26,7 @@ from simrun.figures.convergence import convergence, work_precision
 from simrun.figures.cost import cost_vs_accuracy
 from simrun.figures.damping_map import damping_map
 from simrun.figures.energy import energy_budget, energy_drift_vs_dt, energy_over_time
-from simrun.figures.frames import snapshots
+from simrun.figures.frames import SNAPSHOT_PREFIX, snapshots
 from simrun.figures.orbits import orbits
 from simrun.figures.solver_work import newton_iterations_vs_dt, wall_time_per_step_vs_dt
 from simrun.figures.stability import stability_map
@@ -35,6 +35,9 @@ from simrun.results import Results, load
 
 
 CALIBRATION = "a calibration (simrun fit)"
+# Figures drawn at once, at most: each worker reads the file and builds its figure data itself, so more than a few
+# spend more on that than they save on drawing.
+MAX_FIGURE_WORKERS = 4
 
 
 @dataclass(frozen=True)
@@ -174,9 +177,10 @@ def figures_for(data: FigureData) -> list[Figure]:
             if not ((entry.from_series and not kept_series) or (entry.against_dt and a_map))]
 
 
-def render_figures(results: Results | str | Path, reference_errors: dict[str, float] | None = None
-                   ) -> Iterator[tuple[Figure, str, object]]:
-    """Yield (registry entry, file name, matplotlib Figure) for every figure the file supports; the caller closes each.
+def render_figures(results: Results | str | Path, reference_errors: dict[str, float] | None = None,
+                   names: Collection[str] | None = None) -> Iterator[tuple[Figure, str, object]]:
+    """Yield (registry entry, file name, matplotlib Figure) for every figure the file supports (of ``names``, the
+    registry's names, where given); the caller closes each.
 
     reference_errors (run_id -> error at the end time, m) stand in for the stored ``final_error`` where it is
     NaN (no exact solution); ``simrun.analysis.reference.reference_errors`` computes them on request.
@@ -187,6 +191,8 @@ def render_figures(results: Results | str | Path, reference_errors: dict[str, fl
     with results.opened():  # one file handle for every series the figures read
         data = figure_data(results, reference_errors)
         for entry in figures_for(data):
+            if names is not None and entry.name not in names:
+                continue
             drawn = entry.draw(data)
             if drawn is None:
                 continue
@@ -195,19 +201,59 @@ def render_figures(results: Results | str | Path, reference_errors: dict[str, fl
 
 
 def draw_figures(results: Results | str | Path, out_dir: str | Path,
-                 reference_errors: dict[str, float] | None = None) -> list[Path]:
-    """Draw every figure the results file supports into out_dir as PNG and SVG; returns the paths written."""
-    import matplotlib.pyplot as plt
+                 reference_errors: dict[str, float] | None = None, jobs: int = 1) -> list[Path]:
+    """Draw every figure the results file supports into out_dir as PNG and SVG; returns the paths written.
 
+    ``jobs`` > 1: the figures are shared out among that many worker processes (round robin over the registry, so
+    that the costly ones spread), each reading the file itself; the files are the same as drawn in one process."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    path = results.path if isinstance(results, Results) else Path(results)
+    names = list(FIGURES)
+    jobs = min(jobs, MAX_FIGURE_WORKERS)
+    if jobs <= 1:
+        return _draw_share(path, names, out_dir, reference_errors, results if isinstance(results, Results) else None)
+    from simrun.execution.workers import process_pool, stop_workers
+
+    # a figure registered in this process only (a user's own, added to FIGURES at run time) is drawn here: a worker
+    # knows the figures of simrun's registry
+    here = [name for name in names if not FIGURES[name].draw.__module__.startswith("simrun.")]
+    shared = [name for name in names if name not in here]
+    shares = [shared[start::jobs] for start in range(jobs)]
+    pool = process_pool(jobs)
+    finished = False
+    try:
+        futures = [pool.submit(_draw_share, path, share, out_dir, reference_errors) for share in shares]
+        written = _draw_share(path, here, out_dir, reference_errors) if here else []
+        written += [file for future in futures for file in future.result()]
+        finished = True
+    finally:
+        if not finished:  # Ctrl-C or a figure that failed: no worker is left drawing
+            stop_workers(pool)
+        pool.shutdown(wait=True, cancel_futures=True)
+    order = {name: number for number, name in enumerate(names)}
+    return sorted(written, key=lambda file: (order.get(_entry_of(file.stem), len(order)), file.name))
+
+
+def _draw_share(path: Path, names: list[str], out_dir: Path, reference_errors, results: Results | None = None
+                ) -> list[Path]:
+    """The figures of ``names`` (registry names) of the file at ``path``, drawn and saved into out_dir."""
+    import matplotlib.pyplot as plt
+
     written: list[Path] = []
-    for entry, name, figure in render_figures(results, reference_errors):
+    for entry, name, figure in render_figures(results if results is not None else path, reference_errors, names):
         try:
             written += layout.save_figure(figure, out_dir / name, dpi=entry.dpi)
         finally:
             plt.close(figure)
     return written
+
+
+def _entry_of(stem: str) -> str:
+    """The registry name a figure file belongs to (the snapshots' files are one per run, ``frames_<run>``)."""
+    if stem.startswith(SNAPSHOT_PREFIX):
+        return "snapshots"
+    return next((name for name in FIGURES if stem == name or stem.startswith(f"{name}_")), stem)
 
 
 __all__ = ["CALIBRATION", "FIGURES", "Figure", "FigureData", "RunData", "draw_figures", "figure_data", "figures_for",

@@ -6,6 +6,9 @@ from __future__ import annotations
 import matplotlib
 
 matplotlib.use("Agg")  # headless: figures are files, never windows
+# the ids of an SVG's elements are hashes salted with a random uuid unless this is set: with it, the same figure
+# gives the same SVG in every process (a redraw, a worker of `simrun plot -j N`)
+matplotlib.rcParams["svg.hashsalt"] = "simrun"
 import matplotlib.pyplot as plt  # noqa: E402
 
 
