@@ -174,17 +174,23 @@ def largest_dt_findings(data, several) -> list[Finding]:
         hws = {f"{run.hw:.3g}" for run in at if np.isfinite(run.hw)}
         where = f"dt = {largest:g} s" + (f" (h w = {hws.pop()})" if len(hws) == 1 else "")
         where += f" ({title})" if several and title else ""
-        sentence = (f"At the largest dt, {where}, only {_and(bounded)} reached the end without diverging" if bounded
-                    else f"At the largest dt, {where}, no method reached the end")
-        if diverged:
-            sentence += f"; {_and(diverged)} diverged"
-        if failed:
-            sentence += f"; {_and(failed)} failed"
-        result.append(Finding(sentence + " (measured).", "#figure-stability_map",
+        result.append(Finding(_largest_dt_sentence(where, bounded, diverged, failed), "#figure-stability_map",
                               {"group": title, "dt": largest, "bounded": bounded, "diverged": diverged, "failed": failed},
                               "stability"))
     settings = _many_settings(data)
     return _largest_dt_across(result, settings) if settings and result else result
+
+
+def _largest_dt_sentence(where: str, bounded: list[str], diverged: list[str], failed: list[str]) -> str:
+    """"At the largest dt, <where> only A reached the end without diverging; B diverged (measured)."""
+    where = where if where.endswith(":") else where + ","
+    sentence = (f"At the largest dt, {where} only {_and(bounded)} reached the end without diverging" if bounded
+                else f"At the largest dt, {where} no method reached the end")
+    if diverged:
+        sentence += f"; {_and(diverged)} diverged"
+    if failed:
+        sentence += f"; {_and(failed)} failed"
+    return sentence + " (measured)."
 
 
 def _largest_dt_across(found: list[Finding], settings: dict[str, dict]) -> list[Finding]:
@@ -198,13 +204,8 @@ def _largest_dt_across(found: list[Finding], settings: dict[str, dict]) -> list[
     result = []
     for (dt, bounded, diverged, failed), members in sorted(alike.items(), key=lambda item: -len(item[1])):
         where = across_settings([("", finding.evidence["group"]) for finding in members], settings).strip()
-        sentence = (f"At the largest dt, {dt:g} s, {where}: only {_and(list(bounded))} reached the end without diverging"
-                    if bounded else f"At the largest dt, {dt:g} s, {where}: no method reached the end")
-        if diverged:
-            sentence += f"; {_and(list(diverged))} diverged"
-        if failed:
-            sentence += f"; {_and(list(failed))} failed"
-        result.append(Finding(sentence + " (measured).", "#figure-stability_map",
+        sentence = _largest_dt_sentence(f"{dt:g} s, {where}:", list(bounded), list(diverged), list(failed))
+        result.append(Finding(sentence, "#figure-stability_map",
                               {"dt": dt, "bounded": list(bounded), "diverged": list(diverged), "failed": list(failed),
                                "settings": len(members)}, "stability"))
     return result
