@@ -25,6 +25,8 @@ from simrun.version import __version__
 EXIT_CONFIG_ERROR = 2
 CONFIG_FOLDER = Path("configs")  # where `simrun NAME` looks for NAME.yaml to suggest
 CONFIG_SUFFIXES = (".yaml", ".yml")
+# the subcommands that run work in the local pool (runs, fits, figures): their fork server starts first
+POOL_COMMANDS = ("run", "fit", "plot")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         if not _may_be_config(argv[0]):
             return _error(ConfigError(_unknown_command(argv[0])))
         argv.insert(0, "run")  # `simrun CONFIG.yaml`
-    if argv and argv[0] == "run" and may_use_local_pool(argv):
+    if argv and argv[0] in POOL_COMMANDS and may_use_local_pool(argv):
         start_worker_server()
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -52,7 +52,7 @@ class Interrupted(KeyboardInterrupt):
 
 def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: int | None = None,
         executor: str = "process", scheduler: str | None = None, force: bool = False, progress: bool = True,
-        figures: bool = True, overrides: list[str] | tuple[str, ...] = (),
+        figures: bool = True, svg: bool = False, overrides: list[str] | tuple[str, ...] = (),
         max_size_gb: float = DEFAULT_MAX_SIZE_GB, command_line: str | None = None, lanes: str = "auto") -> Results:
     """Run an experiment and return its results (``simrun.results.Results``).
 
@@ -62,7 +62,7 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     (``scheduler``: an existing cluster's address, else a local one). force: start over even if the
     folder holds other results, removing its old figures and report (default: resume an unchanged
     config, refuse a changed one). progress: a progress bar on a terminal, else a line per run (False:
-    silent). figures: draw them. overrides: ``key.path=value`` assignments, as ``--set``. max_size_gb:
+    silent). figures: draw them (PNG; with svg, SVG too). overrides: ``key.path=value`` assignments, as ``--set``. max_size_gb:
     refuse bigger sweeps. command_line: what started the sweep, stored as provenance (the command line
     passes its own; default: this call, ``simrun.run('configs/x.yaml', ...)``). lanes: "auto" steps many small
     runs of one kind together as lanes of one array (runner/execution/lanes.py; each run's data is what it would be alone),
@@ -147,7 +147,8 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
             reference = automatic_reference(results)  # a convergence study without an exact solution: DOP853's
             errors = reference_errors(results, reference, say=say) if reference else None
             with filling(output / FIGURES_NAME, "output") as folder:  # a failed drawing leaves no half figure
-                written = draw_figures(results, folder, reference_errors=errors, jobs=jobs if executor == "process" else 1)
+                written = draw_figures(results, folder, reference_errors=errors,
+                                       jobs=jobs if executor == "process" else 1, svg=svg)
         except KeyboardInterrupt:
             raise Interrupted(path, len(results.runs), len(results.runs), drawing=True) from None
         results.figure_files = [output / FIGURES_NAME / drawn.name for drawn in written]

@@ -297,7 +297,7 @@ def test_a_registered_figure_is_plotted_listed_and_reported(tmp_path, tiny_confi
     assert main(["plot", "--list"]) == 0
     assert "throwaway: needs anything" in capsys.readouterr().out.splitlines()
 
-    assert main(["plot", str(results.path)]) == 0
+    assert main(["plot", str(results.path), "--svg"]) == 0
     capsys.readouterr()
     for suffix in ("png", "svg"):
         path = figures / f"throwaway.{suffix}"

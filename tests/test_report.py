@@ -237,7 +237,7 @@ def test_show_prints_the_summary_and_writes_csv(orders, capsys, tmp_path):
 
 def test_analyze_draws_the_predicted_curves_without_runs(tmp_path, capsys):
     args = argparse.Namespace(integrators=["backward_euler", "implicit_midpoint", "generalized_alpha:rho_inf=0.5", "leapfrog"],
-                              range=[0.01, 100.0], output=str(tmp_path / "curves"))
+                              range=[0.01, 100.0], output=str(tmp_path / "curves"), svg=True)
     assert analyze_command.handle(args) == 0
     out = capsys.readouterr().out
     assert "leapfrog" in out and "unstable" not in out.split("leapfrog")[1].splitlines()[0]
@@ -259,7 +259,7 @@ def test_analyze_draws_the_predicted_curves_without_runs(tmp_path, capsys):
     ({"range": [0.0, 1.0]}, "--range"),
 ])
 def test_analyze_rejects_bad_input_in_one_line(tmp_path, options, message):
-    args = argparse.Namespace(**{"integrators": None, "range": None, "output": str(tmp_path), **options})
+    args = argparse.Namespace(**{"integrators": None, "range": None, "output": str(tmp_path), "svg": False, **options})
     with pytest.raises(ConfigError, match=message.replace("[", r"\[")) as error:
         analyze_command.handle(args)
     assert "\n" not in str(error.value)

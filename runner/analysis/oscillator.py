@@ -29,10 +29,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse
 
 from simrun.integrators import INTEGRATORS, Integrator, State
 from simrun.solvers import solver_params
 from simrun.systems import SpringMassParams
+from simrun.systems.base import System
+from simrun.systems.compliant import ANCHORED, CompliantSprings
 from simrun.systems.lanes import SpringMassLanes
 
 # The probe's Newton solves a linear problem in one iteration; the tight tolerance only makes the
@@ -168,6 +171,65 @@ def amplification_matrix(integrator: Integrator, dt: float, system=None) -> np.n
     return np.column_stack(columns)
 
 
+class SpringBank(System):
+    """Uncoupled undamped springs q_i'' + k_i q_i = 0, m = 1 kg, k_i = (h w_i)^2 N/m, q_i(0) = 1 m: stepped at h = 1 s,
+    the states of spring i are those of the test spring at h w_i. One step of a method on the bank is then one step
+    at every h w of a grid, for any method that takes a system (the lanes take only some)."""
+
+    dim = 1
+    quadratic_potential = True  # sum_i k_i q_i^2 / 2, every k_i > 0
+    damping_is_constant = True
+
+    def __init__(self, hw: np.ndarray):
+        self.stiffness = np.square(np.asarray(hw, dtype=float))
+        self.dof_count = self.stiffness.size
+        self.mass = np.ones(self.dof_count)
+        self.x0, self.v0 = np.ones(self.dof_count), np.zeros(self.dof_count)
+        self._hessian = scipy.sparse.diags_array(self.stiffness, format="csr")
+
+    def potential_energy(self, x):
+        return 0.5 * float(self.stiffness @ (x * x))
+
+    def gradient(self, x):
+        return self.stiffness * x
+
+    def hessian(self, x, project_spd=False):
+        return self._hessian  # constant and SPD
+
+    def rest_stiffness(self):
+        return self._hessian
+
+    compliant_form = None
+
+    def compliant_springs(self):
+        """Spring i as a zero-length spring from vertex i to the origin (what XPBD projects)."""
+        count = self.dof_count
+        return CompliantSprings(first=np.arange(count), second=np.full(count, ANCHORED, dtype=np.intp),
+                                anchor=np.zeros((count, 1)), rest_length=np.zeros(count), stiffness=self.stiffness.copy(),
+                                damping=np.zeros(count), vertex_count=count, other_forces=False)
+
+
+def bank_matrices(integrator: Integrator, hw: np.ndarray) -> np.ndarray | None:
+    """The one-step matrices (points, n, n) of the test spring at every h w of ``hw`` from steps of a SpringBank:
+    slot j of the state (x, v, then what the method carries) set to 1 in every spring at once gives column j of
+    every matrix. None when the method carries something that is not one number per spring."""
+    bank = SpringBank(hw)
+    count = bank.dof_count
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        state = integrator.start(bank, State(0.0, bank.x0.copy(), bank.v0.copy()))
+        state, _ = integrator.step(bank, state, 1.0, PROBE_SOLVER)
+        slots = 2 + len(state.aux)
+        if any(part.shape != (count,) for part in (state.x, state.v, *state.aux)):
+            return None
+        matrices = np.empty((count, slots, slots))
+        for column in range(slots):
+            unit = [np.zeros(count) for _ in range(slots)]
+            unit[column][:] = 1.0
+            new, _ = integrator.step(bank, State(0.0, unit[0], unit[1], tuple(unit[2:])), 1.0, PROBE_SOLVER)
+            matrices[:, :, column] = np.column_stack([new.x, new.v, *new.aux])
+    return matrices
+
+
 def amplification_matrices(integrator: Integrator, hw: np.ndarray, damping_ratio: np.ndarray) -> np.ndarray | None:
     """The one-step matrices (points, n, n) of the spring q'' + 2 zeta w q' + w^2 q = 0 at many (h w, zeta) at once:
     ``amplification_matrix`` with the points as lanes of one array (systems/lanes.py), probed by the method's own
@@ -235,8 +297,12 @@ def hw_grid(low: float = HW_RANGE[0], high: float = HW_RANGE[1], per_decade: int
 @functools.lru_cache(maxsize=256)
 def _predict_cached(integrator: Integrator, low: float, high: float, per_decade: int) -> Prediction:
     hw = hw_grid(low, high, per_decade)
-    matrices = [amplification_matrix(integrator, value) for value in hw]
-    eigenvalues = [np.linalg.eigvals(matrix) for matrix in matrices]
+    # every point of the grid in one step of a bank of springs (the same matrices up to the scaling of v, so the same
+    # eigenvalues); point by point where the method carries more than a number per spring
+    stacked = bank_matrices(integrator, hw)
+    if stacked is None:
+        stacked = np.stack([amplification_matrix(integrator, value) for value in hw])
+    eigenvalues = list(np.linalg.eigvals(stacked))
     rho = np.array([float(np.max(np.abs(values))) for values in eigenvalues])
     principal = _principal_eigenvalues(hw, eigenvalues)
     phase = np.abs(np.angle(principal))

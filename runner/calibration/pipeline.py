@@ -41,12 +41,13 @@ EXACT_ID = "exact"  # the fit id of the fit with the system's exact solution
 
 
 def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: int | None = None, force: bool = False,
-        progress: bool = True, figures: bool = True, overrides: list[str] | tuple[str, ...] = (),
+        progress: bool = True, figures: bool = True, svg: bool = False, overrides: list[str] | tuple[str, ...] = (),
         command_line: str | None = None) -> Results:
     """Fit the config's parameters for every integrator x dt of its sweep; returns the results (``results.fits``).
 
     config: a path, YAML text or a dict, with a ``fit`` block. output: the folder (default: the config's output,
     else results/<name>). jobs: fits at once (default: one per core). force: start over whatever the folder holds.
+    figures: draw them (PNG; with svg, SVG too).
     Raises ConfigError (one line naming the field or file) before anything is written."""
     jobs = default_jobs() if jobs is None else jobs
     if jobs < 1:
@@ -101,7 +102,7 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
         from simrun.figures import draw_figures
 
         with filling(output / FIGURES_NAME, "output") as folder:
-            written = draw_figures(results, folder, jobs=jobs)
+            written = draw_figures(results, folder, jobs=jobs, svg=svg)
         results.figure_files = [output / FIGURES_NAME / drawn.name for drawn in written]
     return results
 

@@ -8,11 +8,18 @@ from pathlib import Path
 
 def add_experiment_options(parser, example: str) -> None:
     """What `simrun run` and `simrun fit` both take after the config: ``--set`` (``example``: a use of it),
-    ``--output`` and ``--no-plots``."""
+    ``--output``, ``--no-plots`` and ``--svg``."""
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help=f"override a config key, value in YAML (repeatable), e.g. {example}")
     parser.add_argument("--output", help="output folder (default: the config's `output`, else results/<name>)")
     parser.add_argument("--no-plots", action="store_true", help="write the results file only")
+    add_svg_option(parser)
+
+
+def add_svg_option(parser) -> None:
+    """``--svg``: every figure as SVG too (PNG alone by default)."""
+    parser.add_argument("--svg", action="store_true", help="write each figure as SVG too, a vector copy for papers "
+                                                          "(default: PNG only, what the report shows)")
 
 
 def add_reference_option(parser, default: str = "none") -> None:

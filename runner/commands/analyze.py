@@ -6,7 +6,7 @@ import csv
 import math
 from pathlib import Path
 
-from simrun.commands._options import writable_output, writing_folder
+from simrun.commands._options import add_svg_option, writable_output, writing_folder
 from simrun.errors import ConfigError
 
 DEFAULT_OUTPUT = Path("results") / "analysis"
@@ -24,6 +24,7 @@ def add_parser(commands) -> None:
     analyze.add_argument("--range", nargs=2, type=float, metavar=("LOW", "HIGH"), default=None,
                          help="the h w range of the curves (default: 0.01 100)")
     analyze.add_argument("--output", help=f"folder for the figures and {TABLE_NAME} (default: {DEFAULT_OUTPUT})")
+    add_svg_option(analyze)
     analyze.set_defaults(handler=handle)
 
 
@@ -49,7 +50,7 @@ def handle(args) -> int:
     for integrator in integrators:
         predictions.setdefault(integrator.label, analysis.predict(integrator, low, high))
     with writing_folder(output, field) as folder:  # the figures and the table, or nothing
-        written = draw_predicted_figures(predictions, folder)
+        written = draw_predicted_figures(predictions, folder, svg=args.svg)
         with open(folder / TABLE_NAME, "w", newline="") as stream:
             writer = csv.writer(stream)
             writer.writerow(["integrator", "hw", "spectral_radius", "damping_over_w", "relative_period_error"])
@@ -61,8 +62,8 @@ def handle(args) -> int:
     return 0
 
 
-def draw_predicted_figures(predictions: dict, output: Path) -> list[Path]:
-    """The damping and the spectral radius/period figures of predictions alone, as PNG and SVG."""
+def draw_predicted_figures(predictions: dict, output: Path, svg: bool = False) -> list[Path]:
+    """The damping and the spectral radius/period figures of predictions alone, as PNG (and SVG, with ``svg``)."""
     import matplotlib.pyplot as plt
 
     from simrun.figures import _layout as layout
@@ -79,7 +80,8 @@ def draw_predicted_figures(predictions: dict, output: Path) -> list[Path]:
     written = []
     for name, figure in figures.items():
         try:
-            written += layout.save_figure(figure, output / name)
+            written += layout.save_figure(figure, output / name,
+                                          formats=layout.VECTOR_FORMATS if svg else layout.FORMATS)
         finally:
             plt.close(figure)
     return written

@@ -28,7 +28,7 @@ def handle(args) -> int:
 
     try:
         results = fit(args.config, output=args.output, jobs=args.jobs, force=args.force, progress=not args.quiet,
-                      figures=not args.no_plots, overrides=args.overrides, command_line=getattr(args, "command_line", None))
+                      figures=not args.no_plots, svg=args.svg, overrides=args.overrides, command_line=getattr(args, "command_line", None))
     except KeyboardInterrupt:
         print("simrun: interrupted: the finished fits are in the results file; run the same command again to finish "
               "the rest", file=sys.stderr)

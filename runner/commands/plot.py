@@ -1,22 +1,25 @@
-"""`simrun plot RESULTS`: redraw every registered figure the file supports (PNG and SVG), from the file alone."""
+"""`simrun plot RESULTS`: redraw every registered figure the file supports (PNG; SVG too on request), from the file
+alone."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from simrun.commands._options import add_reference_option, load_results, say, writable_output, writing_folder
+from simrun.commands._options import (add_reference_option, add_svg_option, load_results, say, writable_output,
+                                     writing_folder)
 from simrun.results.lock import FIGURES_NAME
 
 
 def add_parser(commands) -> None:
     plot = commands.add_parser("plot", help="redraw the figures from a results file alone",
-                               description="Draw every figure that RESULTS supports into its folder's figures/ (PNG and SVG).")
+                               description="Draw every figure that RESULTS supports into its folder's figures/ (PNG; with --svg, SVG too).")
     plot.add_argument("results", nargs="?", help="a results file, e.g. results/quickstart/results.h5")
     plot.add_argument("--output", help=f"figure folder (default: {FIGURES_NAME}/ beside the results file)")
     plot.add_argument("--list", action="store_true", help="list the figures simrun draws, with what each needs, and exit")
     add_reference_option(plot, default="auto")  # simrun plot RESULTS --reference auto|dop853|...|none|RUN_ID
     plot.add_argument("-j", "--jobs", type=int, help="figures drawn at once (default: the number of cores, at most 4; 1: "
                                                     "in this process)")
+    add_svg_option(plot)
     plot.set_defaults(handler=handle)
 
 
@@ -52,6 +55,6 @@ def handle(args) -> int:
 
         errors = reference_errors(results, reference, say=say)
     with writing_folder(out, field) as folder:
-        written = draw_figures(results, folder, reference_errors=errors, jobs=jobs)
+        written = draw_figures(results, folder, reference_errors=errors, jobs=jobs, svg=args.svg)
     print(f"figures: {out}  ({len(written)} files)")
     return 0

@@ -38,7 +38,7 @@ def handle(args) -> int:
     try:
         results = run(args.config, output=args.output, jobs=args.jobs,
                       executor=EXECUTOR_ALIASES.get(args.executor, args.executor), scheduler=args.scheduler,
-                      force=args.force, progress=not args.quiet, figures=not args.no_plots,
+                      force=args.force, progress=not args.quiet, figures=not args.no_plots, svg=args.svg,
                       overrides=args.overrides, max_size_gb=args.max_size,
                       command_line=getattr(args, "command_line", None), lanes=args.lanes)
     except Interrupted as interrupted:

@@ -133,7 +133,8 @@ def _worker_context(needs_main: bool = False):
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn") if needs_main else _SPAWN_CONTEXT
     context = multiprocessing.get_context("forkserver") if needs_main else _FORKSERVER_CONTEXT
-    context.set_forkserver_preload(["simrun.execution.simulate", "simrun.execution.lanes"])
+    # what the workers run: the simulation, and the figures (drawn in workers after the runs, and by `simrun plot`)
+    context.set_forkserver_preload(["simrun.execution.simulate", "simrun.execution.lanes", "simrun.figures"])
     return context
 
 

@@ -201,8 +201,9 @@ def render_figures(results: Results | str | Path, reference_errors: dict[str, fl
 
 
 def draw_figures(results: Results | str | Path, out_dir: str | Path,
-                 reference_errors: dict[str, float] | None = None, jobs: int = 1) -> list[Path]:
-    """Draw every figure the results file supports into out_dir as PNG and SVG; returns the paths written.
+                 reference_errors: dict[str, float] | None = None, jobs: int = 1, svg: bool = False) -> list[Path]:
+    """Draw every figure the results file supports into out_dir as PNG (and SVG too, with ``svg``); returns the paths
+    written.
 
     ``jobs`` > 1: the figures are shared out among that many worker processes (round robin over the registry, so
     that the costly ones spread), each reading the file itself; the files are the same as drawn in one process."""
@@ -211,8 +212,10 @@ def draw_figures(results: Results | str | Path, out_dir: str | Path,
     path = results.path if isinstance(results, Results) else Path(results)
     names = list(FIGURES)
     jobs = min(jobs, MAX_FIGURE_WORKERS)
+    formats = layout.VECTOR_FORMATS if svg else layout.FORMATS
     if jobs <= 1:
-        return _draw_share(path, names, out_dir, reference_errors, results if isinstance(results, Results) else None)
+        return _draw_share(path, names, out_dir, reference_errors, formats,
+                           results if isinstance(results, Results) else None)
     from simrun.execution.workers import process_pool, stop_workers
 
     # a figure registered in this process only (a user's own, added to FIGURES at run time) is drawn here: a worker
@@ -223,8 +226,8 @@ def draw_figures(results: Results | str | Path, out_dir: str | Path,
     pool = process_pool(jobs)
     finished = False
     try:
-        futures = [pool.submit(_draw_share, path, share, out_dir, reference_errors) for share in shares]
-        written = _draw_share(path, here, out_dir, reference_errors) if here else []
+        futures = [pool.submit(_draw_share, path, share, out_dir, reference_errors, formats) for share in shares]
+        written = _draw_share(path, here, out_dir, reference_errors, formats) if here else []
         written += [file for future in futures for file in future.result()]
         finished = True
     finally:
@@ -235,15 +238,15 @@ def draw_figures(results: Results | str | Path, out_dir: str | Path,
     return sorted(written, key=lambda file: (order.get(_entry_of(file.stem), len(order)), file.name))
 
 
-def _draw_share(path: Path, names: list[str], out_dir: Path, reference_errors, results: Results | None = None
-                ) -> list[Path]:
+def _draw_share(path: Path, names: list[str], out_dir: Path, reference_errors, formats: tuple[str, ...],
+                results: Results | None = None) -> list[Path]:
     """The figures of ``names`` (registry names) of the file at ``path``, drawn and saved into out_dir."""
     import matplotlib.pyplot as plt
 
     written: list[Path] = []
     for entry, name, figure in render_figures(results if results is not None else path, reference_errors, names):
         try:
-            written += layout.save_figure(figure, out_dir / name, dpi=entry.dpi)
+            written += layout.save_figure(figure, out_dir / name, dpi=entry.dpi, formats=formats)
         finally:
             plt.close(figure)
     return written
