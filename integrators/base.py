@@ -166,7 +166,7 @@ def contact_refusal(integrator: Integrator, system: System) -> str | None:
     if not system.has_contact:
         return None
     kind = integrator.problem_kind
-    if system.requires_step_filter:
+    if system.contact_needs_step_filter:
         if integrator.explicit or kind is None:
             return ("takes explicit steps, which nothing cuts short of a collision: IPC contact needs an "
                     "incremental-potential method (backward_euler, bdf2, newmark) whose line search CCD filters")

@@ -10,6 +10,8 @@ anyone writing a test.
 from .base import Capabilities, System, SystemParams
 from .circular_motion import CircularMotion, CircularMotionParams
 from .cloth import Cloth, ClothParams
+from .fem.params import FemParams
+from .fem.system import Fem
 from .mass_spring.params import MassSpringParams
 from .mass_spring.system import MassSpring
 from .spring_mass import SpringMass, SpringMassParams
@@ -20,7 +22,8 @@ SYSTEMS = {
     "circular_motion": CircularMotionParams,
     "cloth": ClothParams,
     "mass_spring": MassSpringParams,
+    "fem": FemParams,
 }
 
 __all__ = ["SYSTEMS", "Capabilities", "System", "SystemParams", "SpringMass", "SpringMassParams", "CircularMotion",
-           "CircularMotionParams", "Cloth", "ClothParams", "MassSpring", "MassSpringParams"]
+           "CircularMotionParams", "Cloth", "ClothParams", "MassSpring", "MassSpringParams", "Fem", "FemParams"]

@@ -225,10 +225,16 @@ class System(ABC):
         return self.damping_matrix(self.x0) is not None
 
     # -- contact (systems/contact/): what the line search, the problems and the runner ask ----------------
-    # IPC: every step a solver takes must be cut to its collision-free fraction (``max_step``); the integrators that
-    # cannot cut theirs (explicit ones, forces sampled along the step) and the solvers without a filtered line
-    # search refuse such a system
+    # every step a line search takes is cut to the fraction ``max_step`` allows: IPC's collision-free one, or (finite
+    # elements) the one that keeps every element's volume
     requires_step_filter: bool = False
+
+    @property
+    def contact_needs_step_filter(self) -> bool:
+        """Whether the contact (IPC) needs every step of a solve cut short of a collision: the integrators that cannot
+        cut theirs (explicit ones, forces sampled along the step) and the solvers without a filtered line search refuse
+        such a system. Where the step filter has other uses too (finite elements), a system says so apart."""
+        return self.requires_step_filter
     has_contact: bool = False  # the runner records per step the smallest contact distance, active contacts, friction work
 
     # runs of this system may be stepped together as lanes of one array (systems/lanes.py): the class that takes their

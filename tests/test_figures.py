@@ -34,7 +34,9 @@ CALIBRATION_FIGURES = {name for name, entry in FIGURES.items() if entry.needs ==
 MAPS = {"damping_map"}  # a sweep over h w and the damping ratio: tests/test_lanes.py draws it
 SOLVER_SWEEPS = {"cost_vs_accuracy"}  # drawn where solver.type is swept
 CONTACT = {"contact_distance"}  # runs with contact: tests/test_contact_configs.py
-ALWAYS = set(FIGURES) - TEST_EQUATION - CALIBRATION_FIGURES - MAPS - SOLVER_SWEEPS - CONTACT - {"orbits", "snapshots"}
+FEM = {"volume_ratio"}  # finite-element runs: tests/test_fem_runs.py
+ALWAYS = (set(FIGURES) - TEST_EQUATION - CALIBRATION_FIGURES - MAPS - SOLVER_SWEEPS - CONTACT - FEM
+          - {"orbits", "snapshots"})
 EULERS = ["forward_euler", "symplectic_euler", "backward_euler"]
 SPRING = {"system": {"type": "spring_mass", "stiffness": 100.0}, "integrators": EULERS,
           "duration": 2.0, "sweep": {"dt": [0.01, 0.05, 0.25]}}

@@ -129,9 +129,9 @@ def test_report_is_one_self_contained_html_page(orders, orders_report):
     # a spring with implicit methods and exact errors: every figure but the orbits
     calibration = {name for name, entry in FIGURES.items() if entry.needs == CALIBRATION}  # files of `simrun fit`
     # not drawn here: orbits, snapshots, a map (tests/test_lanes.py), the cost of solvers (a sweep of solver.type) and
-    # the contact distance (runs with contact)
+    # the contact distance (runs with contact) and the volume ratio (finite elements)
     assert embedded == set(FIGURES) - calibration - {"orbits", "snapshots", "damping_map", "cost_vs_accuracy",
-                                                              "contact_distance"}
+                                                              "contact_distance", "volume_ratio"}
     text = " ".join(" ".join(part) for part in page.sections.values())
     for caption in (FIGURES[name].caption for name in embedded):
         assert caption.split(".")[0] in text

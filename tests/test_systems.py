@@ -81,6 +81,26 @@ EXAMPLES: dict[str, list[tuple[str, dict]]] = {
         ("rope-3d", {"model": {"rope": {"count": 5, "length": 0.5, "direction": [1.0, 0.0, 0.0], "bend": True}},
                      "stiffness": {"stretch": 100.0, "bend": 1.0}, "mass": {"total": 0.05}, "pinned": ["first"]}),
     ],
+    # every energy, both dimensions, every kind of constraint, the element damping models and penalty contact
+    "fem": [
+        ("box-neo-hookean-rayleigh", {"model": {"box": {"size": [0.3, 0.1, 0.1], "cells": [3, 1, 1]}},
+                                      "material": {"model": "neo_hookean", "youngs_modulus": 1e4}, "pinned": "left",
+                                      "damping": [{"model": "rayleigh", "alpha": 0.1, "beta": 0.01}]}),
+        ("square-corotated-constraints", {"model": {"square": {"segments": 2, "size": 0.4}},
+                                          "material": {"model": "corotated", "youngs_modulus": 1e4},
+                                          "pinned": ["top_left"], "constraints": [{"vertices": [1], "normal": [1.0, 2.0]}],
+                                          "prescribed": [{"vertices": [8], "rotation": {"center": [0.0, 0.0], "rate": 30.0}}],
+                                          "initial": {"scale": [1.2, 1.0]}}),
+        ("box-stable-neo-hookean-contact", {"model": {"box": {"size": [0.2, 0.2, 0.1], "cells": [2, 2, 1]}},
+                                            "material": {"model": "stable_neo_hookean", "youngs_modulus": 1e4},
+                                            "contact": {"ground": {"height": 0.02, "stiffness": 2e3}},
+                                            "damping": [{"model": "drag", "coefficient": 0.05}],
+                                            "initial": {"spin": [0.4, -0.2, 1.5]}}),
+        ("square-stvk", {"model": {"square": {"segments": 2, "size": 0.4}}, "material": {"model": "stvk"}}),
+        ("box-linear-prescribed", {"model": {"box": {"size": [0.2, 0.2, 0.1], "cells": [2, 2, 1]}},
+                                   "material": {"model": "linear"},
+                                   "prescribed": [{"vertices": "x_max", "velocity": [0.1, 0.0, 0.0]}]}),
+    ],
     # the plug-in of docs/systems.md; at the test state some of its springs are compressed (the projection acts)
     "pendulum_chain:ChainParams": [
         ("defaults", {}),

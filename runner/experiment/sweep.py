@@ -163,7 +163,7 @@ def _check_method_fits(resolved: Experiment, integrator: Integrator, systems: di
     reason = integrator.refusal(systems[key])
     if reason is not None:
         raise ConfigError(f"integrators: {integrator.label}: {reason}")
-    if systems[key].requires_step_filter and kind != "newton_step":
+    if systems[key].contact_needs_step_filter and kind != "newton_step":
         for member in chain:
             if not type(member).filters_steps:
                 raise ConfigError(f"solver.type: {member.name} takes steps without a line search, which IPC contact needs "

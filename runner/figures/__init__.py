@@ -22,6 +22,7 @@ from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, figure_data
 from simrun.figures.calibration import fitted_parameters_vs_dt, observed_vs_fitted, transfer_errors
 from simrun.figures.contact import contact_distance
+from simrun.figures.volume import volume_ratio
 from simrun.figures.convergence import convergence, work_precision
 from simrun.figures.cost import cost_vs_accuracy
 from simrun.figures.damping_map import damping_map
@@ -142,6 +143,11 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "at every step, in mm; shaded below 0, where a vertex is inside. Look for a penalty's penetration, deeper "
            "the softer its stiffness, against IPC's positive gap (which never reaches 0), and for the landing steps.",
            "runs with contact", from_series=True),
+    Figure("volume_ratio", volume_ratio,
+           "The volume ratio J = det F of the finite elements, smallest and largest over the elements at every "
+           "sample, a band per run; shaded below 0, where an element is inverted. Look for neo-Hookean elements "
+           "that stay well above 0, co-rotated or StVK ones that invert, and volume lost or gained with the step.",
+           "finite-element runs", from_series=True),
     Figure("snapshots", snapshots,
            "The model at four times of the run (from its stored frames), with the contact colliders drawn in grey "
            "(translucent, beneath the model) where they are at each time; the title names anything not drawn.",

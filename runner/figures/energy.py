@@ -181,6 +181,7 @@ BUDGET_TERMS = (  # dataset, legend text, colour
     ("kinetic_energy", "kinetic", "#4c72b0"),
     ("potential_energy", "potential", "#55a868"),
     ("spring_energy", "potential: springs", "#55a868"),
+    ("elastic_energy", "potential: elastic", "#55a868"),
     ("gravity_energy", "potential: gravity", "#ccb974"),
     ("contact_energy", "potential: contact", "#8172b2"),
     ("dissipated_energy", "dissipated by physical damping", "#c44e52"),
@@ -308,15 +309,17 @@ def _budget_dt(runs: list[RunData]) -> float:
 
 
 # the potential terms that can be negative (gravity: relative to where z = 0 happens to be)
-SHIFTED_TERMS = ("spring_energy", "gravity_energy", "contact_energy", "potential_energy")
+SHIFTED_TERMS = ("spring_energy", "elastic_energy", "gravity_energy", "contact_energy", "potential_energy")
+# the parts the potential is stored in: a mass-spring model's springs, a finite-element model's elements
+POTENTIAL_PARTS = (("spring_energy", "gravity_energy", "contact_energy"), ("elastic_energy", "gravity_energy", "contact_energy"))
 
 
 def _budget_terms(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """(t, energy terms) of a run, cut where any stops being finite: kinetic, potential (springs, gravity, contact, or
-    the potential as one), the dissipated work."""
+    """(t, energy terms) of a run, cut where any stops being finite: kinetic, potential (springs or elements, gravity,
+    contact, or the potential as one), the dissipated work."""
     stored = run.stored
     t = run.t
-    parts = ("spring_energy", "gravity_energy", "contact_energy") if "spring_energy" in stored else ("potential_energy",)
+    parts = next((parts for parts in POTENTIAL_PARTS if parts[0] in stored), ("potential_energy",))
     terms = {key: stored.series(key)[: t.size] for key in ("kinetic_energy", *parts, *DISSIPATED) if key in stored}
     count = min([t.size] + [values.size for values in terms.values()])
     finite = np.all([np.isfinite(values[:count]) for values in terms.values()], axis=0) & np.isfinite(t[:count])

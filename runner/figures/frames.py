@@ -233,7 +233,8 @@ def _model_text(run: StoredRun, fixed: np.ndarray) -> str:
     if _surface(run):
         parts.append(f"{len(run.model_triangles)} triangles " + ("shaded" if run.vertex_dim == 3 else "filled"))
     if run.model_edges is not None and not (_surface(run) and run.vertex_dim == 3):
-        parts.append(f"{len(run.model_edges)} springs as lines")
+        # a finite-element model's lines are its elements' boundary edges; a mass-spring model's, its springs
+        parts.append(f"{len(run.model_edges)} {'boundary edges' if run.system == 'fem' else 'springs'} as lines")
     return ", ".join(parts) + (f"; {held_note(run, fixed)}" if fixed.any() else "")
 
 

@@ -1,0 +1,251 @@
+"""The config of `fem`: a simplex mesh (file or generator), a hyperelastic material, masses, damping, constraints and
+contact; everything that depends on the mesh is checked when the config is loaded (one line naming the field).
+
+The keys shared with `mass_spring` mean what they mean there: ``gravity``, ``initial``, ``pinned``, ``constraints``,
+``prescribed``, ``contact`` and the Rayleigh and drag terms of ``damping`` (the vertex selectors and the constraints
+are mass_spring's own code, given the mesh's vertices and named sets).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
+
+from ..base import SystemParams
+from ..contact.build import build_contact
+from ..contact.params import ContactSpec
+from ..mass_spring import assemble
+from ..mass_spring.files import file_digest, find_file
+from ..mass_spring.laws import Damping
+from ..mass_spring.model import ModelError
+from ..mass_spring.params import Box, DampingTerm, InitialShape, Prescribed, Selector, Sliding, Vector
+from .materials import MATERIALS, energy_parameters
+from .mesh import MeshFile, SimplexMesh, mesh_source
+from .system import Fem
+
+__all__ = ["FemParams", "Material"]
+
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+Poisson = Annotated[float, Field(gt=-1.0, lt=0.5, allow_inf_nan=False)]
+
+
+class MaterialRegion(BaseModel):
+    """The elements whose vertices (at rest) all lie in the box get these values instead."""
+
+    model_config = ConfigDict(extra="forbid")
+    box: Box = Field(description="[[min...], [max...]] (m), in the mesh's rest shape")
+    youngs_modulus: Positive | None = Field(None, description="E (Pa)")
+    poisson_ratio: Poisson | None = Field(None, description="nu, in (-1, 0.5)")
+    density: Positive | None = Field(None, description="kg/m^3 (kg/m^2 for a 2-D solid)")
+
+
+class Material(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    model: Literal[tuple(MATERIALS)] = Field("stable_neo_hookean", description=" | ".join(MATERIALS))  # type: ignore[valid-type]
+    youngs_modulus: Positive = Field(1.0e5, description="E (Pa)")
+    poisson_ratio: Poisson = Field(0.4, description="nu, in (-1, 0.5)")
+    density: Positive = Field(1000.0, description="kg/m^3 (kg/m^2 for a 2-D solid)")
+    regions: list[MaterialRegion] = Field([], description="boxes with their own E, nu or density (later entries win)")
+
+
+class FemMass(BaseModel):
+    """lumped (default): each element's mass, density x rest volume, shared equally among its vertices; or
+    {total: kg} (the lumped shares scaled to this total; by: equal for equal shares) or {per_vertex: kg}."""
+
+    model_config = ConfigDict(extra="forbid")
+    total: Positive | None = Field(None, description="kg in all")
+    by: Literal["volume", "equal"] = Field("volume", description="how a total is shared: by lumped volume, or equally")
+    per_vertex: Positive | None = Field(None, description="kg at every vertex")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _lumped_shorthand(cls, data: Any) -> Any:
+        return {} if data == "lumped" else data
+
+    @model_validator(mode="after")
+    def _one_rule(self) -> "FemMass":
+        if self.total is not None and self.per_vertex is not None:
+            raise ValueError("give total or per_vertex, not both")
+        return self
+
+
+class FemParams(SystemParams):
+    """Config of `fem`: hyperelastic solids of linear simplices (triangles in 2-D, tetrahedra in 3-D)."""
+
+    model_config = ConfigDict(extra="forbid")
+    type: Literal["fem"] = "fem"
+    model: Union[str, dict[str, Any]] = Field({"square": {"segments": 4, "size": 1.0}},
+                                              description="a mesh file (tetra or 2-D triangle cells, any meshio format), "
+                                                          "{box: {size, cells}} or {square: {segments, size}}")
+    material: Material = Material()
+    mass: FemMass = Field(FemMass(), description="lumped (default) | {total: kg, by: volume|equal} | {per_vertex: kg}")
+    gravity: Vector | None = Field(None, description="m/s^2, one component per dimension (default: -9.81 along the last axis)")
+    initial: InitialShape = InitialShape()
+    damping: list[DampingTerm] = Field([], description="{model: rayleigh, alpha, beta} (K: the elastic Hessian at rest) "
+                                                       "and {model: drag, coefficient}")
+    pinned: Selector = Field([], description="vertices that never move: indices, the mesh's names (left, x_max, ...), {box}")
+    constraints: list[Sliding] = Field([], description="vertices that slide in a plane (normal) or along a line (direction)")
+    prescribed: list[Prescribed] = Field([], description="vertices on a path: {vertices, velocity} or {vertices, rotation}")
+    contact: ContactSpec = Field(ContactSpec(), description="penalty or IPC contact of the boundary with colliders "
+                                                            "(docs/contact.md)")
+    _file: Path | None = PrivateAttr(None)
+    _initial_file: Path | None = PrivateAttr(None)
+    _contact_files: dict = PrivateAttr(default_factory=dict)
+
+    @field_validator("model")
+    @classmethod
+    def _known_source(cls, value):
+        mesh_source(value)
+        return value
+
+    @field_validator("damping")
+    @classmethod
+    def _element_damping(cls, terms):
+        for number, term in enumerate(terms):
+            if term.model not in ("rayleigh", "drag"):
+                raise ValueError(f"[{number}]: {term.model} damping acts along springs; a finite-element model takes "
+                                 "rayleigh (alpha M + beta K) and drag")
+        return terms
+
+    @model_validator(mode="after")
+    def _consistent_with_mesh(self) -> "FemParams":
+        source = mesh_source(self.model)
+        try:
+            if isinstance(source, MeshFile):
+                self._file = find_file(str(source.file), "model")
+                self.model = str(self._file)  # absolute, for the runs validated again elsewhere
+            if self.initial.file is not None:
+                self._initial_file = find_file(self.initial.file, "initial.file")
+                self.initial.file = str(self._initial_file)
+            for number, collider in enumerate(self.contact.colliders):
+                if getattr(collider, "file", None) is not None:
+                    found = find_file(collider.file, f"contact.colliders[{number}].file")
+                    collider.file = str(found)
+                    self._contact_files[f"contact.colliders[{number}].file"] = found
+            resolve(self)
+        except ModelError as error:
+            raise ValueError(str(error)) from None
+        return self
+
+    def input_files(self) -> dict[str, str]:
+        files = {"model": self._file, "initial.file": self._initial_file, **self._contact_files}
+        return {field: file_digest(path) for field, path in files.items() if path is not None}
+
+    def mesh(self) -> SimplexMesh:
+        if self._file is not None:
+            stat = self._file.stat()
+            return _loaded_file(str(self._file), stat.st_size, stat.st_mtime_ns)
+        return _generated(json.dumps(self.model, sort_keys=True))
+
+    @property
+    def dof_count(self) -> int:
+        mesh = self.mesh()
+        return mesh.dim * mesh.vertex_count
+
+    def build(self) -> Fem:
+        return Fem(**resolve(self))
+
+
+FemParams.system_class = Fem
+
+
+@functools.lru_cache(maxsize=8)
+def _loaded_file(path: str, size: int, mtime: int) -> SimplexMesh:
+    try:
+        return mesh_source(path).build()
+    except ModelError as error:
+        raise ModelError(f"model: {error}") from None
+
+
+@functools.lru_cache(maxsize=8)
+def _generated(source_json: str) -> SimplexMesh:
+    try:
+        return mesh_source(json.loads(source_json)).build()
+    except ModelError as error:
+        raise ModelError(f"model: {error}") from None
+
+
+def resolve(params: FemParams) -> dict[str, Any]:
+    """The keyword arguments of Fem; ModelError naming the config field for anything inconsistent with the mesh."""
+    mesh = params.mesh()
+    dim = mesh.dim
+    rest = mesh.vertices
+    if params.gravity is None:
+        gravity = np.zeros(dim)
+        gravity[-1] = -9.81
+    else:
+        gravity = assemble._vector(params.gravity, dim, "gravity")
+    youngs, poisson, density = _element_materials(params.material, mesh)
+    mu, lam = energy_parameters(params.material.model, dim, youngs, poisson)
+    volumes = mesh.rest_volumes()
+    masses = _masses(params.mass, mesh, volumes * density)
+    x0, v0 = assemble._initial_state(params, mesh, rest)
+    _refuse_inverted(mesh, x0)
+    constraints = assemble._constraints(params, mesh, rest, x0)
+    boundary = mesh.boundary_faces()
+    surface = boundary if dim == 3 else None
+    edges = (np.unique(np.sort(np.concatenate([boundary[:, [0, 1]], boundary[:, [1, 2]], boundary[:, [2, 0]]]), axis=1),
+                       axis=0) if dim == 3 else boundary)
+    contact = build_contact(params.contact, dim=dim, rest=rest, x0=x0, masses=masses, triangles=surface, edges=edges,
+                            find_file=find_file)
+    damping = tuple(Damping(term.model, term.coefficient, term.alpha, term.beta) for term in params.damping
+                    if term.coefficient > 0 or term.alpha > 0 or term.beta > 0)
+    return dict(mesh=mesh, material=params.material.model, mu=mu, lam=lam, youngs_modulus=youngs, poisson_ratio=poisson,
+                masses=masses, gravity=gravity, x0=x0, v0=v0, damping=damping, constraints=constraints, contact=contact,
+                boundary=boundary, surface_edges=edges)
+
+
+def _element_materials(material: Material, mesh: SimplexMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """E (Pa), nu and density per element, the regions applied in order."""
+    count = mesh.element_count
+    youngs = np.full(count, material.youngs_modulus)
+    poisson = np.full(count, material.poisson_ratio)
+    density = np.full(count, material.density)
+    for number, region in enumerate(material.regions):
+        field = f"material.regions[{number}]"
+        inside = assemble._in_box(mesh.vertices, region.box, mesh.dim, field + ".box")
+        chosen = inside[mesh.elements].all(axis=1)
+        if not chosen.any():
+            raise ModelError(f"{field}.box: no element has all its vertices in {region.box}")
+        for values, value in ((youngs, region.youngs_modulus), (poisson, region.poisson_ratio), (density, region.density)):
+            if value is not None:
+                values[chosen] = value
+    return youngs, poisson, density
+
+
+def _masses(spec: FemMass, mesh: SimplexMesh, element_masses: np.ndarray) -> np.ndarray:
+    """Vertex masses (kg): each element's mass shared equally among its d + 1 vertices, then scaled or replaced as
+    ``spec`` says; a vertex that no element uses is refused (it would have no mass and no force)."""
+    lumped = np.bincount(mesh.elements.ravel(), weights=np.repeat(element_masses / (mesh.dim + 1), mesh.dim + 1),
+                         minlength=mesh.vertex_count)
+    unused = np.flatnonzero(lumped == 0.0)
+    if unused.size:
+        raise ModelError(f"model: vertex {int(unused[0])} belongs to no element ({unused.size} such vertices): a "
+                         "finite-element model's vertices are its elements' corners")
+    if spec.per_vertex is not None:
+        return np.full(mesh.vertex_count, spec.per_vertex)
+    if spec.total is not None:
+        if spec.by == "equal":
+            return np.full(mesh.vertex_count, spec.total / mesh.vertex_count)
+        return lumped * (spec.total / float(lumped.sum()))
+    return lumped
+
+
+def _refuse_inverted(mesh: SimplexMesh, x0: np.ndarray) -> None:
+    """ModelError naming the first element whose start state has no positive volume (the neo-Hookean energy is
+    undefined there, and no step filter can bring an element back through zero)."""
+    from .kernels import volume_ratios
+    from .system import shape_gradients
+
+    ratios = volume_ratios(np.ascontiguousarray(x0, dtype=float).ravel(), mesh.elements, shape_gradients(mesh))
+    bad = np.flatnonzero(~(ratios > 0.0))
+    if bad.size:
+        element = int(bad[0])
+        raise ModelError(f"initial: element {element} (vertices {mesh.elements[element].tolist()}) is inverted in the "
+                         f"start state (volume ratio J = {ratios[element]:.3g}; {bad.size} such elements): every element "
+                         "needs a positive volume to start")

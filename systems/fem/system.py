@@ -1,0 +1,315 @@
+"""The finite-element system: a hyperelastic solid of linear simplices in 2-D or 3-D (docs/fem.md).
+
+P(x) = sum_e V_e psi(F_e) - sum_i m_i g . x_i + contact, with psi one of the kernels' energy densities; damping
+f_d = -(alpha M + beta K_rest) v - c v (Rayleigh, K_rest the elastic Hessian at the rest shape, and drag); vertex
+constraints (pins, sliding, prescribed paths) as filters, as for mass_spring. The element loops are compiled
+(kernels.py); the Hessian's CSR pattern and each element block's place in it are built once, so an evaluation
+fills one data array.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import scipy.sparse
+
+from ..base import System, add_keeping_pattern
+from ..constraints import VertexConstraints
+from ..contact.model import ContactModel
+from . import kernels
+from .materials import MATERIALS
+from .mesh import SimplexMesh
+
+# Every line search keeps each element above this fraction of its volume at the search's start, as the course code's
+# init_step_size does: the neo-Hookean energy is infinite at J <= 0, and an element pushed through zero volume
+# by a long Newton step has no way back for any energy.
+KEPT_VOLUME = 0.1
+PROJECTIONS = {False: 0, True: 1, "clamp": 1, "abs": 2}  # project_spd -> the kernels' mode
+
+
+class Fem(System):
+    """A hyperelastic solid of triangles (2-D) or tetrahedra (3-D): see the module docstring.
+
+    Parameters (as resolved from a mesh and a config by params.py): mesh: a validated SimplexMesh; material: a
+    MATERIALS name; mu, lam: (elements,) the energy's parameters (Pa); youngs_modulus, poisson_ratio: (elements,)
+    E (Pa) and nu as configured; masses: (n,) kg; gravity: (d,) m/s^2; x0, v0: (n, d); damping: rayleigh and drag
+    terms; constraints: VertexConstraints; contact: a ContactModel or None; boundary: the boundary faces (f, d);
+    surface_edges: (m, 2) the edges drawn in frames.
+    """
+
+    records_state_per_sample = False  # positions go to `frames`
+    requires_step_filter = True  # every line search keeps the elements' volumes (max_step)
+
+    def __init__(self, *, mesh: SimplexMesh, material: str, mu: np.ndarray, lam: np.ndarray,
+                 youngs_modulus: np.ndarray, poisson_ratio: np.ndarray, masses: np.ndarray, gravity: np.ndarray,
+                 x0: np.ndarray, v0: np.ndarray, damping: tuple = (), constraints: VertexConstraints | None = None,
+                 contact: ContactModel | None = None, boundary: np.ndarray | None = None,
+                 surface_edges: np.ndarray | None = None):
+        d = mesh.dim
+        self.mesh = mesh
+        self.dim = self.vertex_dim = d
+        self.vertex_count = mesh.vertex_count
+        self.dof_count = d * self.vertex_count
+        self.rest = mesh.vertices
+        self.elements = mesh.elements
+        self.material = material
+        self._model = MATERIALS[material]
+        self.mu, self.lam = np.ascontiguousarray(mu, dtype=float), np.ascontiguousarray(lam, dtype=float)
+        self.youngs_modulus, self.poisson_ratio = youngs_modulus, poisson_ratio
+        self.x0 = np.ascontiguousarray(x0, dtype=float).ravel()
+        self.v0 = np.ascontiguousarray(v0, dtype=float).ravel().copy()
+        self.vertex_masses = masses
+        self.mass = np.repeat(masses, d)
+        self.gravity = np.asarray(gravity, dtype=float)
+        self._gravity_force = (masses[:, None] * self.gravity).ravel()
+        self.damping_terms = tuple(damping)
+        self.contact = contact
+        boundary = mesh.boundary_faces() if boundary is None else boundary
+        self.frame_triangles = (boundary if d == 3 else mesh.elements).astype(np.int32)
+        self.frame_edges = (surface_edges if surface_edges is not None else mesh.edges()).astype(np.int32)
+        self.shape_gradients = shape_gradients(mesh)
+        self.volumes = np.abs(mesh.rest_volumes())
+        self.constraints = constraints
+        if constraints is not None:
+            self.fixed_dofs = constraints.fixed_dofs
+            self.sliding = constraints.sliding
+            constraints.filter(self.v0)
+            if constraints.moving_dofs.size:
+                self.v0[constraints.moving_dofs] = constraints.path(0.0)[1]
+        self._moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+        self._build_pattern()
+        self._rest_stiffness = self._elastic_hessian_data(self.rest.ravel(), 1)
+        self._constant_damping = self._assemble_constant_damping()
+
+    # -- setup ----------------------------------------------------------------------------------
+    def _build_pattern(self) -> None:
+        """The CSR pattern of all element blocks, and where each entry of each block goes in its data array."""
+        d, n = self.dim, self.dof_count
+        dofs = (d * self.elements[:, :, None] + np.arange(d)).reshape(len(self.elements), -1)  # (elements, k)
+        rows = np.broadcast_to(dofs[:, :, None], dofs.shape + (dofs.shape[1],)).ravel()
+        cols = np.broadcast_to(dofs[:, None, :], dofs.shape + (dofs.shape[1],)).ravel()
+        pattern = scipy.sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+        pattern.sum_duplicates()
+        pattern.sort_indices()
+        keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr)) * n + pattern.indices
+        self._positions = np.searchsorted(keys, rows.astype(np.int64) * n + cols).reshape(
+            len(self.elements), dofs.shape[1], dofs.shape[1])
+        self._nnz = pattern.nnz
+        self.hessian_pattern = pattern
+        self.diagonal_positions = np.searchsorted(keys, np.arange(n, dtype=np.int64) * (n + 1))
+        vertex = (d * np.arange(self.vertex_count)[:, None] + np.arange(d)).astype(np.int64)
+        self._vertex_positions = np.searchsorted(keys, (vertex[:, :, None] * n + vertex[:, None, :]).ravel()).reshape(
+            self.vertex_count, d, d)
+
+    def _elastic_hessian_data(self, x: np.ndarray, projection: int) -> np.ndarray:
+        return kernels.elastic_hessian_data(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
+                                            self._model, projection, self._positions, self._nnz)
+
+    def _assemble_constant_damping(self) -> np.ndarray | None:
+        """The pattern data of alpha M + beta K_rest (rayleigh) and c I (drag), or None without them."""
+        data = None
+        for term in self.damping_terms:
+            part = np.zeros(self._nnz)
+            if term.model == "rayleigh":
+                part += term.beta * self._rest_stiffness
+                part[self.diagonal_positions] += term.alpha * self.mass
+            elif term.model == "drag":
+                part[self.diagonal_positions] += term.coefficient
+            data = part if data is None else data + part
+        return data
+
+    # -- energy, gradient, Hessian ---------------------------------------------------------------
+    def elastic_energy(self, x: np.ndarray) -> float:
+        """sum_e V_e psi(F_e) (J); infinite where a neo-Hookean element is inverted."""
+        return float(kernels.element_energies(x, self.elements, self.shape_gradients, self.volumes, self.mu,
+                                              self.lam, self._model).sum())
+
+    def gravity_energy(self, x: np.ndarray) -> float:
+        return -float(np.dot(self._gravity_force, x))
+
+    def contact_energy(self, x: np.ndarray) -> float:
+        return 0.0 if self.contact is None else self.contact.energy(x)
+
+    def potential_energy(self, x):
+        return self.elastic_energy(x) + self.gravity_energy(x) + self.contact_energy(x)
+
+    def _elastic_gradient(self, x: np.ndarray) -> np.ndarray:
+        """dP/dx without contact (N), flat (n d,)."""
+        gradient = kernels.elastic_gradient(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
+                                            self._model)
+        gradient -= self._gravity_force
+        return gradient
+
+    def gradient(self, x):
+        gradient = self._elastic_gradient(x)
+        if self.contact is not None:
+            self.contact.add_gradient(gradient, x)
+        return gradient
+
+    def hessian_data(self, x: np.ndarray, project_spd=False) -> np.ndarray:
+        """The Hessian's values in the fixed CSR pattern: the elements' blocks (each projected to SPD on request, as
+        ``project_spd`` says: clamp or abs of its stress derivative's eigenvalues) and contact's vertex blocks."""
+        data = self._elastic_hessian_data(x, PROJECTIONS[project_spd])
+        if self.contact is not None:
+            blocks = np.zeros((self.vertex_count, self.dim, self.dim))
+            self.contact.add_vertex_hessian(blocks, x, project_spd)
+            np.add.at(data, self._vertex_positions, blocks)
+        return data
+
+    def hessian(self, x, project_spd=False):
+        matrix = self.pattern_matrix(self.hessian_data(x, project_spd))
+        coupling = self.off_pattern_hessian(x, project_spd)
+        return matrix if coupling is None else add_keeping_pattern(matrix, coupling)
+
+    def add_vertex_blocks(self, data: np.ndarray, vertices: np.ndarray, blocks: np.ndarray) -> None:
+        """Adds blocks (k, d, d) at the vertices (k,) (repeats summed) into the pattern's data array, in place."""
+        np.add.at(data, self._vertex_positions[vertices], blocks)
+
+    def off_pattern_hessian(self, x, project_spd=False):
+        return None if self.contact is None else self.contact.coupling_hessian(x, project_spd)
+
+    def volume_ratios(self, x: np.ndarray) -> np.ndarray:
+        """J = det F of every element (its volume over its rest volume), (elements,)."""
+        return kernels.volume_ratios(x, self.elements, self.shape_gradients)
+
+    def max_step(self, x: np.ndarray, direction: np.ndarray) -> float:
+        """The fraction of the step x -> x + direction that keeps every element above KEPT_VOLUME of its volume at x,
+        and that crosses no contact surface."""
+        fraction = kernels.inversion_free_step(x, direction, self.elements, KEPT_VOLUME)
+        if self.contact is None or not self.contact.requires_step_filter:  # penalty contact: no surface to keep
+            return fraction
+        return min(fraction, self.contact.max_step(x, direction))
+
+    # -- damping, and what projective dynamics and L-BFGS's rest-shape Hessian use ----------------------
+    def damping_matrix(self, x):
+        data = None if self._constant_damping is None else self._constant_damping.copy()
+        blocks = None if self.contact is None else self.contact.damping_blocks(x)
+        if blocks is not None:
+            part = np.zeros(self._nnz)
+            np.add.at(part, self._vertex_positions, blocks)
+            data = part if data is None else data + part
+        return None if data is None else self.pattern_matrix(data)
+
+    @property
+    def damping_is_constant(self) -> bool:
+        return not (self.contact is not None and self.contact.is_damped)
+
+    def rest_stiffness(self):
+        """K_rest: the elastic Hessian at the rest shape (linear elasticity's stiffness matrix for every energy)."""
+        return self.pattern_matrix(self._rest_stiffness.copy())
+
+    @property
+    def projective_form(self) -> str | None:
+        return "finite elements are not springs: projective dynamics' per-element projection is not built for them"
+
+    @property
+    def compliant_form(self) -> str | None:
+        return "finite elements are not springs: XPBD's element constraints are not built for them"
+
+    def compliant_springs(self):
+        return None
+
+    # -- contact: what the runner and the problems ask (systems/contact/model.py does the work) -----------
+    @property
+    def has_contact(self) -> bool:
+        return self.contact is not None
+
+    @property
+    def has_friction(self) -> bool:
+        return self.contact is not None and self.contact.friction is not None
+
+    @property
+    def contact_needs_step_filter(self) -> bool:
+        return self.contact is not None and self.contact.requires_step_filter
+
+    def contact_start(self, x: np.ndarray) -> np.ndarray:
+        """x with the vertices near moving IPC colliders carried along over the step (as MassSpring.contact_start)."""
+        if self.contact is None or not self.contact.requires_step_filter:
+            return x
+        carried = self.contact.carried(x)
+        if carried is x:
+            return x
+        move = carried - x
+        if self.fixed_dofs.size:
+            move[self.fixed_dofs] = 0.0
+        if self.sliding is not None:
+            self.sliding.apply(move)
+        return x + move
+
+    def begin_run(self, dt: float, x: np.ndarray) -> None:
+        if self.contact is not None:
+            self.contact.begin_run(dt, x, self._elastic_gradient)
+
+    def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
+        if self.contact is not None:
+            self.contact.begin_step(t, dt, x, self._elastic_gradient)
+
+    def friction_term(self, x_start, velocity_origin, velocity_divisor, time=None):
+        if self.contact is None:
+            return None
+        return self.contact.friction_term(x_start, velocity_origin, velocity_divisor, time)
+
+    def contact_record(self, x_start, x, v, dt):
+        contact = self.contact
+        return contact.minimum_distance(x), contact.active_count(x), contact.friction_work(x_start, x, v)
+
+    # -- vertices on prescribed paths -----------------------------------------------------------
+    def acceleration(self, x, v):
+        acceleration = self.force(x, v) / self.mass
+        if self._moving.size:
+            acceleration[self._moving] = self.constraints.accelerations_along(v)
+        return acceleration
+
+    @functools.cached_property
+    def external_acceleration(self) -> np.ndarray:
+        return np.tile(self.gravity, self.vertex_count)
+
+    # -- observables ---------------------------------------------------------------------------
+    def observables(self, x, v):
+        elastic, gravity, contact = self.elastic_energy(x), self.gravity_energy(x), self.contact_energy(x)
+        values = self._mechanical_observables(x, v, elastic + gravity + contact)
+        ratios = self.volume_ratios(x)
+        values.update(elastic_energy=elastic, gravity_energy=gravity, contact_energy=contact,
+                      volume_ratio_min=float(ratios.min()), volume_ratio_max=float(ratios.max()))
+        return values
+
+    def potential_magnitude(self, x):
+        """elastic energy + sum_i |g_i x_i| (the elements' round-off, as the base class has it) + |contact|."""
+        return (abs(self.elastic_energy(x)) + float(np.abs(self._elastic_gradient(x) * x).sum())
+                + float(np.abs(self._gravity_force * x).sum()) + abs(self.contact_energy(x)))
+
+    def _energy_reference(self) -> tuple[float, str]:
+        """(E_ref, what it is): |KE0| + |elastic PE0| where that exceeds the floor, M |g| L (lifting the body by its
+        largest extent), or without gravity the energy of a 1 % uniform stretch of the whole body."""
+        elastic = self.elastic_energy(self.x0) + self.contact_energy(self.x0)
+        initial = abs(self.kinetic_energy(self.v0)) + abs(elastic)
+        extent = float(np.max(np.ptp(self.rest, axis=0)))
+        lift = float(np.sum(self.vertex_masses)) * float(np.linalg.norm(self.gravity)) * extent
+        if lift > 0:
+            floor, floor_name = lift, "M |g| L"
+        else:
+            floor, floor_name = self.elastic_energy(1.01 * self.rest.ravel()), "1 % stretch energy"
+        if initial > floor:
+            return initial, f"|KE0| + |PE0 of elements and contact| (> {floor_name})"
+        return (floor, floor_name) if floor > 0 else (1.0, "1 J")
+
+    def energy_scale(self) -> float:
+        return self._energy_reference()[0]
+
+    @property
+    def energy_reference_name(self) -> str:
+        return self._energy_reference()[1]
+
+    def frame(self, x: np.ndarray) -> np.ndarray:
+        return x.reshape(-1, self.dim)
+
+
+def shape_gradients(mesh: SimplexMesh) -> np.ndarray:
+    """(elements, d + 1, d): the gradients g_a of the element's shape functions at rest (1/m). D_m^-1's rows are
+    g_1..g_d, and g_0 = -sum of them, so that F = sum_a x_a g_a^T."""
+    d = mesh.dim
+    edges = np.stack([mesh.vertices[mesh.elements[:, a]] - mesh.vertices[mesh.elements[:, 0]] for a in range(1, d + 1)],
+                     axis=2)
+    inverse = np.linalg.inv(edges)
+    return np.ascontiguousarray(np.concatenate([-inverse.sum(axis=1, keepdims=True), inverse], axis=1))
