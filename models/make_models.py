@@ -7,7 +7,9 @@
 - spot_like.obj: a closed triangle surface the size of Keenan Crane's spot (2,930 vertices, 5,856 triangles), a
   subdivided capsule bent and bulged into a cow-like body with a head, written as Blender writes a textured mesh
   (texture coordinates per corner at the UV seam, normals, ``f v/vt/vn``) with its vertices in no useful order, as
-  a scan's or an export's are: the real-mesh case of configs/spot_drop.yaml and of ``make bench``.
+  a scan's or an export's are: the real-mesh case of configs/spot_drop.yaml and of ``make bench``;
+- soft_ball.obj: a closed icosphere of radius 0.1 m (162 vertices, 320 triangles), the surface that
+  configs/soft_drop.yaml fills with tetrahedra.
 
 Run: .venv/bin/python models/make_models.py
 """
@@ -112,6 +114,9 @@ def main() -> None:
               "1 m x 0.1 m strip, 21 x 3 vertices, quads, z = 0 (models/make_models.py)")
     write_textured_obj(FOLDER / "spot_like.obj", *spot_like_surface(),
                        "Blender 4.2.0-like export of a spot-sized closed surface, 2930 vertices (models/make_models.py)")
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    write_obj(FOLDER / "soft_ball.obj", ball.vertices, ball.faces,
+              "icosphere of radius 0.1 m, 162 vertices, 320 triangles, closed (models/make_models.py)")
 
 
 if __name__ == "__main__":

@@ -146,7 +146,7 @@ def test_element_projection_leaves_a_psd_tangent_alone_and_fixes_an_indefinite_o
     d = 3
     F = np.diag([0.4, 1.0, 1.0]) + 0.05
     P, A = np.empty((d, d)), np.empty((d * d, d * d))
-    kernels.material_terms(kernels.STVK, F, d, 3.0, 2.0, P, A, True)
+    kernels.material_terms(kernels.STVK, F, d, 3.0, 2.0, P, A, True, np.empty((3, d, d)))
     values, vectors = np.linalg.eigh(A)
     assert values[0] < 0
     for mode, expected in ((1, np.maximum(values, 0)), (2, np.abs(values))):
@@ -412,3 +412,38 @@ def test_the_course_code_s_backward_euler_trajectory():
         state, stats = integrator.step(system, state, float(COURSE["dt"]), solver)
         assert stats.converged
         assert np.max(np.abs(state.x - expected.ravel())) <= 1e-8
+
+
+# -- tetrahedralize ---------------------------------------------------------------------------------------------------
+def test_a_closed_surface_is_filled_with_tets_once_and_read_from_the_cache(tmp_path, monkeypatch):
+    """fTetWild fills an icosphere of radius 0.1 m: the tets' volume is the surface's enclosed volume to 1 % (its
+    envelope is 1e-3 of the box's diagonal), every tet is positive, and the second build reads the cached mesh, the
+    same arrays (fTetWild itself gives a different mesh at every call)."""
+    import trimesh
+
+    monkeypatch.setenv("SIMRUN_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    ball.export(tmp_path / "ball.obj")
+    config = {"type": "fem", "model": {"tetrahedralize": {"surface": "ball.obj", "edge_length": 0.04}}}
+    first = SYSTEMS["fem"].model_validate(config)
+    system = first.build()
+    assert system.dim == 3 and np.all(system.mesh.rest_volumes() > 0)
+    assert float(np.sum(system.volumes)) == pytest.approx(ball.volume, rel=0.01)
+    again = SYSTEMS["fem"].model_validate(config).build()
+    assert np.array_equal(again.rest, system.rest) and np.array_equal(again.elements, system.elements)
+    assert set(first.input_files()) == {"model.tetrahedralize.surface", "model.tetrahedralize.tets"}
+    assert list((tmp_path / "cache" / "tetrahedralize").glob("ball-*.npz")) and not list(tmp_path.glob("*.stl"))
+
+
+def test_an_open_surface_is_refused_naming_an_edge(tmp_path, monkeypatch):
+    import trimesh
+
+    monkeypatch.setenv("SIMRUN_CACHE", str(tmp_path / "cache"))
+    ball = trimesh.creation.icosphere(subdivisions=1)
+    trimesh.Trimesh(ball.vertices, ball.faces[:-1], process=False).export(tmp_path / "open.obj")
+    config = {"name": "bad", "system": {"type": "fem", "model": {"tetrahedralize": {"surface": str(tmp_path / "open.obj"),
+                                                                                    "edge_length": 0.2}}},
+              "integrators": ["backward_euler"], "sweep": {"dt": [0.01]}}
+    with pytest.raises(ConfigError, match=r"the surface is not closed: 3 edges .*vertices \[\d+, \d+\]"):
+        load_experiment(config)

@@ -51,6 +51,8 @@ SHORT = {
     "cloth_drop": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
     "spot_drop": ["duration=0.04"],  # lands at t = 0.03 s
     "penalty_vs_ipc": [*CLOTH, "duration=0.04"],
+    "fem_square": ["duration=0.05", "sweep.dt=[0.005,0.01]"],
+    "soft_drop": ["duration=0.12"],  # lands at t = 0.1 s
     # calibrations (`simrun fit`): every integrator at two steps, observations every 10 ms of a short motion
     # the map: every integrator at 4 step sizes h w x 3 damping ratios (its sweep has 100 x 60)
     "damping_map": ["duration=1.0", "sweep.system.stiffness={logspace: [0.0, 6.0, 4]}",

@@ -356,7 +356,7 @@ def test_shipped_models_are_what_make_models_writes(tmp_path, monkeypatch):
     spec.loader.exec_module(script)
     monkeypatch.setattr(script, "FOLDER", tmp_path)
     script.main()
-    for name in ("cloth_mesh.obj", "square.npz", "strip.obj", "spot_like.obj"):
+    for name in ("cloth_mesh.obj", "square.npz", "strip.obj", "spot_like.obj", "soft_ball.obj"):
         assert (tmp_path / name).read_bytes() == (MODELS / name).read_bytes(), name
     cloth = load_model_file(MODELS / "cloth_mesh.obj")
     assert cloth.vertices.shape == (256, 3) and np.all(cloth.vertices[:, 2] == 0)

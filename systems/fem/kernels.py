@@ -33,6 +33,8 @@ import numpy as np
 LINEAR, COROTATED, STVK, NEO_HOOKEAN, STABLE_NEO_HOOKEAN = range(5)
 # the denominators sigma_m + sigma_n of the rotation's derivative are kept at least this far from 0 (a flat element)
 ROTATION_FLOOR = 1e-12
+# elements per chunk of the parallel loops: the scratch arrays are made once per chunk, not once per element
+CHUNK = 256
 
 
 @numba.njit(cache=True)
@@ -68,19 +70,14 @@ def _cofactor(F, d, C):
 
 @numba.njit(cache=True)
 def _cofactor_derivative(F, d, i, j, k, l):
-    """dC_ij / dF_kl: eps_ik eps_jl in 2-D, eps_ikm eps_jln F_mn in 3-D."""
+    """dC_ij / dF_kl: eps_ik eps_jl in 2-D; eps_ikm eps_jln F_mn in 3-D, whose only term is m, n the third indices of
+    (i, k) and (j, l)."""
     if d == 2:
         return _epsilon2(i, k) * _epsilon2(j, l)
-    total = 0.0
-    for m in range(3):
-        a = _epsilon3(i, k, m)
-        if a == 0.0:
-            continue
-        for n in range(3):
-            b = _epsilon3(j, l, n)
-            if b != 0.0:
-                total += a * b * F[m, n]
-    return total
+    if i == k or j == l:
+        return 0.0
+    m, n = 3 - i - k, 3 - j - l
+    return _epsilon3(i, k, m) * _epsilon3(j, l, n) * F[m, n]
 
 
 @numba.njit(cache=True)
@@ -103,8 +100,9 @@ def _rotation(F, d, U, sigma, V):
 
 
 @numba.njit(cache=True)
-def material_terms(model, F, d, mu, lam, P, A, want_tangent):
-    """psi(F) (J/m^3), P = dpsi/dF into P (d, d), and with want_tangent A = d^2 psi / dF^2 into A (d^2, d^2)."""
+def material_terms(model, F, d, mu, lam, P, A, want_tangent, work):
+    """psi(F) (J/m^3), P = dpsi/dF into P (d, d), and with want_tangent A = d^2 psi / dF^2 into A (d^2, d^2); work
+    (3, d, d) is scratch (the cofactor, Green's strain and its stress), so that an element allocates nothing."""
     for i in range(d):
         for j in range(d):
             P[i, j] = 0.0
@@ -132,7 +130,7 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent):
                             A[i * d + i, k * d + k] += lam
         return psi
     if model == STVK:
-        E = np.empty((d, d))
+        E = work[0]
         for i in range(d):
             for j in range(d):
                 value = 0.0
@@ -143,7 +141,7 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent):
         for i in range(d):
             trace += E[i, i]
         psi = 0.5 * lam * trace * trace
-        S = np.empty((d, d))
+        S = work[1]
         for i in range(d):
             for j in range(d):
                 psi += mu * E[i, j] * E[i, j]
@@ -155,7 +153,7 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent):
                     value += F[i, m] * S[m, j]
                 P[i, j] = value
         if want_tangent:
-            FFt = np.empty((d, d))
+            FFt = work[2]
             for i in range(d):
                 for k in range(d):
                     value = 0.0
@@ -181,7 +179,7 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent):
                 for j in range(d):
                     P[i, j] = math.nan
             return math.inf  # undefined for an inverted or flat element: no line search accepts it
-        C = np.empty((d, d))
+        C = work[0]
         _cofactor(F, d, C)
         log_J = math.log(J)
         squared = 0.0
@@ -217,7 +215,7 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent):
                     value += U[i, m] * V[j, m]
                 R[i, j] = value
         J = _determinant(F, d)
-        C = np.empty((d, d))
+        C = work[0]
         _cofactor(F, d, C)
         psi = 0.5 * lam * (J - 1.0) * (J - 1.0)
         for i in range(d):
@@ -247,7 +245,7 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent):
         return psi
     # STABLE_NEO_HOOKEAN
     J = _determinant(F, d)
-    C = np.empty((d, d))
+    C = work[0]
     _cofactor(F, d, C)
     invariant = 0.0
     for i in range(d):
@@ -275,6 +273,35 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent):
     return psi
 
 
+# A + PSD_SHIFT tr(A)/size I positive definite counts as PSD: its lowest eigenvalue is then above -PSD_SHIFT of the
+# mean, a round-off's worth (the rotation-invariant energies' A is singular at rest: rigid rotations cost nothing)
+PSD_SHIFT = 1e-12
+
+
+@numba.njit(cache=True)
+def _positive_definite(A, size):
+    """Whether A + shift I has a Cholesky factor (the factor is formed in a scratch copy of the lower triangle)."""
+    trace = 0.0
+    for a in range(size):
+        trace += A[a, a]
+    if not trace > 0.0:
+        return False
+    shift = PSD_SHIFT * trace / size
+    L = np.empty((size, size))
+    for a in range(size):
+        for b in range(a + 1):
+            total = A[a, b] + (shift if a == b else 0.0)
+            for c in range(b):
+                total -= L[a, c] * L[b, c]
+            if a == b:
+                if not total > 0.0:
+                    return False
+                L[a, a] = math.sqrt(total)
+            else:
+                L[a, b] = total / L[b, b]
+    return True
+
+
 @numba.njit(cache=True)
 def _project(A, size, mode):
     """A's eigenvalues clamped at 0 (mode 1) or mirrored (mode 2), in place; mode 0: as it is."""
@@ -285,6 +312,8 @@ def _project(A, size, mode):
             mean = 0.5 * (A[a, b] + A[b, a])
             A[a, b] = mean
             A[b, a] = mean
+    if _positive_definite(A, size):  # nothing to project: the common case, at a tenth of an eigendecomposition
+        return
     values, vectors = np.linalg.eigh(A)
     if mode == 1 and values[0] >= 0.0:
         return
@@ -314,12 +343,14 @@ def element_energies(x, elements, shape_gradients, volumes, mu, lam, model):
     """V psi(F) of every element (J), shape (elements,)."""
     count, d = elements.shape[0], shape_gradients.shape[2]
     energies = np.empty(count)
-    for e in numba.prange(count):
+    for chunk in numba.prange((count + CHUNK - 1) // CHUNK):
         F = np.empty((d, d))
         P = np.empty((d, d))
         A = np.empty((1, 1))
-        _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
-        energies[e] = volumes[e] * material_terms(model, F, d, mu[e], lam[e], P, A, False)
+        work = np.empty((3, d, d))
+        for e in range(chunk * CHUNK, min(count, (chunk + 1) * CHUNK)):
+            _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
+            energies[e] = volumes[e] * material_terms(model, F, d, mu[e], lam[e], P, A, False, work)
     return energies
 
 
@@ -327,18 +358,20 @@ def element_energies(x, elements, shape_gradients, volumes, mu, lam, model):
 def _element_forces(x, elements, shape_gradients, volumes, mu, lam, model, forces):
     """forces[e, a] = V P g_a, the gradient of element e's energy at its vertex a (N)."""
     count, d = elements.shape[0], shape_gradients.shape[2]
-    for e in numba.prange(count):
+    for chunk in numba.prange((count + CHUNK - 1) // CHUNK):
         F = np.empty((d, d))
         P = np.empty((d, d))
         A = np.empty((1, 1))
-        _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
-        material_terms(model, F, d, mu[e], lam[e], P, A, False)
-        for a in range(d + 1):
-            for i in range(d):
-                value = 0.0
-                for j in range(d):
-                    value += P[i, j] * shape_gradients[e, a, j]
-                forces[e, a, i] = volumes[e] * value
+        work = np.empty((3, d, d))
+        for e in range(chunk * CHUNK, min(count, (chunk + 1) * CHUNK)):
+            _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
+            material_terms(model, F, d, mu[e], lam[e], P, A, False, work)
+            for a in range(d + 1):
+                for i in range(d):
+                    value = 0.0
+                    for j in range(d):
+                        value += P[i, j] * shape_gradients[e, a, j]
+                    forces[e, a, i] = volumes[e] * value
 
 
 @numba.njit(cache=True)
@@ -360,39 +393,41 @@ def _element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, pro
     """blocks[e] = V B^T A B, element e's Hessian ((d + 1) d square, vertex-major), A projected as asked."""
     count, d = elements.shape[0], shape_gradients.shape[2]
     size = d * d
-    for e in numba.prange(count):
+    for chunk in numba.prange((count + CHUNK - 1) // CHUNK):
         F = np.empty((d, d))
         P = np.empty((d, d))
         A = np.empty((size, size))
-        _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
-        material_terms(model, F, d, mu[e], lam[e], P, A, True)
-        _project(A, size, projection)
-        g = shape_gradients[e]
-        # AB[(i, j), (b, k)] = sum_l A[(i, j), (k, l)] g_b,l, then H[(a, i), (b, k)] = V sum_j g_a,j AB[(i, j), (b, k)]
-        AB = np.zeros((size, (d + 1) * d))
-        for row in range(size):
-            for b in range(d + 1):
-                for k in range(d):
-                    value = 0.0
-                    for l in range(d):
-                        value += A[row, k * d + l] * g[b, l]
-                    AB[row, b * d + k] = value
-        for a in range(d + 1):
-            for i in range(d):
-                for column in range((d + 1) * d):
-                    value = 0.0
-                    for j in range(d):
-                        value += g[a, j] * AB[i * d + j, column]
-                    blocks[e, a * d + i, column] = volumes[e] * value
+        AB = np.empty((size, (d + 1) * d))
+        work = np.empty((3, d, d))
+        for e in range(chunk * CHUNK, min(count, (chunk + 1) * CHUNK)):
+            _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
+            material_terms(model, F, d, mu[e], lam[e], P, A, True, work)
+            _project(A, size, projection)
+            g = shape_gradients[e]
+            # AB[(i, j), (b, k)] = sum_l A[(i, j), (k, l)] g_b,l, then H[(a, i), (b, k)] = V sum_j g_a,j AB[(i, j), (b, k)]
+            for row in range(size):
+                for b in range(d + 1):
+                    for k in range(d):
+                        value = 0.0
+                        for l in range(d):
+                            value += A[row, k * d + l] * g[b, l]
+                        AB[row, b * d + k] = value
+            for a in range(d + 1):
+                for i in range(d):
+                    for column in range((d + 1) * d):
+                        value = 0.0
+                        for j in range(d):
+                            value += g[a, j] * AB[i * d + j, column]
+                        blocks[e, a * d + i, column] = volumes[e] * value
 
 
 @numba.njit(cache=True)
-def elastic_hessian_data(x, elements, shape_gradients, volumes, mu, lam, model, projection, positions, nnz):
+def elastic_hessian_data(x, elements, shape_gradients, volumes, mu, lam, model, projection, positions, nnz, blocks):
     """The elastic Hessian's values in the fixed CSR pattern (N/m): positions (elements, k, k) map each entry of an
-    element block (k = (d + 1) d) to its place in the pattern's data array of length nnz."""
+    element block (k = (d + 1) d) to its place in the pattern's data array of length nnz; blocks (elements, k, k) is
+    the caller's scratch, kept from call to call."""
     count, d = elements.shape[0], shape_gradients.shape[2]
     k = (d + 1) * d
-    blocks = np.empty((count, k, k))
     _element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, projection, blocks)
     data = np.zeros(nnz)
     for e in range(count):  # serial, in element order (as the gradient)
@@ -449,32 +484,39 @@ def _first_root(c0, c1, c2, c3):
 def inversion_free_step(x, direction, elements, fraction):
     """The largest step t <= 1 along ``direction`` at which every element keeps ``fraction`` of its volume at x:
     det(D_s + t D_p) = fraction det(D_s) first, per element (D_s, D_p the edge matrices of x and of the direction).
-    With M = D_s^-1 D_p, det(I + t M) = 1 + tr(M) t + (tr(M)^2 - tr(M^2))/2 t^2 + det(M) t^3 (the d = 2 form has no
-    cubic term). Elements already at or below zero volume at x are not cut (nothing keeps them positive)."""
+    det(D_s + t D_p) = det D_s + t cof(D_s) : D_p + t^2 cof(D_p) : D_s + t^3 det D_p in 3-D (the t^2 term is
+    det D_p and there is no t^3 term in 2-D), cof the cofactor matrix. Elements already at or below zero volume at x
+    are not cut (nothing keeps them positive)."""
     count, d = elements.shape[0], elements.shape[1] - 1
     limits = np.empty(count)
-    for e in numba.prange(count):
+    for chunk in numba.prange((count + CHUNK - 1) // CHUNK):
         Ds = np.empty((d, d))
         Dp = np.empty((d, d))
-        for a in range(d):
+        C = np.empty((d, d))
+        for e in range(chunk * CHUNK, min(count, (chunk + 1) * CHUNK)):
+            for a in range(d):
+                for i in range(d):
+                    Ds[i, a] = x[d * elements[e, a + 1] + i] - x[d * elements[e, 0] + i]
+                    Dp[i, a] = direction[d * elements[e, a + 1] + i] - direction[d * elements[e, 0] + i]
+            volume = _determinant(Ds, d)
+            if not volume > 0.0:
+                limits[e] = 2.0
+                continue
+            _cofactor(Ds, d, C)
+            first = 0.0
             for i in range(d):
-                Ds[i, a] = x[d * elements[e, a + 1] + i] - x[d * elements[e, 0] + i]
-                Dp[i, a] = direction[d * elements[e, a + 1] + i] - direction[d * elements[e, 0] + i]
-        if not _determinant(Ds, d) > 0.0:
-            limits[e] = 2.0
-            continue
-        M = np.linalg.solve(Ds, Dp)
-        trace = 0.0
-        squared = 0.0
-        for i in range(d):
-            trace += M[i, i]
-            for j in range(d):
-                squared += M[i, j] * M[j, i]
-        second = 0.5 * (trace * trace - squared)
-        third = _determinant(M, d) if d == 3 else 0.0
-        if d == 2:
-            second = _determinant(M, d)
-        limits[e] = _first_root(1.0 - fraction, trace, second, third)
+                for j in range(d):
+                    first += C[i, j] * Dp[i, j]
+            if d == 2:
+                second, third = _determinant(Dp, d), 0.0
+            else:
+                _cofactor(Dp, d, C)
+                second = 0.0
+                for i in range(d):
+                    for j in range(d):
+                        second += C[i, j] * Ds[i, j]
+                third = _determinant(Dp, d)
+            limits[e] = _first_root(1.0 - fraction, first / volume, second / volume, third / volume)
     smallest = 1.0
     for e in range(count):
         smallest = min(smallest, limits[e])

@@ -4,7 +4,8 @@
 vertex sets a config may name. Sources: any file meshio reads with ``tetra`` or ``triangle`` cells (a 3-D file whose
 triangles are flat in z is a 2-D solid), ``{box: {size, cells}}`` (each cell of a grid cut into six tetrahedra
 along its main diagonal, the Kuhn triangulation, which conforms across cells) and ``{square: {segments, size}}``
-(the triangles of the course code's 2-D FEM square, solid-sim-tutorial 6_inv_free/square_mesh.py).
+(the triangles of the course code's 2-D FEM square, solid-sim-tutorial 6_inv_free/square_mesh.py) and
+``{tetrahedralize: {surface, edge_length}}`` (a closed surface filled with tets by fTetWild).
 """
 
 from __future__ import annotations
@@ -233,12 +234,33 @@ def read_mesh_file(path: Path) -> SimplexMesh:
         raise ModelError(f"{path}: {error}") from None
 
 
+class TetrahedralizedSurface(BaseModel):
+    """A closed triangle surface (any file mass_spring reads: OBJ, STL, PLY, ...) filled with tetrahedra of about
+    ``edge_length`` by fTetWild, cached by the surface's sha256 (tetrahedralize.py)."""
+
+    model_config = ConfigDict(extra="forbid")
+    surface: Path = Field(description="a closed (watertight) triangle surface file")
+    edge_length: float = Field(gt=0, allow_inf_nan=False, description="the tets' target edge length (m)")
+
+    def build(self) -> SimplexMesh:
+        from .tetrahedralize import tetrahedralize
+
+        vertices, tets, cached = tetrahedralize(self.surface, self.edge_length)
+        try:
+            return SimplexMesh(vertices, tets, _face_names(vertices), f"{self.surface} tetrahedralized ({cached.name})"
+                               ).validate()
+        except ModelError as error:
+            raise ModelError(f"{self.surface} tetrahedralized ({cached}): {error}") from None
+
+
 # config key -> generator; a string is a file
-MESH_SOURCES: dict[str, type[BaseModel]] = {"box": BoxMesh, "square": SquareMesh, "file": MeshFile}
+MESH_SOURCES: dict[str, type[BaseModel]] = {"box": BoxMesh, "square": SquareMesh, "file": MeshFile,
+                                            "tetrahedralize": TetrahedralizedSurface}
 
 
-def mesh_source(value) -> BoxMesh | SquareMesh | MeshFile:
-    """The source a config's ``model:`` names: a path, ``{file: path}``, ``{box: {...}}`` or ``{square: {...}}``.
+def mesh_source(value) -> BoxMesh | SquareMesh | MeshFile | TetrahedralizedSurface:
+    """The source a config's ``model:`` names: a path, ``{file: path}``, ``{box: {...}}``, ``{square: {...}}`` or
+    ``{tetrahedralize: {surface, edge_length}}``.
     Raises ValueError naming what is allowed."""
     if isinstance(value, tuple(MESH_SOURCES.values())):
         return value

@@ -25,7 +25,7 @@ from ..mass_spring.laws import Damping
 from ..mass_spring.model import ModelError
 from ..mass_spring.params import Box, DampingTerm, InitialShape, Prescribed, Selector, Sliding, Vector
 from .materials import MATERIALS, energy_parameters
-from .mesh import MeshFile, SimplexMesh, mesh_source
+from .mesh import MeshFile, SimplexMesh, TetrahedralizedSurface, mesh_source
 from .system import Fem
 
 __all__ = ["FemParams", "Material"]
@@ -94,6 +94,7 @@ class FemParams(SystemParams):
     contact: ContactSpec = Field(ContactSpec(), description="penalty or IPC contact of the boundary with colliders "
                                                             "(docs/contact.md)")
     _file: Path | None = PrivateAttr(None)
+    _surface: Path | None = PrivateAttr(None)  # tetrahedralize's surface, absolute
     _initial_file: Path | None = PrivateAttr(None)
     _contact_files: dict = PrivateAttr(default_factory=dict)
 
@@ -119,6 +120,9 @@ class FemParams(SystemParams):
             if isinstance(source, MeshFile):
                 self._file = find_file(str(source.file), "model")
                 self.model = str(self._file)  # absolute, for the runs validated again elsewhere
+            elif isinstance(source, TetrahedralizedSurface):
+                self._surface = find_file(str(source.surface), "model.tetrahedralize.surface")
+                self.model = {"tetrahedralize": {"surface": str(self._surface), "edge_length": source.edge_length}}
             if self.initial.file is not None:
                 self._initial_file = find_file(self.initial.file, "initial.file")
                 self.initial.file = str(self._initial_file)
@@ -133,13 +137,21 @@ class FemParams(SystemParams):
         return self
 
     def input_files(self) -> dict[str, str]:
-        files = {"model": self._file, "initial.file": self._initial_file, **self._contact_files}
+        files = {"model": self._file, "model.tetrahedralize.surface": self._surface, "initial.file": self._initial_file,
+                 **self._contact_files}
+        if self._surface is not None:  # the tets the runs use: fTetWild's first mesh of the surface, from the cache
+            from .tetrahedralize import cached_path
+
+            files["model.tetrahedralize.tets"] = cached_path(self._surface, self.model["tetrahedralize"]["edge_length"])
         return {field: file_digest(path) for field, path in files.items() if path is not None}
 
     def mesh(self) -> SimplexMesh:
         if self._file is not None:
             stat = self._file.stat()
             return _loaded_file(str(self._file), stat.st_size, stat.st_mtime_ns)
+        if self._surface is not None:
+            stat = self._surface.stat()
+            return _loaded_file(json.dumps(self.model, sort_keys=True), stat.st_size, stat.st_mtime_ns)
         return _generated(json.dumps(self.model, sort_keys=True))
 
     @property
@@ -155,9 +167,10 @@ FemParams.system_class = Fem
 
 
 @functools.lru_cache(maxsize=8)
-def _loaded_file(path: str, size: int, mtime: int) -> SimplexMesh:
+def _loaded_file(source: str, size: int, mtime: int) -> SimplexMesh:
+    """The mesh of a file (its path) or of a tetrahedralized surface (the model's JSON), keyed by the file's stat too."""
     try:
-        return mesh_source(path).build()
+        return mesh_source(json.loads(source) if source.startswith("{") else source).build()
     except ModelError as error:
         raise ModelError(f"model: {error}") from None
 
