@@ -447,3 +447,36 @@ def test_an_open_surface_is_refused_naming_an_edge(tmp_path, monkeypatch):
               "integrators": ["backward_euler"], "sweep": {"dt": [0.01]}}
     with pytest.raises(ConfigError, match=r"the surface is not closed: 3 edges .*vertices \[\d+, \d+\]"):
         load_experiment(config)
+
+
+# -- calibration's derivatives ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("material", ENERGIES)
+@pytest.mark.parametrize("key, value", [("material.youngs_modulus", YOUNG), ("damping.0.beta", 0.02),
+                                        ("damping.0.alpha", 0.3), ("material.regions.0.youngs_modulus", 3.0 * YOUNG)])
+def test_parameter_derivatives_are_exact(material, key, value):
+    """d(grad P)/dtheta and dD/dtheta for Young's modulus (everywhere, or in a region), and Rayleigh's beta and alpha:
+    the system built at theta + 1 minus the system at theta, exactly (both are linear in theta)."""
+    config = {"type": "fem", "model": BOX, "gravity": [0.0, 0.0, -9.81],
+              "material": {"model": material, "youngs_modulus": YOUNG, "poisson_ratio": POISSON, "density": DENSITY,
+                           "regions": [{"box": [[0.0, 0.0, 0.0], [0.15, 0.2, 0.1]], "youngs_modulus": 3.0 * YOUNG}]},
+              "damping": [{"model": "rayleigh", "alpha": 0.3, "beta": 0.02}]}
+
+    def built(theta):
+        mapping = {**config, "material": {**config["material"], "regions": [dict(config["material"]["regions"][0])]},
+                   "damping": [dict(config["damping"][0])]}
+        parts = key.split(".")
+        target = mapping
+        for part in parts[:-1]:
+            target = target[int(part)] if part.isdigit() else target[part]
+        target[parts[-1]] = theta
+        return SYSTEMS["fem"].model_validate(mapping).build()
+
+    system, changed = built(value), built(value * 1.5)
+    derivative = system.parameter_derivative(changed, value * 0.5)
+    assert derivative is not None
+    x = deformed(system, 0.03)
+    expected = (changed.gradient(x) - system.gradient(x)) / (value * 0.5)
+    assert np.allclose(derivative.gradient(x), expected, rtol=0, atol=1e-9 * np.max(np.abs(system.gradient(x))))
+    damping = (changed.damping_matrix(x) - system.damping_matrix(x)).toarray() / (value * 0.5)
+    got = np.zeros_like(damping) if derivative.damping is None else derivative.damping(x).toarray()
+    assert np.allclose(got, damping, rtol=0, atol=1e-9 * np.max(np.abs(system.damping_matrix(x).toarray())))

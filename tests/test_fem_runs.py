@@ -121,3 +121,25 @@ def test_the_shipped_soft_drop_lands_without_penetrating(tmp_path):
     frames = stored["frames"]  # one per step (20 steps, at most 60 frames): the mean x advance per step
     advance = np.diff(frames[:, :, 0].mean(axis=1))
     assert advance[-1] < 0.9 * advance[0]
+
+
+def test_calibration_recovers_young_s_modulus_from_the_same_method(tmp_path):
+    """Noise-free markers of a sagging neo-Hookean bar made by backward Euler at dt = 0.01 s with E = 2e4 Pa: the fit
+    of E with the same method and dt, from 1e4 Pa, recovers it within 1 % (with the exact forward sensitivities of
+    Fem.parameter_derivative)."""
+    import simrun
+
+    config = {"name": "fit_young", "output": str(tmp_path / "fit"),
+              "system": {"type": "fem", "model": {"box": {"size": [0.4, 0.05, 0.05], "cells": [8, 1, 1]}},
+                         "material": {"model": "neo_hookean", "youngs_modulus": 2.0e4, "poisson_ratio": 0.3},
+                         "pinned": "left"},
+              "integrators": ["backward_euler"], "solver": {"type": "newton", "tolerance": 1e-10},
+              "duration": 0.3, "sweep": {"dt": [0.01]},
+              "fit": {"observed": {"synthetic": {"integrator": "backward_euler", "dt": 0.01}},
+                      "markers": [8, 17, 26, 35],
+                      "parameters": {"system.material.youngs_modulus": {"start": 1.0e4, "bounds": [1.0e3, 1.0e6]}}}}
+    results = simrun.fit(config, jobs=1, figures=False, progress=False)
+    table = results.fits.table
+    fitted = table[table["integrator"] == "backward_euler"]
+    (value,) = fitted["system.material.youngs_modulus"].to_numpy()
+    assert value == pytest.approx(2.0e4, rel=0.01)

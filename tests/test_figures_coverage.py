@@ -59,6 +59,8 @@ SHORT = {
                     "sweep.system.damping_ratio=[0.0, 0.3, 1.0]"],
     "calibrate_spring": ["duration=1.0", "sweep.dt=[0.01,0.05]", "fit.observed.synthetic.dt=0.01",
                          "fit.transfer.dt=[0.01]", "fit.max_evaluations=20"],
+    "calibrate_soft_body": ["duration=0.1", "sweep.dt=[0.01,0.02]", "fit.observed.synthetic.dt=0.001",
+                            "fit.transfer.dt=[0.01]", "fit.max_evaluations=6"],
     "calibrate_cloth": [*CLOTH, "duration=0.1", "sweep.dt=[0.01,0.02]", "fit.observed.synthetic.dt=0.002",
                         "fit.markers=[0,5]", "fit.transfer.dt=[0.01]", "fit.max_evaluations=6"],
 }

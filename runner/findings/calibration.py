@@ -38,7 +38,8 @@ SAME_TRAJECTORY = 0.01
 TRANSFER_TOLERANCE = 0.05  # a transfer "reproduces" the observations within this relative rms error
 MAX_NAMED = 4  # a transfer finding names the fits that reproduce the observations when there are at most this many
 STOPPED = ("diverged", "failed")  # fits without values to show
-UNITS = {"stiffness": "N/m", "damping": "N s/m", "mass": "kg"}
+UNITS = {"stiffness": "N/m", "damping": "N s/m", "mass": "kg", "youngs_modulus": "Pa", "poisson_ratio": "1",
+         "density": "kg/m^3", "beta": "s", "alpha": "1/s", "coefficient": "N s/m"}
 SYMBOLS = {"stiffness": "k", "damping": "d", "mass": "m"}
 ANCHOR = "#calibration"
 FIGURE = "#figure-fitted_parameters_vs_dt"

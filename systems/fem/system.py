@@ -217,6 +217,53 @@ class Fem(System):
     def compliant_springs(self):
         return None
 
+    # -- calibration: exact forward sensitivities (integrators/sensitivity.py) ---------------------------
+    def parameter_derivative(self, changed: "Fem", change: float):
+        """d(grad P)/dtheta and dD/dtheta for a config value theta that moves Young's moduli (``youngs_modulus``, a
+        region's) or the damping coefficients (alpha, beta, drag), found by comparing ``changed`` (theta moved by
+        ``change``) with this system; None for any other change. At a fixed nu every energy's mu and lambda are
+        proportional to E (the stable neo-Hookean's re-parametrised ones too, whose alpha depends on their ratio
+        alone), and its stress is linear in (mu, lambda): an element's gradient moves by its own gradient times
+        dE_e/dtheta / E_e, and Rayleigh's beta K_rest by beta times K_rest's elements scaled the same way."""
+        same = ("elements", "rest", "vertex_masses", "x0", "v0", "gravity", "fixed_dofs", "poisson_ratio")
+        if (type(changed) is not type(self) or changed.material != self.material or self.contact is not None
+                or changed.contact is not None or self.sliding is not None
+                or any(not np.array_equal(getattr(self, name), getattr(changed, name)) for name in same)
+                or [term.model for term in self.damping_terms] != [term.model for term in changed.damping_terms]):
+            return None
+        from ..base import ParameterDerivative
+
+        rate = (changed.youngs_modulus - self.youngs_modulus) / change / self.youngs_modulus  # dE_e/dtheta / E_e
+        moved = np.flatnonzero(rate)
+        scaled = (self.elements[moved], self.shape_gradients[moved], self.volumes[moved], self.mu[moved] * rate[moved],
+                  self.lam[moved] * rate[moved])
+        terms = [((moved_term.coefficient - term.coefficient) / change, (moved_term.alpha - term.alpha) / change,
+                  (moved_term.beta - term.beta) / change, term.beta, term.model)
+                 for term, moved_term in zip(self.damping_terms, changed.damping_terms)]
+
+        def gradient(x: np.ndarray) -> np.ndarray:
+            if not moved.size:
+                return np.zeros(self.dof_count)
+            return kernels.elastic_gradient(x, *scaled, self._model)
+
+        stiffness_rate = None
+        if moved.size and any(term.model == "rayleigh" and term.beta for term in self.damping_terms):
+            k = (self.dim + 1) * self.dim
+            stiffness_rate = kernels.elastic_hessian_data(self.rest.ravel(), *scaled, self._model, 1,
+                                                          self._positions[moved], self._nnz, np.empty((moved.size, k, k)))
+        if not any(any(term[:3]) for term in terms) and stiffness_rate is None:
+            return ParameterDerivative(gradient=gradient)
+        data = np.zeros(self._nnz)
+        for coefficient_rate, alpha_rate, beta_rate, beta, model in terms:
+            if model == "rayleigh":
+                data += beta_rate * self._rest_stiffness
+                data[self.diagonal_positions] += alpha_rate * self.mass
+                if stiffness_rate is not None:
+                    data += beta * stiffness_rate
+            elif model == "drag":
+                data[self.diagonal_positions] += coefficient_rate
+        return ParameterDerivative(gradient=gradient, damping=lambda x: self.pattern_matrix(data.copy()))
+
     # -- contact: what the runner and the problems ask (systems/contact/model.py does the work) -----------
     @property
     def has_contact(self) -> bool:
