@@ -16,6 +16,7 @@ import scipy.sparse
 
 from ..base import System, add_keeping_pattern
 from ..constraints import VertexConstraints
+from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
 from . import kernels
 from .materials import MATERIALS
@@ -28,7 +29,7 @@ KEPT_VOLUME = 0.1
 PROJECTIONS = {False: 0, True: 1, "clamp": 1, "abs": 2}  # project_spd -> the kernels' mode
 
 
-class Fem(System):
+class Fem(ContactHooks, System):
     """A hyperelastic solid of triangles (2-D) or tetrahedra (3-D): see the module docstring.
 
     Parameters (as resolved from a mesh and a config by params.py): mesh: a validated SimplexMesh; material: a
@@ -135,9 +136,6 @@ class Fem(System):
     def gravity_energy(self, x: np.ndarray) -> float:
         return -float(np.dot(self._gravity_force, x))
 
-    def contact_energy(self, x: np.ndarray) -> float:
-        return 0.0 if self.contact is None else self.contact.energy(x)
-
     def potential_energy(self, x):
         return self.elastic_energy(x) + self.gravity_energy(x) + self.contact_energy(x)
 
@@ -172,9 +170,6 @@ class Fem(System):
     def add_vertex_blocks(self, data: np.ndarray, vertices: np.ndarray, blocks: np.ndarray) -> None:
         """Adds blocks (k, d, d) at the vertices (k,) (repeats summed) into the pattern's data array, in place."""
         np.add.at(data, self._vertex_positions[vertices], blocks)
-
-    def off_pattern_hessian(self, x, project_spd=False):
-        return None if self.contact is None else self.contact.coupling_hessian(x, project_spd)
 
     def volume_ratios(self, x: np.ndarray) -> np.ndarray:
         """J = det F of every element (its volume over its rest volume), (elements,)."""
@@ -263,50 +258,6 @@ class Fem(System):
             elif model == "drag":
                 data[self.diagonal_positions] += coefficient_rate
         return ParameterDerivative(gradient=gradient, damping=lambda x: self.pattern_matrix(data.copy()))
-
-    # -- contact: what the runner and the problems ask (systems/contact/model.py does the work) -----------
-    @property
-    def has_contact(self) -> bool:
-        return self.contact is not None
-
-    @property
-    def has_friction(self) -> bool:
-        return self.contact is not None and self.contact.friction is not None
-
-    @property
-    def contact_needs_step_filter(self) -> bool:
-        return self.contact is not None and self.contact.requires_step_filter
-
-    def contact_start(self, x: np.ndarray) -> np.ndarray:
-        """x with the vertices near moving IPC colliders carried along over the step (as MassSpring.contact_start)."""
-        if self.contact is None or not self.contact.requires_step_filter:
-            return x
-        carried = self.contact.carried(x)
-        if carried is x:
-            return x
-        move = carried - x
-        if self.fixed_dofs.size:
-            move[self.fixed_dofs] = 0.0
-        if self.sliding is not None:
-            self.sliding.apply(move)
-        return x + move
-
-    def begin_run(self, dt: float, x: np.ndarray) -> None:
-        if self.contact is not None:
-            self.contact.begin_run(dt, x, self._elastic_gradient)
-
-    def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
-        if self.contact is not None:
-            self.contact.begin_step(t, dt, x, self._elastic_gradient)
-
-    def friction_term(self, x_start, velocity_origin, velocity_divisor, time=None):
-        if self.contact is None:
-            return None
-        return self.contact.friction_term(x_start, velocity_origin, velocity_divisor, time)
-
-    def contact_record(self, x_start, x, v, dt):
-        contact = self.contact
-        return contact.minimum_distance(x), contact.active_count(x), contact.friction_work(x_start, x, v)
 
     # -- vertices on prescribed paths -----------------------------------------------------------
     def acceleration(self, x, v):

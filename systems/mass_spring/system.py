@@ -23,12 +23,13 @@ from ..base import System, add_keeping_pattern
 from . import derivatives
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
+from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
 from .blocks import VertexBlocks
 from .laws import SPRING_LAWS, Damping, HookeanLaw, SpringGeometry
 
 
-class MassSpring(System):
+class MassSpring(ContactHooks, System):
     """Point masses joined by springs, in 2-D or 3-D: see the module docstring.
 
     Parameters (arrays as resolved from a model and a config; systems/mass_spring/params.py builds them):
@@ -223,9 +224,6 @@ class MassSpring(System):
     def gravity_energy(self, x: np.ndarray) -> float:
         return -float(np.dot(self._gravity_force, x))
 
-    def contact_energy(self, x: np.ndarray) -> float:
-        return 0.0 if self.contact is None else self.contact.energy(x)
-
     def potential_energy(self, x):
         return self.spring_energy(x) + self.gravity_energy(x) + self.contact_energy(x)
 
@@ -262,11 +260,6 @@ class MassSpring(System):
         """(n, d, d): where each vertex block's entries sit in the pattern's data array (the scatter map's last part)."""
         d = self.dim
         return self._scatter[-self.vertex_count * d * d:].reshape(self.vertex_count, d, d)
-
-    def off_pattern_hessian(self, x, project_spd=False):
-        """The Hessian of the mesh contacts (IPC through ipctk), which couples vertices that no spring joins and so
-        lies outside ``hessian_pattern``; None without them (System.off_pattern_hessian)."""
-        return None if self.contact is None else self.contact.coupling_hessian(x, project_spd)
 
     def _spring_hessian_data(self, geometry: SpringGeometry, project_spd: bool, vertex_block=None) -> np.ndarray:
         return self._scatter_blocks(self.law.blocks(self, geometry, project_spd), vertex_block)
@@ -320,60 +313,18 @@ class MassSpring(System):
                                 damping=np.full(self.spring_count, float(along)), vertex_count=self.vertex_count,
                                 other_forces=bool(other))
 
-    # -- contact: what the runner and the problems ask (systems/contact/model.py does the work) -----------
+    # -- contact: the hooks are ContactHooks' (systems/contact/hooks.py); systems/contact/model.py does the work ------
     @property
     def requires_step_filter(self) -> bool:
         return self.contact is not None and self.contact.requires_step_filter
 
-    @property
-    def has_contact(self) -> bool:
-        return self.contact is not None
-
-    @property
-    def has_friction(self) -> bool:
-        return self.contact is not None and self.contact.friction is not None
-
     def max_step(self, x: np.ndarray, direction: np.ndarray) -> float:
         return 1.0 if self.contact is None else self.contact.max_step(x, direction)
-
-    def contact_start(self, x: np.ndarray) -> np.ndarray:
-        """x with the vertices near moving IPC colliders carried along over the step (ContactModel.carried), the
-        move filtered as every solver step is (pins stay, sliding vertices stay on their planes and lines)."""
-        if self.contact is None:
-            return x
-        carried = self.contact.carried(x)
-        if carried is x:
-            return x
-        move = carried - x
-        if self.fixed_dofs.size:
-            move[self.fixed_dofs] = 0.0
-        if self.sliding is not None:
-            self.sliding.apply(move)
-        return x + move
-
-    def begin_run(self, dt: float, x: np.ndarray) -> None:
-        if self.contact is not None:
-            self.contact.begin_run(dt, x, self._elastic_gradient)
-
-    def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
-        if self.contact is not None:
-            self.contact.begin_step(t, dt, x, self._elastic_gradient)
 
     def _elastic_gradient(self, x: np.ndarray) -> np.ndarray:
         """dP/dx without contact (N): what IPC's stiffness estimate balances the barrier against."""
         geometry = self._springs(x)
         return (self._incidence @ (geometry.delta.T * self.law.gradient_factor(self, geometry)).T).ravel() - self._gravity_force
-
-    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float,
-                      time: float | None = None):
-        if self.contact is None:
-            return None
-        return self.contact.friction_term(x_start, velocity_origin, velocity_divisor, time)
-
-    def contact_record(self, x_start: np.ndarray, x: np.ndarray, v: np.ndarray, dt: float) -> tuple[float, int, float]:
-        """(smallest signed distance (m), active contacts, friction work (J)) of the step x_start -> (x, v)."""
-        contact = self.contact
-        return contact.minimum_distance(x), contact.active_count(x), contact.friction_work(x_start, x, v)
 
     # -- for vertex block descent: only the springs at each vertex (blocks.py) ------------------------
     @functools.cached_property

@@ -1,0 +1,69 @@
+"""What a system with a ``contact`` (a ContactModel or None) answers the runner, the problems and the line search:
+written once for every system of vertices that takes a contact block (mass_spring, fem).
+
+The system provides ``contact``, ``fixed_dofs``, ``sliding`` and ``_elastic_gradient(x)`` (dP/dx without contact,
+what IPC's stiffness estimate balances the barrier against).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class ContactHooks:
+    contact = None
+
+    @property
+    def has_contact(self) -> bool:
+        return self.contact is not None
+
+    @property
+    def has_friction(self) -> bool:
+        return self.contact is not None and self.contact.friction is not None
+
+    @property
+    def contact_needs_step_filter(self) -> bool:
+        """IPC's barrier: every step of a solve cut short of a collision (System.contact_needs_step_filter)."""
+        return self.contact is not None and self.contact.requires_step_filter
+
+    def contact_energy(self, x: np.ndarray) -> float:
+        return 0.0 if self.contact is None else self.contact.energy(x)
+
+    def off_pattern_hessian(self, x, project_spd=False):
+        """The Hessian of the mesh contacts (IPC through ipctk), which couples vertices that no element of the model
+        joins and so lies outside ``hessian_pattern``; None without them (System.off_pattern_hessian)."""
+        return None if self.contact is None else self.contact.coupling_hessian(x, project_spd)
+
+    def contact_start(self, x: np.ndarray) -> np.ndarray:
+        """x with the vertices near moving IPC colliders carried along over the step (ContactModel.carried), the
+        move filtered as every solver step is (pins stay, sliding vertices stay on their planes and lines)."""
+        if not self.contact_needs_step_filter:
+            return x
+        carried = self.contact.carried(x)
+        if carried is x:
+            return x
+        move = carried - x
+        if self.fixed_dofs.size:
+            move[self.fixed_dofs] = 0.0
+        if self.sliding is not None:
+            self.sliding.apply(move)
+        return x + move
+
+    def begin_run(self, dt: float, x: np.ndarray) -> None:
+        if self.contact is not None:
+            self.contact.begin_run(dt, x, self._elastic_gradient)
+
+    def begin_step(self, t: float, dt: float, x: np.ndarray) -> None:
+        if self.contact is not None:
+            self.contact.begin_step(t, dt, x, self._elastic_gradient)
+
+    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float,
+                      time: float | None = None):
+        if self.contact is None:
+            return None
+        return self.contact.friction_term(x_start, velocity_origin, velocity_divisor, time)
+
+    def contact_record(self, x_start: np.ndarray, x: np.ndarray, v: np.ndarray, dt: float) -> tuple[float, int, float]:
+        """(smallest signed distance (m), active contacts, friction work (J)) of the step x_start -> (x, v)."""
+        contact = self.contact
+        return contact.minimum_distance(x), contact.active_count(x), contact.friction_work(x_start, x, v)
