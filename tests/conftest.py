@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 
-import numpy as np
+# tetrahedralized meshes (systems/fem/tetrahedralize.py) go to a cache of this session, not the user's: set before
+# any worker pool starts, so that every process of the session reads the same one
+if "SIMRUN_CACHE" not in os.environ:
+    os.environ["SIMRUN_CACHE"] = tempfile.mkdtemp(prefix="simrun-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["SIMRUN_CACHE"], True)
+
+import numpy as np  # noqa: E402
 import pytest
 
 from simrun.execution.simulate import simulate
