@@ -65,6 +65,9 @@ class FemMass(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _lumped_shorthand(cls, data: Any) -> Any:
+        if data == "consistent":
+            raise ValueError("consistent mass is not built: every integrator of simrun takes a diagonal M; use lumped "
+                             "(each element's mass shared equally among its vertices)")
         return {} if data == "lumped" else data
 
     @model_validator(mode="after")
