@@ -1,13 +1,17 @@
 """What a system with a ``contact`` (a ContactModel or None) answers the runner, the problems and the line search:
 written once for every system of vertices that takes a contact block (mass_spring, fem).
 
-The system provides ``contact``, ``fixed_dofs``, ``sliding`` and ``_elastic_gradient(x)`` (dP/dx without contact,
-what IPC's stiffness estimate balances the barrier against).
+The system provides ``contact``, ``fixed_dofs``, ``sliding``, ``_elastic_gradient(x)`` (dP/dx without contact,
+what IPC's stiffness estimate balances the barrier against), and for its Hessian ``hessian_data`` (its elements' and
+contact's vertex blocks in the fixed pattern) and ``_vertex_positions`` ((n, d, d): where each vertex block's entries
+sit in the pattern's data array).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from ..base import add_keeping_pattern
 
 
 class ContactHooks:
@@ -28,6 +32,16 @@ class ContactHooks:
 
     def contact_energy(self, x: np.ndarray) -> float:
         return 0.0 if self.contact is None else self.contact.energy(x)
+
+    def hessian(self, x, project_spd=False):
+        """The pattern's matrix of ``hessian_data``, plus the mesh contacts' coupling outside the pattern."""
+        matrix = self.pattern_matrix(self.hessian_data(x, project_spd))
+        coupling = self.off_pattern_hessian(x, project_spd)
+        return matrix if coupling is None else add_keeping_pattern(matrix, coupling)
+
+    def add_vertex_blocks(self, data: np.ndarray, vertices: np.ndarray, blocks: np.ndarray) -> None:
+        """Adds blocks (k, d, d) at the vertices (k,) (repeats summed) into the pattern's data array, in place."""
+        np.add.at(data, self._vertex_positions[vertices], blocks)
 
     def off_pattern_hessian(self, x, project_spd=False):
         """The Hessian of the mesh contacts (IPC through ipctk), which couples vertices that no element of the model

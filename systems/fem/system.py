@@ -14,7 +14,7 @@ import functools
 import numpy as np
 import scipy.sparse
 
-from ..base import System, add_keeping_pattern
+from ..base import System
 from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
@@ -161,15 +161,6 @@ class Fem(ContactHooks, System):
             self.contact.add_vertex_hessian(blocks, x, project_spd)
             np.add.at(data, self._vertex_positions, blocks)
         return data
-
-    def hessian(self, x, project_spd=False):
-        matrix = self.pattern_matrix(self.hessian_data(x, project_spd))
-        coupling = self.off_pattern_hessian(x, project_spd)
-        return matrix if coupling is None else add_keeping_pattern(matrix, coupling)
-
-    def add_vertex_blocks(self, data: np.ndarray, vertices: np.ndarray, blocks: np.ndarray) -> None:
-        """Adds blocks (k, d, d) at the vertices (k,) (repeats summed) into the pattern's data array, in place."""
-        np.add.at(data, self._vertex_positions[vertices], blocks)
 
     def volume_ratios(self, x: np.ndarray) -> np.ndarray:
         """J = det F of every element (its volume over its rest volume), (elements,)."""

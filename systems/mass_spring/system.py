@@ -19,7 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 import scipy.sparse
 
-from ..base import System, add_keeping_pattern
+from ..base import System
 from . import derivatives
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
@@ -245,15 +245,6 @@ class MassSpring(ContactHooks, System):
         if self.contact is not None:
             self.contact.add_gradient(gradient, x)
         return gradient
-
-    def hessian(self, x, project_spd=False):
-        matrix = self.pattern_matrix(self.hessian_data(x, project_spd))
-        coupling = self.off_pattern_hessian(x, project_spd)
-        return matrix if coupling is None else add_keeping_pattern(matrix, coupling)
-
-    def add_vertex_blocks(self, data: np.ndarray, vertices: np.ndarray, blocks: np.ndarray) -> None:
-        """Adds blocks (k, d, d) at the vertices (k,) (repeats summed) into the pattern's data array, in place."""
-        np.add.at(data, self._vertex_positions[vertices], blocks)
 
     @functools.cached_property
     def _vertex_positions(self) -> np.ndarray:
