@@ -84,7 +84,8 @@ class FemParams(SystemParams):
     type: Literal["fem"] = "fem"
     model: Union[str, dict[str, Any]] = Field({"square": {"segments": 4, "size": 1.0}},
                                               description="a mesh file (tetra or 2-D triangle cells, any meshio format), "
-                                                          "{box: {size, cells}} or {square: {segments, size}}")
+                                                          "{box: {size, cells}}, {square: {segments, size}} or "
+                                                          "{tetrahedralize: {surface, edge_length}}")
     material: Material = Material()
     mass: FemMass = Field(FemMass(), description="lumped (default) | {total: kg, by: volume|equal} | {per_vertex: kg}")
     gravity: Vector | None = Field(None, description="m/s^2, one component per dimension (default: -9.81 along the last axis)")
