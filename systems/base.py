@@ -105,6 +105,20 @@ class ParameterDerivative:
     damping: Callable[[np.ndarray], object] | None = None
 
 
+def vertex_energy_reference(system, elastic: float, stretch_energy: float, parts: str) -> tuple[float, str]:
+    """(E_ref, what it is) of a model of vertices (mass_spring, fem): |KE0| + |elastic PE0| (``elastic``: of ``parts``,
+    without gravity, whose energy depends on where the origin is) where that exceeds a floor, the energy of lifting the
+    model by its largest extent, M |g| L, or without gravity ``stretch_energy``, that of a 1 % strain. A model at rest
+    has E0 = 0, and a nudge of 1e-8 m/s gives E0 ~ 1e-18 J, which no drift should be divided by."""
+    initial = abs(system.kinetic_energy(system.v0)) + abs(elastic)
+    extent = float(np.max(np.ptp(system.rest, axis=0)))
+    lift = float(np.sum(system.vertex_masses)) * float(np.linalg.norm(system.gravity)) * extent
+    floor, floor_name = (lift, "M |g| L") if lift > 0 else (stretch_energy, "1 % strain energy")
+    if initial > floor:
+        return initial, f"|KE0| + |PE0 of {parts} and contact| (> {floor_name})"
+    return (floor, floor_name) if floor > 0 else (1.0, "1 J")
+
+
 class System(ABC):
     """Base class of the systems: derived quantities written once, in terms of the primitives."""
 

@@ -14,7 +14,7 @@ import functools
 import numpy as np
 import scipy.sparse
 
-from ..base import System
+from ..base import System, vertex_energy_reference
 from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
@@ -287,16 +287,7 @@ class Fem(ContactHooks, System):
         """(E_ref, what it is): |KE0| + |elastic PE0| where that exceeds the floor, M |g| L (lifting the body by its
         largest extent), or without gravity the energy of a 1 % uniform stretch of the whole body."""
         elastic = self.elastic_energy(self.x0) + self.contact_energy(self.x0)
-        initial = abs(self.kinetic_energy(self.v0)) + abs(elastic)
-        extent = float(np.max(np.ptp(self.rest, axis=0)))
-        lift = float(np.sum(self.vertex_masses)) * float(np.linalg.norm(self.gravity)) * extent
-        if lift > 0:
-            floor, floor_name = lift, "M |g| L"
-        else:
-            floor, floor_name = self.elastic_energy(1.01 * self.rest.ravel()), "1 % stretch energy"
-        if initial > floor:
-            return initial, f"|KE0| + |PE0 of elements and contact| (> {floor_name})"
-        return (floor, floor_name) if floor > 0 else (1.0, "1 J")
+        return vertex_energy_reference(self, elastic, self.elastic_energy(1.01 * self.rest.ravel()), "elements")
 
     def energy_scale(self) -> float:
         return self._energy_reference()[0]

@@ -19,7 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 import scipy.sparse
 
-from ..base import System
+from ..base import System, vertex_energy_reference
 from . import derivatives
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
@@ -370,14 +370,8 @@ class MassSpring(ContactHooks, System):
         of every spring. A model at rest has E0 = 0, and a nudge of 1e-8 m/s gives E0 ~ 1e-18 J, which no drift
         should be divided by."""
         elastic = self.spring_energy(self.x0) + self.contact_energy(self.x0)
-        initial = abs(self.kinetic_energy(self.v0)) + abs(elastic)
-        extent = float(np.max(np.ptp(self.rest, axis=0)))
-        lift = float(np.sum(self.vertex_masses)) * float(np.linalg.norm(self.gravity)) * extent
-        floor, floor_name = (lift, "M |g| L") if lift > 0 else (
-            0.5 * float(np.dot(self.stiffness, np.square(0.01 * self.rest_length))), "1 % strain energy")
-        if initial > floor:
-            return initial, f"|KE0| + |PE0 of springs and contact| (> {floor_name})"
-        return (floor, floor_name) if floor > 0 else (1.0, "1 J")
+        strain = 0.5 * float(np.dot(self.stiffness, np.square(0.01 * self.rest_length)))
+        return vertex_energy_reference(self, elastic, strain, "springs")
 
     def energy_scale(self) -> float:
         return self._energy_reference()[0]
