@@ -16,6 +16,8 @@ and vertices on prescribed paths follow their paths whatever theta is.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
@@ -46,13 +48,25 @@ class ForwardSensitivity:
         reason = exact_refusal(system, integrator)
         if reason is not None:
             raise ValueError(f"no exact sensitivities: {reason}")
-        self.system, self.integrator, self.derivatives = system, integrator, list(derivatives)
+        self.integrator, self.derivatives = integrator, list(derivatives)
         self.count = len(self.derivatives)
+        self._constrain(system)
+
+    def _constrain(self, system: System) -> None:
+        self.system = system
         fixed = system.fixed_dofs
         self.free = np.setdiff1d(np.arange(system.dof_count), fixed)
         self.fixed = np.asarray(fixed, dtype=np.intp)
         constraints = system.constraints
         self.moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+
+    def released(self, system: System) -> ForwardSensitivity:
+        """These sensitivities on ``system.released(t)``: the same method and derivatives (the energy does not
+        depend on the constraints), with its free, fixed and moving dofs; the tangents carry on (a released
+        vertex's tangent is 0 there, as it was on its path)."""
+        sensitivity = copy.copy(self)
+        sensitivity._constrain(system)
+        return sensitivity
 
     def start(self, state: State) -> State:
         """The tangent of ``integrator.start``: the initial state does not depend on theta; a carried acceleration

@@ -35,6 +35,7 @@ A system's config is a ``SystemParams`` model whose ``system_class`` is the Syst
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 from abc import ABC, abstractmethod
@@ -137,6 +138,25 @@ class System(ABC):
     frame_triangles: np.ndarray | None = None  # (t, 3) vertex triples drawn as a shaded surface
     # small systems keep x and v in every sample; large ones (cloth) keep them as `frames` instead
     records_state_per_sample: bool = True
+
+    def released(self, t: float) -> System:
+        """This system from time t (s) on, once prescribed paths have ended (their ``until``): a shallow copy whose
+        constraints no longer hold the ended paths' vertices, which are free from here, with the velocity their
+        path gave them. self is left as it was, and caches keyed by the system (XPBD's projection, the VBD
+        blocks) start afresh for the copy. A system without such paths is returned as it is."""
+        if self.constraints is None or not self.constraints.release_times:
+            return self
+        released = copy.copy(self)
+        released.constraints = constraints = self.constraints.released(t)
+        released.fixed_dofs, released.sliding = constraints.fixed_dofs, constraints.sliding
+        released._moving = constraints.moving_dofs
+        released.__dict__.pop("_vertex_blocks", None)
+        released._prepare_paths()
+        return released
+
+    def _prepare_paths(self) -> None:
+        """What a system precomputes for its vertices on prescribed paths (the springs that drive them), after
+        ``released`` changed them; nothing by default."""
 
     # -- primitives every system provides ------------------------------------------------------
     @abstractmethod

@@ -6,7 +6,8 @@ cloth simulation", 1998, sec. 5; the "modified inverse mass" (1/m)(I - p p^T) of
 - pinned: S_i = 0;
 - sliding in a plane with unit normal n: S_i = I - n n^T;
 - sliding along a line with unit direction u: S_i = u u^T;
-- prescribed: S_i = 0, and the vertex's position and velocity are given functions of time.
+- prescribed: S_i = 0, and the vertex's position and velocity are given functions of time, up to the
+  path's ``until`` if it has one; from there the vertices are free (``VertexConstraints.released``).
 Forces, search directions and velocities are passed through S, so the constrained components never
 change through a force. Components that S removes along a coordinate axis (a pin, a plane normal
 [0, 1, 0], a rail along [1, 0, 0]) are plain fixed degrees of freedom, which every solver already
@@ -95,13 +96,15 @@ class PrescribedMotion:
     """Vertices that follow a path: a constant velocity, or a rotation about an axis at a constant rate.
 
     vertices: (k,) indices; start: (k, d) positions at t = 0 (m); velocity: (d,) m/s (or None);
-    rotation: (center (d,), axis (3,) unit, rate rad/s) or None. The path is rigid: every vertex of the
+    rotation: (center (d,), axis (3,) unit, rate rad/s) or None; until: the time (s) at which the vertices
+    are let go, or None (held on the path for the whole run). The path is rigid: every vertex of the
     set moves with the same velocity or turns about the same axis."""
 
     vertices: np.ndarray
     start: np.ndarray
     velocity: np.ndarray | None = None
     rotation: tuple[np.ndarray, np.ndarray, float] | None = None
+    until: float | None = None
 
     def positions(self, t: float) -> np.ndarray:
         """(k, d) positions at time t (s)."""
@@ -179,6 +182,7 @@ class VertexConstraints:
         self.size = dim * vertex_count
         self.pinned = np.asarray(pinned, dtype=np.intp)
         self.prescribed = tuple(prescribed)
+        self._sliding_entries = list(sliding)
         moving = [motion.vertices for motion in prescribed]
         self.moving_vertices = np.concatenate(moving).astype(np.intp) if moving else np.zeros(0, dtype=np.intp)
         self.moving_dofs = (dim * self.moving_vertices[:, None] + np.arange(dim)).ravel()
@@ -195,6 +199,16 @@ class VertexConstraints:
         self.fixed_dofs = np.unique(np.concatenate(fixed)).astype(np.intp)
         self.sliding = (SlidingFilter(np.concatenate(blocks_vertices), np.ascontiguousarray(np.concatenate(blocks)), self.size)
                         if blocks else None)
+
+    @property
+    def release_times(self) -> tuple[float, ...]:
+        """The times (s) at which paths end and let their vertices go, ascending."""
+        return tuple(sorted({motion.until for motion in self.prescribed if motion.until is not None}))
+
+    def released(self, t: float) -> VertexConstraints:
+        """These constraints without the paths that end by t (``until <= t``): their vertices are free from t on."""
+        kept = [motion for motion in self.prescribed if motion.until is None or motion.until > t]
+        return VertexConstraints(self.dim, self.size // self.dim, self.pinned, self._sliding_entries, kept)
 
     def filter(self, vector: np.ndarray) -> np.ndarray:
         """S vector, in place: fixed components zeroed, sliding blocks projected; returns vector."""

@@ -52,7 +52,28 @@ def reference_positions(system, times, method: str = "DOP853", rtol: float = REF
         raise ValueError(f"unknown reference method {method!r}; valid: " + ", ".join(REFERENCE_METHODS))
     times = np.asarray(sorted(set(float(t) for t in times)))
     n = system.dof_count
+    end = float(times[-1])
+    releases = [t for t in (system.constraints.release_times if system.constraints is not None else ()) if t < end]
+    # one solve per stretch between releases of prescribed paths: the right-hand side jumps there, and an ODE solver
+    # restarts at a discontinuity rather than stepping across it
+    positions: dict[float, np.ndarray] = {}
+    u = np.concatenate([system.x0, system.v0])
+    for begin, finish in zip([0.0, *releases], [*releases, end]):
+        inside = times[(times >= begin) & (times <= finish)]
+        evaluated = np.union1d(inside, [finish])
+        solution = scipy.integrate.solve_ivp(_rate(system), (begin, finish), u, method=method, t_eval=evaluated,
+                                             rtol=rtol, atol=atol)
+        if not solution.success:
+            raise RuntimeError(f"reference solution ({method}) failed: {solution.message}")
+        positions.update({float(t): solution.y[:n, column] for column, t in enumerate(solution.t) if t in inside})
+        u = solution.y[:, -1]
+        system = system.released(finish)
+    return positions
 
+
+def _rate(system):
+    """u' = (v, M^-1 f(x, v)) of the system, with its prescribed paths' own accelerations on their dofs."""
+    n = system.dof_count
     constraints = system.constraints
     moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
 
@@ -62,11 +83,7 @@ def reference_positions(system, times, method: str = "DOP853", rtol: float = REF
             acceleration[moving] = constraints.path_accelerations(t)
         return np.concatenate([u[n:], acceleration])
 
-    solution = scipy.integrate.solve_ivp(rate, (0.0, float(times[-1])), np.concatenate([system.x0, system.v0]),
-                                         method=method, t_eval=times, rtol=rtol, atol=atol)
-    if not solution.success:
-        raise RuntimeError(f"reference solution ({method}) failed: {solution.message}")
-    return {float(t): solution.y[:n, column] for column, t in enumerate(solution.t)}
+    return rate
 
 
 def reference_errors(results: Results, reference: str, say=None) -> dict[str, float]:

@@ -20,7 +20,7 @@ import scipy.interpolate
 import scipy.optimize
 
 from simrun.calibration.keys import system_at
-from simrun.execution.simulate import _moving_dofs, _on_paths
+from simrun.execution.simulate import RELEASE_SLACK, _moving_dofs, _on_paths, _release
 from simrun.integrators import Integrator, State
 from simrun.integrators.sensitivity import ForwardSensitivity, exact_refusal
 
@@ -106,6 +106,7 @@ def step_run(system, integrator: Integrator, solver, dt: float, steps: int, dofs
     if with_contact:
         system.begin_run(dt, state.x)
     moving = _moving_dofs(system)
+    release_times = list(system.constraints.release_times) if system.constraints is not None else []
     state = integrator.start(system, state)
     tangent = None
     if sensitivity is not None:
@@ -124,6 +125,10 @@ def step_run(system, integrator: Integrator, solver, dt: float, steps: int, dofs
                 state, tangent, _ = sensitivity.step(state, tangent, dt, solver)
             if moving.size:
                 state = _on_paths(system.constraints, moving, state, dt * (n + 1))
+            if release_times and dt * (n + 1) >= release_times[0] - RELEASE_SLACK * dt:  # as simulate releases them
+                system, moving = _release(system, release_times, dt * (n + 1), dt)
+                if sensitivity is not None:
+                    sensitivity = sensitivity.released(system)
             # one float: inf or NaN in any entry (or entries past 1e154, as good as diverged) makes it non-finite
             if not math.isfinite(float(state.x.dot(state.x) + state.v.dot(state.v))):
                 diverged = n + 1

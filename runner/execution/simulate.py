@@ -16,6 +16,10 @@ from simrun.solvers import EXPLICIT_STEP
 from simrun.solvers.linear import attach_factorisation_log
 
 
+# a path's ``until`` within this fraction of a step below a step's end is reached there (t = n dt rounds)
+RELEASE_SLACK = 1e-9
+
+
 class Recorder:
     """Preallocated rows for the samples of a run: one float table, one row per sample.
 
@@ -134,6 +138,9 @@ def simulate(run: Run) -> RunResult:
     work = 0.0  # work done on the system by the vertices on prescribed paths so far (J), for the energy budget
     friction = 0.0  # energy friction took out so far (J), for the energy budget
     moving = _moving_dofs(system)
+    # paths that end (``until``): released at the end of the first step that reaches the time
+    release_times = list(system.constraints.release_times) if system.constraints is not None else []
+    constraint_kinds = vertex_constraint_kinds(system)  # as the run starts: the paths' vertices before any release
     damped = system.is_damped
     newton_iterations, linear_iterations = per_step["newton_iterations"], per_step["linear_iterations"]
     line_search_steps, residuals, solver_index = per_step["line_search_steps"], per_step["residual"], per_step["solver_index"]
@@ -181,6 +188,13 @@ def simulate(run: Run) -> RunResult:
                     power = _path_power(system, moving, state.x, state.v, t)
                     work += 0.5 * dt * (path_power + power)  # the trapezoidal rule: second order
                     path_power = power
+                if release_times and t >= release_times[0] - RELEASE_SLACK * dt:
+                    # the vertices of the paths that end here go free, at their paths' positions and velocities; the
+                    # method goes on with what it carries (a multistep history of every dof stays valid: x and v
+                    # are continuous at the release, only the acceleration jumps)
+                    system, moving = _release(system, release_times, t, dt)
+                    total_energy = system.total_energy
+                    path_power = _path_power(system, moving, state.x, state.v, t) if moving.size else 0.0
                 if damped:
                     # h v_bar^T D(x_bar) v_bar with the step's mean velocity and D at its mean position: the
                     # exact discrete balance of implicit midpoint for quadratic energies, a second-order
@@ -260,9 +274,8 @@ def simulate(run: Run) -> RunResult:
         model["model_edges"] = system.frame_edges
         if system.frame_triangles is not None:
             model["model_triangles"] = system.frame_triangles
-        kinds = vertex_constraint_kinds(system)
-        if kinds is not None:
-            model["model_constraints"] = kinds
+        if constraint_kinds is not None:
+            model["model_constraints"] = constraint_kinds
     result = RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
         per_step={key: value[:steps] for key, value in per_step.items()},
@@ -306,6 +319,13 @@ def vertex_constraint_kinds(system) -> np.ndarray | None:
             kinds[constraints.sliding.vertices] = VERTEX_KINDS["sliding"]
         kinds[constraints.moving_vertices] = VERTEX_KINDS["prescribed"]
     return kinds if kinds.any() else None
+
+
+def _release(system, release_times: list[float], t: float, dt: float):
+    """(the system released from the paths that end by t, its remaining moving dofs); pops those times."""
+    while release_times and t >= release_times[0] - RELEASE_SLACK * dt:
+        system = system.released(release_times.pop(0))
+    return system, _moving_dofs(system)
 
 
 def _moving_dofs(system) -> np.ndarray:

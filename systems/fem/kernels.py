@@ -9,7 +9,9 @@ D_m^-1 (a = 1..d), g_0 = -sum g_a,
 
 with P = dpsi/dF (first Piola-Kirchhoff stress) and A = d^2 psi / dF^2 (flattened row-major, F_ij -> i d + j).
 The SPD projection is of A (d^2 x d^2): B^T A B with B = dF/dx onto F-space is PSD exactly when A is, so the
-element Hessian is left unchanged where it is PSD. Energy densities (docs/fem.md), Lame mu and lambda per element:
+element Hessian is left unchanged where it is PSD. A's eigensystem is analytic for these isotropic energies (Smith
+et al. 2019): a signed SVD of F by Jacobi rotations on F^T F, the d x d Hessian in the singular values, and closed
+forms for the rest; no LAPACK call per element. Energy densities (docs/fem.md), Lame mu and lambda per element:
 
 - LINEAR:      mu eps:eps + lambda/2 tr(eps)^2, eps = (F + F^T)/2 - I
 - COROTATED:   mu ||F - R||^2 + lambda/2 (J - 1)^2 (Stomakhin et al. 2012), R from the polar decomposition
@@ -33,6 +35,8 @@ import numpy as np
 LINEAR, COROTATED, STVK, NEO_HOOKEAN, STABLE_NEO_HOOKEAN = range(5)
 # the denominators sigma_m + sigma_n of the rotation's derivative are kept at least this far from 0 (a flat element)
 ROTATION_FLOOR = 1e-12
+# (d, d) scratch matrices of material_terms: cofactor or strain, stress, F F^T; the co-rotated SVD's U, V, R, S, sigma
+WORK_SLOTS = 6
 # elements per chunk of the parallel loops: the scratch arrays are made once per chunk, not once per element
 CHUNK = 256
 
@@ -81,28 +85,10 @@ def _cofactor_derivative(F, d, i, j, k, l):
 
 
 @numba.njit(cache=True)
-def _rotation(F, d, U, sigma, V):
-    """The signed SVD F = U diag(sigma) V^T with U, V rotations (the smallest sigma takes the sign of det F); R = U V^T."""
-    u, s, vt = np.linalg.svd(F)
-    for i in range(d):
-        sigma[i] = s[i]
-        for j in range(d):
-            U[i, j] = u[i, j]
-            V[i, j] = vt[j, i]
-    if _determinant(U, d) < 0.0:
-        for i in range(d):
-            U[i, d - 1] = -U[i, d - 1]
-        sigma[d - 1] = -sigma[d - 1]
-    if _determinant(V, d) < 0.0:
-        for i in range(d):
-            V[i, d - 1] = -V[i, d - 1]
-        sigma[d - 1] = -sigma[d - 1]
-
-
-@numba.njit(cache=True)
 def material_terms(model, F, d, mu, lam, P, A, want_tangent, work):
     """psi(F) (J/m^3), P = dpsi/dF into P (d, d), and with want_tangent A = d^2 psi / dF^2 into A (d^2, d^2); work
-    (3, d, d) is scratch (the cofactor, Green's strain and its stress), so that an element allocates nothing."""
+    (WORK_SLOTS, d, d) is scratch (the cofactor, Green's strain and its stress, the SVD), so that an element
+    allocates nothing."""
     for i in range(d):
         for j in range(d):
             P[i, j] = 0.0
@@ -203,11 +189,8 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent, work):
                             A[i * d + j, k * d + l] = value
         return psi
     if model == COROTATED:
-        U = np.empty((d, d))
-        V = np.empty((d, d))
-        sigma = np.empty(d)
-        _rotation(F, d, U, sigma, V)
-        R = np.empty((d, d))
+        U, V, R, sigma = work[1], work[2], work[3], work[5, 0]
+        _signed_svd(F, d, U, sigma, V, work[4])
         for i in range(d):
             for j in range(d):
                 value = 0.0
@@ -273,58 +256,358 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent, work):
     return psi
 
 
-# A + PSD_SHIFT tr(A)/size I positive definite counts as PSD: its lowest eigenvalue is then above -PSD_SHIFT of the
-# mean, a round-off's worth (the rotation-invariant energies' A is singular at rest: rigid rotations cost nothing)
+# A + PSD_SHIFT max|lambda| I: eigenvalues above -PSD_SHIFT of the largest count as 0 (round-off: the rotation-invariant
+# energies' tangent is singular at rest, where rigid rotations cost nothing), and leave the exact tangent as it is
 PSD_SHIFT = 1e-12
+# an element whose tangent's lowest eigenvalue, from the closed-form singular values, is above this fraction of the
+# largest is PSD whatever their round-off: it skips the SVD (the singular values' error is far below this)
+SCREEN_MARGIN = 1e-6
+# a column F v_a of the SVD shorter than this fraction of the largest singular value is F's null space: U's column is
+# then chosen orthogonal to the others instead of normalising round-off
+RANK_FLOOR = 1e-14
+# Jacobi sweeps of a 3 x 3 symmetric matrix: quadratic convergence takes 4-5; this bounds a pathological input
+JACOBI_SWEEPS = 20
 
 
 @numba.njit(cache=True)
-def _positive_definite(A, size):
-    """Whether A + shift I has a Cholesky factor (the factor is formed in a scratch copy of the lower triangle)."""
-    trace = 0.0
-    for a in range(size):
-        trace += A[a, a]
-    if not trace > 0.0:
+def _symmetric_eigen(S, d, values, vectors):
+    """S = vectors diag(values) vectors^T for a symmetric d x d matrix (d <= 3) by cyclic Jacobi rotations, values
+    descending; S is overwritten."""
+    for i in range(d):
+        for j in range(d):
+            vectors[i, j] = 1.0 if i == j else 0.0
+    for _ in range(JACOBI_SWEEPS):
+        off, diagonal = 0.0, 0.0
+        for i in range(d):
+            diagonal += S[i, i] * S[i, i]
+            for j in range(i + 1, d):
+                off += S[i, j] * S[i, j]
+        if off <= 1e-32 * diagonal or off == 0.0:
+            break
+        for p in range(d):
+            for q in range(p + 1, d):
+                if abs(S[p, q]) <= 1e-17 * math.sqrt(abs(S[p, p] * S[q, q])):  # at round-off already
+                    continue
+                # the rotation that zeroes S_pq, applied to the few entries it changes (Numerical Recipes, sec. 11.1)
+                theta = (S[q, q] - S[p, p]) / (2.0 * S[p, q])
+                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                tau = s / (1.0 + c)
+                S[p, p] -= t * S[p, q]
+                S[q, q] += t * S[p, q]
+                S[p, q] = S[q, p] = 0.0
+                for r in range(d):
+                    if r != p and r != q:
+                        g, h = S[r, p], S[r, q]
+                        S[r, p] = S[p, r] = g - s * (h + g * tau)
+                        S[r, q] = S[q, r] = h + s * (g - h * tau)
+                for r in range(d):
+                    g, h = vectors[r, p], vectors[r, q]
+                    vectors[r, p] = g - s * (h + g * tau)
+                    vectors[r, q] = h + s * (g - h * tau)
+    for i in range(d):
+        values[i] = S[i, i]
+    for i in range(d):  # selection sort, descending, columns with their values
+        best = i
+        for j in range(i + 1, d):
+            if values[j] > values[best]:
+                best = j
+        if best != i:
+            values[i], values[best] = values[best], values[i]
+            for k in range(d):
+                vectors[k, i], vectors[k, best] = vectors[k, best], vectors[k, i]
+
+
+@numba.njit(cache=True)
+def _closed_form_eigenvalues(S, d, values):
+    """The eigenvalues of the symmetric d x d (d <= 3) matrix S, descending, in closed form (the trigonometric
+    solution of the characteristic cubic in 3-D), accurate to round-off of |S|; S is overwritten."""
+    if d == 2:
+        mean, half = 0.5 * (S[0, 0] + S[1, 1]), math.hypot(0.5 * (S[0, 0] - S[1, 1]), S[0, 1])
+        values[0], values[1] = mean + half, mean - half
+        return
+    mean = (S[0, 0] + S[1, 1] + S[2, 2]) / 3.0
+    off = S[0, 1] ** 2 + S[0, 2] ** 2 + S[1, 2] ** 2
+    spread = math.sqrt(((S[0, 0] - mean) ** 2 + (S[1, 1] - mean) ** 2 + (S[2, 2] - mean) ** 2 + 2.0 * off) / 6.0)
+    if spread == 0.0:
+        values[0] = values[1] = values[2] = mean
+        return
+    for i in range(3):
+        S[i, i] -= mean
+    angle = math.acos(max(-1.0, min(1.0, _determinant(S, 3) / (2.0 * spread ** 3)))) / 3.0
+    values[0] = mean + 2.0 * spread * math.cos(angle)
+    values[2] = mean + 2.0 * spread * math.cos(angle + 2.0 * math.pi / 3.0)
+    values[1] = 3.0 * mean - values[0] - values[2]
+
+
+@numba.njit(cache=True)
+def _singular_values(F, d, S, sigma):
+    """The signed singular values of F (descending, the last with the sign of det F) from the closed-form eigenvalues
+    of F^T F: accurate to round-off of |F|^2 in sigma^2, which is what the projection's screening needs (the
+    SVD's Jacobi rotations cost several times more). S (d, d) is scratch."""
+    for i in range(d):
+        for j in range(d):
+            value = 0.0
+            for m in range(d):
+                value += F[m, i] * F[m, j]
+            S[i, j] = value
+    _closed_form_eigenvalues(S, d, sigma)
+    for i in range(d):
+        sigma[i] = math.sqrt(max(sigma[i], 0.0))
+    if _determinant(F, d) < 0.0:
+        sigma[d - 1] = -sigma[d - 1]
+
+
+@numba.njit(cache=True)
+def _positive_definite_small(H, d):
+    """Whether the symmetric d x d (d <= 3) matrix H is positive definite, by its leading principal minors."""
+    if not H[0, 0] > 0.0:
         return False
-    shift = PSD_SHIFT * trace / size
-    L = np.empty((size, size))
-    for a in range(size):
-        for b in range(a + 1):
-            total = A[a, b] + (shift if a == b else 0.0)
-            for c in range(b):
-                total -= L[a, c] * L[b, c]
-            if a == b:
-                if not total > 0.0:
-                    return False
-                L[a, a] = math.sqrt(total)
+    minor = H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
+    if not minor > 0.0:
+        return False
+    return d == 2 or _determinant(H, 3) > 0.0
+
+
+@numba.njit(cache=True)
+def _signed_svd(F, d, U, sigma, V, S):
+    """F = U diag(sigma) V^T with U and V rotations, sigma descending but for the last, which takes the sign of det F
+    (the rotation-variant SVD of Irving et al. 2004). V and sigma^2 from the eigensystem of F^T F; U's columns
+    F v_i / sigma_i, the last one the cross product of the others, so that U is a rotation even for a flat element.
+    S (d, d) is scratch."""
+    for i in range(d):
+        for j in range(d):
+            value = 0.0
+            for m in range(d):
+                value += F[m, i] * F[m, j]
+            S[i, j] = value
+    _symmetric_eigen(S, d, sigma, V)
+    if _determinant(V, d) < 0.0:
+        for i in range(d):
+            V[i, d - 1] = -V[i, d - 1]
+    floor = RANK_FLOOR * math.sqrt(max(sigma[0], 0.0))  # sigma holds sigma^2 here
+    for a in range(d - 1):
+        for i in range(d):
+            value = 0.0
+            for j in range(d):
+                value += F[i, j] * V[j, a]
+            U[i, a] = value
+        for b in range(a):  # Gram-Schmidt against the columns before: round-off of F^T F's eigenvectors
+            overlap = 0.0
+            for i in range(d):
+                overlap += U[i, a] * U[i, b]
+            for i in range(d):
+                U[i, a] -= overlap * U[i, b]
+        norm = 0.0
+        for i in range(d):
+            norm += U[i, a] * U[i, a]
+        norm = math.sqrt(norm)
+        if norm > floor and norm > 0.0:
+            for i in range(d):
+                U[i, a] /= norm
+        elif a == 0:  # F = 0: any direction
+            for i in range(d):
+                U[i, 0] = 1.0 if i == 0 else 0.0
+        else:  # 3-D, F of rank 1: a unit vector orthogonal to the first column, from the axis least along it
+            axis = 0
+            for k in range(1, 3):
+                if abs(U[k, 0]) < abs(U[axis, 0]):
+                    axis = k
+            U[0, 1] = (U[1, 0] if axis == 2 else 0.0) - (U[2, 0] if axis == 1 else 0.0)
+            U[1, 1] = (U[2, 0] if axis == 0 else 0.0) - (U[0, 0] if axis == 2 else 0.0)
+            U[2, 1] = (U[0, 0] if axis == 1 else 0.0) - (U[1, 0] if axis == 0 else 0.0)
+            norm = math.sqrt(U[0, 1] ** 2 + U[1, 1] ** 2 + U[2, 1] ** 2)
+            for i in range(3):
+                U[i, 1] /= norm
+    if d == 2:
+        U[0, 1], U[1, 1] = -U[1, 0], U[0, 0]
+    else:
+        U[0, 2] = U[1, 0] * U[2, 1] - U[2, 0] * U[1, 1]
+        U[1, 2] = U[2, 0] * U[0, 1] - U[0, 0] * U[2, 1]
+        U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
+    for a in range(d):
+        value = 0.0
+        for i in range(d):
+            for j in range(d):
+                value += U[i, a] * F[i, j] * V[j, a]
+        sigma[a] = value
+
+
+@numba.njit(cache=True)
+def projection_scratch(d):
+    """The arrays one element's projection works in, made once per chunk: U, V, S (d, d) of the SVD, sigma (d,), H
+    and its eigenvectors (d, d), their eigenvalues (d,), the pairs' flip and twist eigenvalues (3, 2), the tangent's
+    eigenvalues (d^2,) and one eigenvector (d^2,)."""
+    return (np.empty((d, d)), np.empty((d, d)), np.empty((d, d)), np.empty(d), np.empty((d, d)), np.empty((d, d)),
+            np.empty(d), np.empty((3, 2)), np.empty(d * d), np.empty(d * d))
+
+
+@numba.njit(cache=True)
+def _others(sigma, d, i):
+    """J / sigma_i, as the product of the other singular values (defined at sigma_i = 0)."""
+    value = 1.0
+    for m in range(d):
+        if m != i:
+            value *= sigma[m]
+    return value
+
+
+@numba.njit(cache=True)
+def _singular_terms(model, sigma, d, mu, lam, H, pairs):
+    """psi as a function of the signed singular values: H = d^2 psi / d sigma^2 into H (d, d), and per pair (i, j),
+    i < j in the order (0, 1), (0, 2), (1, 2), the tangent's two eigenvalues on the pair's "flip" (symmetric,
+    (psi_i - psi_j) / (sigma_i - sigma_j)) and "twist" (antisymmetric, (psi_i + psi_j) / (sigma_i + sigma_j)) modes
+    into pairs (pair, 2), each quotient written out per energy so that it has no cancellation at sigma_i = sigma_j
+    (Smith, de Goes & Kim 2019, "Analytic eigensystems for isotropic distortion energies"). False for an
+    element where the energy is undefined (neo-Hookean at J <= 0)."""
+    J = 1.0
+    for m in range(d):
+        J *= sigma[m]
+    if model == NEO_HOOKEAN:
+        if not J > 0.0:
+            return False
+        log_J = math.log(J)
+        for i in range(d):
+            for j in range(d):
+                if i == j:
+                    H[i, i] = mu + (mu + lam * (1.0 - log_J)) / (sigma[i] * sigma[i])
+                else:
+                    H[i, j] = lam / (sigma[i] * sigma[j])
+    elif model == STABLE_NEO_HOOKEAN:
+        invariant = 0.0
+        for m in range(d):
+            invariant += sigma[m] * sigma[m]
+        alpha = 1.0 + mu * d / ((d + 1.0) * lam)
+        shrink = mu / (invariant + 1.0)
+        curvature = 2.0 * mu / ((invariant + 1.0) * (invariant + 1.0))
+        for i in range(d):
+            for j in range(d):
+                if i == j:
+                    H[i, i] = mu - shrink + curvature * sigma[i] * sigma[i] + lam * _others(sigma, d, i) ** 2
+                else:
+                    third = 1.0 if d == 2 else sigma[3 - i - j]
+                    H[i, j] = (curvature * sigma[i] * sigma[j]
+                               + lam * (_others(sigma, d, i) * _others(sigma, d, j) + (J - alpha) * third))
+    elif model == COROTATED:
+        for i in range(d):
+            for j in range(d):
+                if i == j:
+                    H[i, i] = 2.0 * mu + lam * _others(sigma, d, i) ** 2
+                else:
+                    third = 1.0 if d == 2 else sigma[3 - i - j]
+                    H[i, j] = lam * (_others(sigma, d, i) * _others(sigma, d, j) + (J - 1.0) * third)
+    else:  # STVK
+        trace = 0.0
+        for m in range(d):
+            trace += 0.5 * (sigma[m] * sigma[m] - 1.0)
+        for i in range(d):
+            for j in range(d):
+                if i == j:
+                    H[i, i] = (2.0 * mu * (sigma[i] * sigma[i] + 0.5 * (sigma[i] * sigma[i] - 1.0))
+                               + lam * (sigma[i] * sigma[i] + trace))
+                else:
+                    H[i, j] = lam * sigma[i] * sigma[j]
+    pair = 0
+    for i in range(d):
+        for j in range(i + 1, d):
+            third = 1.0 if d == 2 else sigma[3 - i - j]
+            si, sj = sigma[i], sigma[j]
+            if model == NEO_HOOKEAN:
+                flip = mu + (mu - lam * math.log(J)) / (si * sj)
+                twist = mu + (lam * math.log(J) - mu) / (si * sj)
+            elif model == STABLE_NEO_HOOKEAN:
+                invariant = 0.0
+                for m in range(d):
+                    invariant += sigma[m] * sigma[m]
+                alpha = 1.0 + mu * d / ((d + 1.0) * lam)
+                base = mu - mu / (invariant + 1.0)
+                flip = base - lam * (J - alpha) * third
+                twist = base + lam * (J - alpha) * third
+            elif model == COROTATED:
+                total = si + sj
+                if abs(total) < ROTATION_FLOOR:
+                    total = ROTATION_FLOOR if total >= 0.0 else -ROTATION_FLOOR
+                flip = 2.0 * mu - lam * (J - 1.0) * third
+                twist = 2.0 * mu - 4.0 * mu / total + lam * (J - 1.0) * third
             else:
-                L[a, b] = total / L[b, b]
+                trace = 0.0
+                for m in range(d):
+                    trace += 0.5 * (sigma[m] * sigma[m] - 1.0)
+                flip = mu * (si * si + si * sj + sj * sj - 1.0) + lam * trace
+                twist = mu * (si * si - si * sj + sj * sj - 1.0) + lam * trace
+            pairs[pair, 0], pairs[pair, 1] = flip, twist
+            pair += 1
     return True
 
 
 @numba.njit(cache=True)
-def _project(A, size, mode):
-    """A's eigenvalues clamped at 0 (mode 1) or mirrored (mode 2), in place; mode 0: as it is."""
-    if mode == 0:
-        return
-    for a in range(size):  # symmetric to round-off: the exact symmetric part goes to LAPACK
-        for b in range(a + 1, size):
-            mean = 0.5 * (A[a, b] + A[b, a])
-            A[a, b] = mean
-            A[b, a] = mean
-    if _positive_definite(A, size):  # nothing to project: the common case, at a tenth of an eigendecomposition
-        return
-    values, vectors = np.linalg.eigh(A)
-    if mode == 1 and values[0] >= 0.0:
-        return
-    for a in range(size):
-        values[a] = max(values[a], 0.0) if mode == 1 else abs(values[a])
-    for a in range(size):
-        for b in range(size):
-            total = 0.0
-            for c in range(size):
-                total += vectors[a, c] * values[c] * vectors[b, c]
-            A[a, b] = total
+def project_tangent(model, F, d, mu, lam, A, mode, scratch):
+    """The exact tangent A = d^2 psi / dF^2 at F made PSD in place, its negative eigenvalues clamped to 0 (mode 1) or
+    mirrored (mode 2); True where it had any below -PSD_SHIFT of the largest, False where it was left as it is.
+    From the analytic eigensystem of an isotropic energy: with F = U diag(sigma) V^T, d scaling modes U diag(z) V^T
+    (z the eigenvectors of d^2 psi / d sigma^2) and per pair of singular values a flip and a twist mode,
+    U (e_i e_j^T +- e_j e_i^T) V^T / sqrt 2 (``_singular_terms``). Only the negative modes' eigenvectors are formed,
+    as a low-rank update A + (lambda' - lambda) q q^T of each. Mode 0 and the linear energy (whose constant tangent is
+    PSD for every nu in (-1, 0.5)) never project."""
+    if mode == 0 or model == LINEAR:
+        return False
+    U, V, S, sigma, H, Z, curvatures, pairs, values, vector = scratch
+    # screening: the eigenvalues need the singular values alone, which the closed form gives at a fraction of the
+    # SVD's cost; an element clearly PSD by them (the lowest above SCREEN_MARGIN of the largest) is left as it is
+    _singular_values(F, d, S, sigma)
+    if not _singular_terms(model, sigma, d, mu, lam, H, pairs):
+        return False
+    _closed_form_eigenvalues(H, d, curvatures)
+    lowest, largest = curvatures[d - 1], max(abs(curvatures[0]), abs(curvatures[d - 1]))
+    for pair in range(d * (d - 1) // 2):
+        lowest = min(lowest, pairs[pair, 0], pairs[pair, 1])
+        largest = max(largest, abs(pairs[pair, 0]), abs(pairs[pair, 1]))
+    if lowest > SCREEN_MARGIN * largest:
+        return False
+    _signed_svd(F, d, U, sigma, V, S)
+    _singular_terms(model, sigma, d, mu, lam, H, pairs)
+    if _positive_definite_small(H, d):  # no scaling mode to project: no eigenvectors; the trace bounds the largest
+        trace = 0.0
+        for k in range(d):
+            trace += H[k, k]
+        for k in range(d):
+            curvatures[k] = trace
+    else:
+        _symmetric_eigen(H, d, curvatures, Z)
+    size = d * d
+    for k in range(d):
+        values[k] = curvatures[k]
+    for pair in range(d * (d - 1) // 2):
+        values[d + 2 * pair], values[d + 2 * pair + 1] = pairs[pair, 0], pairs[pair, 1]
+    largest = 0.0
+    for k in range(size):
+        largest = max(largest, abs(values[k]))
+    changed = False
+    for k in range(size):
+        if values[k] >= -PSD_SHIFT * largest:
+            continue
+        changed = True
+        # the mode's eigenvector, flattened as A is (F_ij -> i d + j)
+        if k < d:
+            for i in range(d):
+                for j in range(d):
+                    value = 0.0
+                    for m in range(d):
+                        value += Z[m, k] * U[i, m] * V[j, m]
+                    vector[i * d + j] = value
+        else:
+            pair, sign = (k - d) // 2, (1.0 if (k - d) % 2 == 0 else -1.0)
+            a, b = (0, 1) if pair == 0 else ((0, 2) if pair == 1 else (1, 2))
+            for i in range(d):
+                for j in range(d):
+                    vector[i * d + j] = math.sqrt(0.5) * (U[i, a] * V[j, b] + sign * U[i, b] * V[j, a])
+        change = -values[k] if mode == 1 else -2.0 * values[k]  # to 0, or to -lambda
+        for row in range(size):
+            scaled = change * vector[row]
+            for column in range(size):
+                A[row, column] += scaled * vector[column]
+    return changed
 
 
 @numba.njit(cache=True)
@@ -347,7 +630,7 @@ def element_energies(x, elements, shape_gradients, volumes, mu, lam, model):
         F = np.empty((d, d))
         P = np.empty((d, d))
         A = np.empty((1, 1))
-        work = np.empty((3, d, d))
+        work = np.empty((WORK_SLOTS, d, d))
         for e in range(chunk * CHUNK, min(count, (chunk + 1) * CHUNK)):
             _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
             energies[e] = volumes[e] * material_terms(model, F, d, mu[e], lam[e], P, A, False, work)
@@ -362,7 +645,7 @@ def _element_forces(x, elements, shape_gradients, volumes, mu, lam, model, force
         F = np.empty((d, d))
         P = np.empty((d, d))
         A = np.empty((1, 1))
-        work = np.empty((3, d, d))
+        work = np.empty((WORK_SLOTS, d, d))
         for e in range(chunk * CHUNK, min(count, (chunk + 1) * CHUNK)):
             _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
             material_terms(model, F, d, mu[e], lam[e], P, A, False, work)
@@ -398,11 +681,12 @@ def _element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, pro
         P = np.empty((d, d))
         A = np.empty((size, size))
         AB = np.empty((size, (d + 1) * d))
-        work = np.empty((3, d, d))
+        work = np.empty((WORK_SLOTS, d, d))
+        scratch = projection_scratch(d)
         for e in range(chunk * CHUNK, min(count, (chunk + 1) * CHUNK)):
             _deformation_gradient(x, elements[e], shape_gradients[e], d, F)
             material_terms(model, F, d, mu[e], lam[e], P, A, True, work)
-            _project(A, size, projection)
+            project_tangent(model, F, d, mu[e], lam[e], A, projection, scratch)
             g = shape_gradients[e]
             # AB[(i, j), (b, k)] = sum_l A[(i, j), (k, l)] g_b,l, then H[(a, i), (b, k)] = V sum_j g_a,j AB[(i, j), (b, k)]
             for row in range(size):

@@ -295,13 +295,15 @@ def _constraints(params, model: SpringModel, rest: np.ndarray, x0: np.ndarray) -
         vertices = select(entry.vertices, model, field + ".vertices")
         claim(vertices, field)
         if entry.velocity is not None:
-            motion = PrescribedMotion(vertices, x0[vertices], velocity=_vector(entry.velocity, dim, field + ".velocity"))
+            motion = PrescribedMotion(vertices, x0[vertices], velocity=_vector(entry.velocity, dim, field + ".velocity"),
+                                      until=entry.until)
         else:
             axis = _vector(entry.rotation.axis, 3, field + ".rotation.axis")
             _check_axis(axis, dim, field + ".rotation.axis")
             center = _vector(entry.rotation.center, dim, field + ".rotation.center")
             motion = PrescribedMotion(vertices, x0[vertices],
-                                      rotation=(center, axis / np.linalg.norm(axis), math.radians(entry.rotation.rate)))
+                                      rotation=(center, axis / np.linalg.norm(axis), math.radians(entry.rotation.rate)),
+                                      until=entry.until)
         prescribed.append(motion)
     return VertexConstraints(dim, model.vertex_count, pinned, sliding, prescribed)
 

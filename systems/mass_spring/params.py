@@ -132,6 +132,9 @@ class Prescribed(BaseModel):
     vertices: Selector
     velocity: Vector | None = Field(None, description="m/s")
     rotation: ConstantRotation | None = None
+    until: Positive | None = Field(
+        None, description="s: the vertices follow the path until this time, then are released (free, with the "
+                          "path's velocity there); none: for the whole run")
 
     @model_validator(mode="after")
     def _one_of(self) -> "Prescribed":

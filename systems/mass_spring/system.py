@@ -81,8 +81,7 @@ class MassSpring(ContactHooks, System):
         self._constant_damping = self._assemble_constant_damping()
         self._geometry: SpringGeometry | None = None  # of the last x the springs were evaluated at
         self._moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
-        if self._moving.size:
-            self._build_driven()
+        self._prepare_paths()
 
     # -- setup ----------------------------------------------------------------------------------
     def _build_pattern(self) -> None:
@@ -174,8 +173,11 @@ class MassSpring(ContactHooks, System):
             acceleration[self._moving] = self.constraints.accelerations_along(v)
         return acceleration
 
-    def _build_driven(self) -> None:
+    def _prepare_paths(self) -> None:
         """What ``driven_force`` needs: the springs that touch a prescribed vertex and their scatter onto its dofs."""
+        if not self._moving.size:
+            self._driven = None
+            return
         moving_vertices = self.constraints.moving_vertices
         springs = np.flatnonzero(np.isin(self.first, moving_vertices) | np.isin(self.second, moving_vertices))
         d, offsets = self.dim, np.arange(self.dim)
