@@ -10,7 +10,7 @@ D_m^-1 (a = 1..d), g_0 = -sum g_a,
 with P = dpsi/dF (first Piola-Kirchhoff stress) and A = d^2 psi / dF^2 (flattened row-major, F_ij -> i d + j).
 The SPD projection is of A (d^2 x d^2): B^T A B with B = dF/dx onto F-space is PSD exactly when A is, so the
 element Hessian is left unchanged where it is PSD. A's eigensystem is analytic for these isotropic energies (Smith
-et al. 2019): a signed SVD of F by Jacobi rotations on F^T F, the d x d Hessian in the singular values, and closed
+et al. 2019): a signed SVD of F from the eigensystem of F^T F, the d x d Hessian in the singular values, and closed
 forms for the rest; no LAPACK call per element. Energy densities (docs/fem.md), Lame mu and lambda per element:
 
 - LINEAR:      mu eps:eps + lambda/2 tr(eps)^2, eps = (F + F^T)/2 - I
@@ -265,58 +265,86 @@ SCREEN_MARGIN = 1e-6
 # a column F v_a of the SVD shorter than this fraction of the largest singular value is F's null space: U's column is
 # then chosen orthogonal to the others instead of normalising round-off
 RANK_FLOOR = 1e-14
-# Jacobi sweeps of a 3 x 3 symmetric matrix: quadratic convergence takes 4-5; this bounds a pathological input
-JACOBI_SWEEPS = 20
+@numba.njit(cache=True)
+def _plane_eigen(b00, b01, b11):
+    """(high, low, c, s): the eigenvalues of the symmetric 2 x 2 matrix [[b00, b01], [b01, b11]], descending, and the
+    unit eigenvector (c, s) of the high one ((-s, c) is the low one's), without cancellation in either."""
+    mean, half = 0.5 * (b00 + b11), 0.5 * (b00 - b11)
+    radius = math.hypot(half, b01)
+    if radius == 0.0:
+        return mean, mean, 1.0, 0.0
+    if half >= 0.0:
+        c, s = half + radius, b01
+    else:
+        c, s = b01, radius - half
+    norm = math.hypot(c, s)
+    return mean + radius, mean - radius, c / norm, s / norm
 
 
 @numba.njit(cache=True)
 def _symmetric_eigen(S, d, values, vectors):
-    """S = vectors diag(values) vectors^T for a symmetric d x d matrix (d <= 3) by cyclic Jacobi rotations, values
-    descending; S is overwritten."""
-    for i in range(d):
-        for j in range(d):
-            vectors[i, j] = 1.0 if i == j else 0.0
-    for _ in range(JACOBI_SWEEPS):
-        off, diagonal = 0.0, 0.0
-        for i in range(d):
-            diagonal += S[i, i] * S[i, i]
-            for j in range(i + 1, d):
-                off += S[i, j] * S[i, j]
-        if off <= 1e-32 * diagonal or off == 0.0:
-            break
-        for p in range(d):
-            for q in range(p + 1, d):
-                if abs(S[p, q]) <= 1e-17 * math.sqrt(abs(S[p, p] * S[q, q])):  # at round-off already
-                    continue
-                # the rotation that zeroes S_pq, applied to the few entries it changes (Numerical Recipes, sec. 11.1)
-                theta = (S[q, q] - S[p, p]) / (2.0 * S[p, q])
-                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
-                c = 1.0 / math.sqrt(t * t + 1.0)
-                s = t * c
-                tau = s / (1.0 + c)
-                S[p, p] -= t * S[p, q]
-                S[q, q] += t * S[p, q]
-                S[p, q] = S[q, p] = 0.0
-                for r in range(d):
-                    if r != p and r != q:
-                        g, h = S[r, p], S[r, q]
-                        S[r, p] = S[p, r] = g - s * (h + g * tau)
-                        S[r, q] = S[q, r] = h + s * (g - h * tau)
-                for r in range(d):
-                    g, h = vectors[r, p], vectors[r, q]
-                    vectors[r, p] = g - s * (h + g * tau)
-                    vectors[r, q] = h + s * (g - h * tau)
-    for i in range(d):
-        values[i] = S[i, i]
-    for i in range(d):  # selection sort, descending, columns with their values
-        best = i
-        for j in range(i + 1, d):
-            if values[j] > values[best]:
-                best = j
-        if best != i:
-            values[i], values[best] = values[best], values[i]
-            for k in range(d):
-                vectors[k, i], vectors[k, best] = vectors[k, best], vectors[k, i]
+    """S = vectors diag(values) vectors^T for a symmetric d x d matrix (d <= 3), values descending; S is overwritten.
+    The eigenvalues in closed form (``_closed_form_eigenvalues``); in 3-D the eigenvector of the one farther from the
+    others from the largest cross product of two rows of S - lambda I, then the other two from the exact 2 x 2
+    problem in the plane normal to it (Eberly, "A robust eigensolver for 3 x 3 symmetric matrices", 2014). An
+    eigenvector's error is round-off over the gap to the next eigenvalue, so V diag(values) V^T equals S to
+    round-off of |S| even where eigenvalues nearly coincide."""
+    if d == 2:
+        values[0], values[1], c, s = _plane_eigen(S[0, 0], S[0, 1], S[1, 1])
+        vectors[0, 0], vectors[1, 0], vectors[0, 1], vectors[1, 1] = c, s, -s, c
+        return
+    a00, a01, a02, a11, a12, a22 = S[0, 0], S[0, 1], S[0, 2], S[1, 1], S[1, 2], S[2, 2]
+    _closed_form_eigenvalues(S, 3, values)
+    first = 0 if values[0] - values[1] >= values[1] - values[2] else 2
+    shift = values[first]
+    r0x, r0y, r0z = a00 - shift, a01, a02
+    r1x, r1y, r1z = a01, a11 - shift, a12
+    r2x, r2y, r2z = a02, a12, a22 - shift
+    best, vx, vy, vz = -1.0, 1.0, 0.0, 0.0
+    for pair in range(3):
+        if pair == 0:
+            cx, cy, cz = r0y * r1z - r0z * r1y, r0z * r1x - r0x * r1z, r0x * r1y - r0y * r1x
+        elif pair == 1:
+            cx, cy, cz = r0y * r2z - r0z * r2y, r0z * r2x - r0x * r2z, r0x * r2y - r0y * r2x
+        else:
+            cx, cy, cz = r1y * r2z - r1z * r2y, r1z * r2x - r1x * r2z, r1x * r2y - r1y * r2x
+        norm = cx * cx + cy * cy + cz * cz
+        if norm > best:
+            best, vx, vy, vz = norm, cx, cy, cz
+    if not best > 0.0:  # S - lambda I of rank 1 or 0 (two or three equal eigenvalues): any axis will do to start
+        vx, vy, vz = 1.0, 0.0, 0.0
+        best = 1.0
+        if first == 2:  # the double eigenvalue is the top one: the single one's vector is S's range direction
+            rows = (r0x * r0x + r0y * r0y + r0z * r0z, r1x * r1x + r1y * r1y + r1z * r1z, r2x * r2x + r2y * r2y + r2z * r2z)
+            pick = 0 if rows[0] >= rows[1] and rows[0] >= rows[2] else (1 if rows[1] >= rows[2] else 2)
+            if rows[pick] > 0.0:
+                vx, vy, vz = (r0x, r0y, r0z) if pick == 0 else ((r1x, r1y, r1z) if pick == 1 else (r2x, r2y, r2z))
+                best = rows[pick]
+    scale = 1.0 / math.sqrt(best)
+    vx, vy, vz = vx * scale, vy * scale, vz * scale
+    # an orthonormal basis (u, w) of the plane normal to v
+    if abs(vx) > abs(vy):
+        scale = 1.0 / math.sqrt(vx * vx + vz * vz)
+        ux, uy, uz = -vz * scale, 0.0, vx * scale
+    else:
+        scale = 1.0 / math.sqrt(vy * vy + vz * vz)
+        ux, uy, uz = 0.0, vz * scale, -vy * scale
+    wx, wy, wz = vy * uz - vz * uy, vz * ux - vx * uz, vx * uy - vy * ux
+    # S restricted to the plane: [u w]^T S [u w]
+    sux, suy, suz = a00 * ux + a01 * uy + a02 * uz, a01 * ux + a11 * uy + a12 * uz, a02 * ux + a12 * uy + a22 * uz
+    swx, swy, swz = a00 * wx + a01 * wy + a02 * wz, a01 * wx + a11 * wy + a12 * wz, a02 * wx + a12 * wy + a22 * wz
+    b00 = ux * sux + uy * suy + uz * suz
+    b01 = wx * sux + wy * suy + wz * suz
+    b11 = wx * swx + wy * swy + wz * swz
+    high, low, c, s = _plane_eigen(b00, b01, b11)
+    vectors[0, first], vectors[1, first], vectors[2, first] = vx, vy, vz
+    values[first] = vx * (a00 * vx + a01 * vy + a02 * vz) + vy * (a01 * vx + a11 * vy + a12 * vz) + vz * (a02 * vx + a12 * vy + a22 * vz)
+    others = (1, 2) if first == 0 else (0, 1)
+    for column in range(2):
+        target = others[column]
+        p, q = (c, s) if column == 0 else (-s, c)
+        vectors[0, target], vectors[1, target], vectors[2, target] = p * ux + q * wx, p * uy + q * wy, p * uz + q * wz
+        values[target] = high if column == 0 else low
 
 
 @numba.njit(cache=True)
@@ -345,7 +373,7 @@ def _closed_form_eigenvalues(S, d, values):
 def _singular_values(F, d, S, sigma):
     """The signed singular values of F (descending, the last with the sign of det F) from the closed-form eigenvalues
     of F^T F: accurate to round-off of |F|^2 in sigma^2, which is what the projection's screening needs (the
-    SVD's Jacobi rotations cost several times more). S (d, d) is scratch."""
+    full SVD costs three times more). S (d, d) is scratch."""
     for i in range(d):
         for j in range(d):
             value = 0.0
@@ -671,6 +699,21 @@ def elastic_gradient(x, elements, shape_gradients, volumes, mu, lam, model):
     return gradient
 
 
+@numba.njit(cache=True)
+def _tetrahedron_block(A, g, volume, AB, block):
+    """block = V B^T A B of one tetrahedron (12 x 12), as in ``_element_hessians`` with the sizes written out, so that
+    the compiler unrolls the short sums (a third of the general loop's time)."""
+    for row in range(9):
+        for b in range(4):
+            for k in range(3):
+                AB[row, 3 * b + k] = A[row, 3 * k] * g[b, 0] + A[row, 3 * k + 1] * g[b, 1] + A[row, 3 * k + 2] * g[b, 2]
+    for a in range(4):
+        for i in range(3):
+            for column in range(12):
+                block[3 * a + i, column] = volume * (g[a, 0] * AB[3 * i, column] + g[a, 1] * AB[3 * i + 1, column]
+                                                     + g[a, 2] * AB[3 * i + 2, column])
+
+
 @numba.njit(cache=True, parallel=True)
 def _element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, projection, blocks):
     """blocks[e] = V B^T A B, element e's Hessian ((d + 1) d square, vertex-major), A projected as asked."""
@@ -688,6 +731,9 @@ def _element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, pro
             material_terms(model, F, d, mu[e], lam[e], P, A, True, work)
             project_tangent(model, F, d, mu[e], lam[e], A, projection, scratch)
             g = shape_gradients[e]
+            if d == 3:
+                _tetrahedron_block(A, g, volumes[e], AB, blocks[e])
+                continue
             # AB[(i, j), (b, k)] = sum_l A[(i, j), (k, l)] g_b,l, then H[(a, i), (b, k)] = V sum_j g_a,j AB[(i, j), (b, k)]
             for row in range(size):
                 for b in range(d + 1):
