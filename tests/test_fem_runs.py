@@ -4,6 +4,7 @@ implicit midpoint; the shipped square and soft drop run as their comments say.""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -197,3 +198,44 @@ def test_the_shipped_twisted_bar_is_turned_then_released(tmp_path):
         assert np.min(np.abs(np.angle(np.exp(1j * (angle - path_angle))))) > 0.2
     assert np.max(np.abs(energies["implicit_midpoint"] - 1.0)) < 0.02
     assert energies["backward_euler"][-1] < 0.5
+
+
+MIXED_SQUARE = {"model": {"square": {"segments": 4, "size": 1.0}}, "gravity": [0.0, 0.0], "initial": {"scale": [1.4, 1.0]}}
+
+
+def mixed_sweep(systems: list[dict]) -> dict:
+    base = {key: value for key, value in systems[0].items() if key != "label"}  # a label names swept values only
+    return {"name": "mixed", "system": base, "integrators": ["backward_euler"], "duration": 0.1,
+            "sweep": {"dt": [0.01], "system": systems}}
+
+
+def test_a_mass_spring_model_and_a_finite_element_model_of_the_same_mesh_run_in_one_sweep(tmp_path):
+    """sweep.system holds whole systems: the course square as springs and as neo-Hookean triangles, each named by its
+    label in the run ids and the stored swept values; both start from the same vertices and run to the end."""
+    fem_square = {"label": "neo-Hookean", "type": "fem", **MIXED_SQUARE,
+                  "material": {"model": "neo_hookean", "youngs_modulus": 1.0e5, "poisson_ratio": 0.4, "density": 1000.0}}
+    springs = {"label": "springs", "type": "mass_spring", **MIXED_SQUARE, "stiffness": 1.0e4, "mass": {"total": 1000.0}}
+    path = tmp_path / "mixed.yaml"
+    path.write_text(json.dumps(mixed_sweep([fem_square, springs])))
+    assert main([str(path), "--output", str(tmp_path / "out"), "-q", "--no-plots"]) == 0
+    results = load(tmp_path / "out" / "results.h5")
+    runs = sorted(results.runs.values(), key=lambda run: run.run_id)
+    assert [run.run_id for run in runs] == ["0000-backward_euler-dt=0.01-system=neo-Hookean",
+                                            "0001-backward_euler-dt=0.01-system=springs"]
+    assert [run.swept["system"] for run in runs] == ["neo-Hookean", "springs"]
+    assert [run.system_params["type"] for run in runs] == ["fem", "mass_spring"]
+    assert all(run.status.name.lower() == "ok" for run in runs)
+    assert np.array_equal(runs[0]["frames"][0], runs[1]["frames"][0])
+
+
+def test_swept_systems_without_labels_are_named_by_type_and_clashing_labels_are_refused():
+    from simrun.experiment.config import load_experiment
+    from simrun.experiment.sweep import expand_runs
+    from simrun.errors import ConfigError
+
+    fem_square = {"type": "fem", **MIXED_SQUARE}
+    springs = {"type": "mass_spring", **MIXED_SQUARE}
+    runs = expand_runs(load_experiment(mixed_sweep([fem_square, springs, {**springs, "stiffness": 10.0}]))[0])
+    assert [run.swept["system"] for run in runs] == ["fem", "mass_spring#2", "mass_spring#3"]
+    with pytest.raises(ConfigError, match="two values are named 'same'"):
+        expand_runs(load_experiment(mixed_sweep([{"label": "same", **fem_square}, {"label": "same", **springs}]))[0])

@@ -31,8 +31,11 @@ def expand_runs(experiment: Experiment) -> list[Run]:
     A swept solver key that a run does not use (``solver.linear_solver`` for L-BFGS, any solver key for
     an explicit method) does not multiply that run: it is run once, with the key's first value, and
     its run id does not name the key."""
-    swept = {key: values for key, values in experiment.sweep.items() if key != "dt"}
+    swept = {key: [_without_label(value) for value in values] for key, values in experiment.sweep.items() if key != "dt"}
+    names = {key: _value_names(key, values) for key, values in experiment.sweep.items() if key != "dt"}
     combinations = [dict(zip(swept, values)) for values in _product(list(swept.values()))]
+    # the same, as runs name them: a swept mapping (a whole system, say) by its label
+    shown = [dict(zip(names, values)) for values in _product(list(names.values()))]
     total = len(combinations) * len(experiment.integrators) * len(experiment.sweep["dt"])
     if total > MAX_RUNS:
         raise ConfigError(f"sweep: {total} runs exceed the limit of {MAX_RUNS}; shorten the sweep")
@@ -46,10 +49,10 @@ def expand_runs(experiment: Experiment) -> list[Run]:
     systems: dict[str, Any] = {}  # built systems by their config, for the solvers' refusals
     seen = set()  # (integrator's position, the swept keys it uses) already expanded
     swept_solvers = tuple(swept.get("solver.type", ()))
-    for assignment in combinations:
+    for assignment, named in zip(combinations, shown):
         resolved = _resolve(base, assignment, swept_solvers)
         for number, integrator in enumerate(resolved.integrators):
-            used = {key: value for key, value in assignment.items() if uses_swept_key(key, integrator, resolved.solver, swept_solvers)}
+            used = {key: named[key] for key in assignment if uses_swept_key(key, integrator, resolved.solver, swept_solvers)}
             identity = (number, json.dumps(used, sort_keys=True, default=str))
             if identity in seen:
                 continue
@@ -66,6 +69,34 @@ def expand_runs(experiment: Experiment) -> list[Run]:
                     record=resolved.record, divergence=resolved.divergence, swept=used, label=labels[number],
                 ))
     return runs
+
+
+def _without_label(value: Any) -> Any:
+    """A swept value as the config takes it: a mapping without its ``label`` (which only names it)."""
+    return {key: item for key, item in value.items() if key != "label"} if isinstance(value, dict) else value
+
+
+def _value_names(key: str, values: list) -> list:
+    """Each swept value as run ids, tables and figures show it: a mapping (a whole ``system``, a ``solver``) by its
+    ``label``, else its ``type`` where that tells it from the others, else its type (or the key) and its place,
+    "fem#2"; any other value as it is. Labels must tell the values apart."""
+    if not any(isinstance(value, dict) for value in values):
+        return list(values)
+    types = [value.get("type") if isinstance(value, dict) else None for value in values]
+    names = []
+    for number, value in enumerate(values):
+        if not isinstance(value, dict):
+            names.append(value)
+        elif "label" in value:
+            names.append(str(value["label"]))
+        elif types[number] is not None and types.count(types[number]) == 1:
+            names.append(str(types[number]))
+        else:
+            names.append(f"{types[number] or key.split('.')[-1]}#{number + 1}")
+    repeated = sorted({str(name) for name in names if names.count(name) > 1})
+    if repeated:
+        raise ConfigError(f"sweep.{key}: two values are named {repeated[0]!r}; give each mapping its own label")
+    return names
 
 
 # the swept solver keys that only a linear solver reads (solvers/params.py: LINEAR_SOLVER_FIELDS and the solver's name)
