@@ -370,16 +370,22 @@ def _closed_form_eigenvalues(S, d, values):
 
 
 @numba.njit(cache=True)
-def _singular_values(F, d, S, sigma):
-    """The signed singular values of F (descending, the last with the sign of det F) from the closed-form eigenvalues
-    of F^T F: accurate to round-off of |F|^2 in sigma^2, which is what the projection's screening needs (the
-    full SVD costs three times more). S (d, d) is scratch."""
+def _gram(F, d, S):
+    """S = F^T F (d, d)."""
     for i in range(d):
         for j in range(d):
             value = 0.0
             for m in range(d):
                 value += F[m, i] * F[m, j]
             S[i, j] = value
+
+
+@numba.njit(cache=True)
+def _singular_values(F, d, S, sigma):
+    """The signed singular values of F (descending, the last with the sign of det F) from the closed-form eigenvalues
+    of F^T F: accurate to round-off of |F|^2 in sigma^2, which is what the projection's screening needs (the
+    full SVD costs three times more). S (d, d) is scratch."""
+    _gram(F, d, S)
     _closed_form_eigenvalues(S, d, sigma)
     for i in range(d):
         sigma[i] = math.sqrt(max(sigma[i], 0.0))
@@ -404,12 +410,7 @@ def _signed_svd(F, d, U, sigma, V, S):
     (the rotation-variant SVD of Irving et al. 2004). V and sigma^2 from the eigensystem of F^T F; U's columns
     F v_i / sigma_i, the last one the cross product of the others, so that U is a rotation even for a flat element.
     S (d, d) is scratch."""
-    for i in range(d):
-        for j in range(d):
-            value = 0.0
-            for m in range(d):
-                value += F[m, i] * F[m, j]
-            S[i, j] = value
+    _gram(F, d, S)
     _symmetric_eigen(S, d, sigma, V)
     if _determinant(V, d) < 0.0:
         for i in range(d):
