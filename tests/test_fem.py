@@ -15,7 +15,7 @@ import scipy.sparse
 from simrun.experiment.config import load_experiment
 from simrun.errors import ConfigError
 from simrun.systems import SYSTEMS
-from simrun.systems.fem import kernels
+from simrun.systems.fem import energies, projection
 from simrun.systems.fem.materials import MATERIALS, lame
 
 ENERGIES = sorted(MATERIALS)
@@ -145,19 +145,19 @@ def test_element_projection_leaves_a_psd_tangent_alone_and_fixes_an_indefinite_o
     and keeps the eigenvectors, abs mirrors them."""
     d = 3
     F = np.diag([0.4, 1.0, 1.0]) + 0.05
-    A = tangent(kernels.STVK, F, 3.0, 2.0)
+    A = tangent(energies.STVK, F, 3.0, 2.0)
     values, vectors = np.linalg.eigh(A)
     assert values[0] < 0
     for mode, expected in ((1, np.maximum(values, 0)), (2, np.abs(values))):
         projected = A.copy()
-        assert kernels.project_tangent(kernels.STVK, F, d, 3.0, 2.0, projected, mode, kernels.projection_scratch(d))
+        assert projection.project_tangent(energies.STVK, F, d, 3.0, 2.0, projected, mode, projection.projection_scratch(d))
         assert np.allclose(projected, (vectors * expected) @ vectors.T, atol=1e-12 * np.abs(values).max())
 
 
 def tangent(model: int, F: np.ndarray, mu: float, lam: float) -> np.ndarray:
     d = F.shape[0]
     P, A = np.empty((d, d)), np.empty((d * d, d * d))
-    kernels.material_terms(model, np.ascontiguousarray(F), d, mu, lam, P, A, True, np.empty((kernels.WORK_SLOTS, d, d)))
+    energies.material_terms(model, np.ascontiguousarray(F), d, mu, lam, P, A, True, np.empty((energies.WORK_SLOTS, d, d)))
     return A
 
 
@@ -174,8 +174,8 @@ def deformations(d: int, seed: int = 7) -> list[np.ndarray]:
     return cases
 
 
-ANALYTIC = {"corotated": kernels.COROTATED, "stvk": kernels.STVK, "neo_hookean": kernels.NEO_HOOKEAN,
-            "stable_neo_hookean": kernels.STABLE_NEO_HOOKEAN}
+ANALYTIC = {"corotated": energies.COROTATED, "stvk": energies.STVK, "neo_hookean": energies.NEO_HOOKEAN,
+            "stable_neo_hookean": energies.STABLE_NEO_HOOKEAN}
 
 
 @pytest.mark.parametrize("d", [2, 3])
@@ -186,7 +186,7 @@ def test_the_analytic_projection_equals_the_numerical_one(d, material, mode):
     and twist eigenvalues) equals numpy's eigh of A with its eigenvalues clamped or mirrored, to 1e-8 of |A|, for
     every deformation above; elements where it is PSD are left bit for bit."""
     model, (mu, lam) = ANALYTIC[material], lame(YOUNG, POISSON)
-    scratch = kernels.projection_scratch(d)
+    scratch = projection.projection_scratch(d)
     projected_any = False
     for F in deformations(d):
         if material == "neo_hookean" and np.linalg.det(F) <= 0.0:
@@ -195,7 +195,7 @@ def test_the_analytic_projection_equals_the_numerical_one(d, material, mode):
         values, vectors = np.linalg.eigh(0.5 * (A + A.T))
         expected = (vectors * (np.maximum(values, 0.0) if mode == 1 else np.abs(values))) @ vectors.T
         projected = A.copy()
-        changed = kernels.project_tangent(model, np.ascontiguousarray(F), d, mu, lam, projected, mode, scratch)
+        changed = projection.project_tangent(model, np.ascontiguousarray(F), d, mu, lam, projected, mode, scratch)
         scale = np.max(np.abs(A))
         assert np.max(np.abs(projected - expected)) <= 1e-8 * scale, F
         assert changed == (values[0] < -1e-12 * np.max(np.abs(values)))

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK
+from .energies import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK
 
 # config name -> the kernels' code
 MATERIALS = {"linear": LINEAR, "corotated": COROTATED, "stvk": STVK, "neo_hookean": NEO_HOOKEAN,

@@ -1,0 +1,217 @@
+"""Dense linear algebra of one element's small matrices (2 x 2 and 3 x 3), compiled with numba and allocating nothing:
+the determinant, F^T F, closed-form symmetric eigensystems and the rotation-variant SVD that the co-rotated energy and
+the analytic SPD projection (projection.py) need. No LAPACK call: from numba it costs microseconds per matrix."""
+
+from __future__ import annotations
+
+import math
+
+import numba
+
+# a column F v_a of the SVD shorter than this fraction of the largest singular value is F's null space: U's column is
+# then chosen orthogonal to the others instead of normalising round-off
+RANK_FLOOR = 1e-14
+@numba.njit(cache=True)
+def _determinant(F, d):
+    if d == 2:
+        return F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    return (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
+            + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
+
+
+@numba.njit(cache=True)
+def _plane_eigen(b00, b01, b11):
+    """(high, low, c, s): the eigenvalues of the symmetric 2 x 2 matrix [[b00, b01], [b01, b11]], descending, and the
+    unit eigenvector (c, s) of the high one ((-s, c) is the low one's), without cancellation in either."""
+    mean, half = 0.5 * (b00 + b11), 0.5 * (b00 - b11)
+    radius = math.hypot(half, b01)
+    if radius == 0.0:
+        return mean, mean, 1.0, 0.0
+    if half >= 0.0:
+        c, s = half + radius, b01
+    else:
+        c, s = b01, radius - half
+    norm = math.hypot(c, s)
+    return mean + radius, mean - radius, c / norm, s / norm
+
+
+@numba.njit(cache=True)
+def _symmetric_eigen(S, d, values, vectors):
+    """S = vectors diag(values) vectors^T for a symmetric d x d matrix (d <= 3), values descending; S is overwritten.
+    The eigenvalues in closed form (``_closed_form_eigenvalues``); in 3-D the eigenvector of the one farther from the
+    others from the largest cross product of two rows of S - lambda I, then the other two from the exact 2 x 2
+    problem in the plane normal to it (Eberly, "A robust eigensolver for 3 x 3 symmetric matrices", 2014). An
+    eigenvector's error is round-off over the gap to the next eigenvalue, so V diag(values) V^T equals S to
+    round-off of |S| even where eigenvalues nearly coincide."""
+    if d == 2:
+        values[0], values[1], c, s = _plane_eigen(S[0, 0], S[0, 1], S[1, 1])
+        vectors[0, 0], vectors[1, 0], vectors[0, 1], vectors[1, 1] = c, s, -s, c
+        return
+    a00, a01, a02, a11, a12, a22 = S[0, 0], S[0, 1], S[0, 2], S[1, 1], S[1, 2], S[2, 2]
+    _closed_form_eigenvalues(S, 3, values)
+    first = 0 if values[0] - values[1] >= values[1] - values[2] else 2
+    shift = values[first]
+    r0x, r0y, r0z = a00 - shift, a01, a02
+    r1x, r1y, r1z = a01, a11 - shift, a12
+    r2x, r2y, r2z = a02, a12, a22 - shift
+    best, vx, vy, vz = -1.0, 1.0, 0.0, 0.0
+    for pair in range(3):
+        if pair == 0:
+            cx, cy, cz = r0y * r1z - r0z * r1y, r0z * r1x - r0x * r1z, r0x * r1y - r0y * r1x
+        elif pair == 1:
+            cx, cy, cz = r0y * r2z - r0z * r2y, r0z * r2x - r0x * r2z, r0x * r2y - r0y * r2x
+        else:
+            cx, cy, cz = r1y * r2z - r1z * r2y, r1z * r2x - r1x * r2z, r1x * r2y - r1y * r2x
+        norm = cx * cx + cy * cy + cz * cz
+        if norm > best:
+            best, vx, vy, vz = norm, cx, cy, cz
+    if not best > 0.0:  # S - lambda I of rank 1 or 0 (two or three equal eigenvalues): any axis will do to start
+        vx, vy, vz = 1.0, 0.0, 0.0
+        best = 1.0
+        if first == 2:  # the double eigenvalue is the top one: the single one's vector is S's range direction
+            rows = (r0x * r0x + r0y * r0y + r0z * r0z, r1x * r1x + r1y * r1y + r1z * r1z, r2x * r2x + r2y * r2y + r2z * r2z)
+            pick = 0 if rows[0] >= rows[1] and rows[0] >= rows[2] else (1 if rows[1] >= rows[2] else 2)
+            if rows[pick] > 0.0:
+                vx, vy, vz = (r0x, r0y, r0z) if pick == 0 else ((r1x, r1y, r1z) if pick == 1 else (r2x, r2y, r2z))
+                best = rows[pick]
+    scale = 1.0 / math.sqrt(best)
+    vx, vy, vz = vx * scale, vy * scale, vz * scale
+    # an orthonormal basis (u, w) of the plane normal to v
+    if abs(vx) > abs(vy):
+        scale = 1.0 / math.sqrt(vx * vx + vz * vz)
+        ux, uy, uz = -vz * scale, 0.0, vx * scale
+    else:
+        scale = 1.0 / math.sqrt(vy * vy + vz * vz)
+        ux, uy, uz = 0.0, vz * scale, -vy * scale
+    wx, wy, wz = vy * uz - vz * uy, vz * ux - vx * uz, vx * uy - vy * ux
+    # S restricted to the plane: [u w]^T S [u w]
+    sux, suy, suz = a00 * ux + a01 * uy + a02 * uz, a01 * ux + a11 * uy + a12 * uz, a02 * ux + a12 * uy + a22 * uz
+    swx, swy, swz = a00 * wx + a01 * wy + a02 * wz, a01 * wx + a11 * wy + a12 * wz, a02 * wx + a12 * wy + a22 * wz
+    b00 = ux * sux + uy * suy + uz * suz
+    b01 = wx * sux + wy * suy + wz * suz
+    b11 = wx * swx + wy * swy + wz * swz
+    high, low, c, s = _plane_eigen(b00, b01, b11)
+    vectors[0, first], vectors[1, first], vectors[2, first] = vx, vy, vz
+    values[first] = vx * (a00 * vx + a01 * vy + a02 * vz) + vy * (a01 * vx + a11 * vy + a12 * vz) + vz * (a02 * vx + a12 * vy + a22 * vz)
+    others = (1, 2) if first == 0 else (0, 1)
+    for column in range(2):
+        target = others[column]
+        p, q = (c, s) if column == 0 else (-s, c)
+        vectors[0, target], vectors[1, target], vectors[2, target] = p * ux + q * wx, p * uy + q * wy, p * uz + q * wz
+        values[target] = high if column == 0 else low
+
+
+@numba.njit(cache=True)
+def _closed_form_eigenvalues(S, d, values):
+    """The eigenvalues of the symmetric d x d (d <= 3) matrix S, descending, in closed form (the trigonometric
+    solution of the characteristic cubic in 3-D), accurate to round-off of |S|; S is overwritten."""
+    if d == 2:
+        mean, half = 0.5 * (S[0, 0] + S[1, 1]), math.hypot(0.5 * (S[0, 0] - S[1, 1]), S[0, 1])
+        values[0], values[1] = mean + half, mean - half
+        return
+    mean = (S[0, 0] + S[1, 1] + S[2, 2]) / 3.0
+    off = S[0, 1] ** 2 + S[0, 2] ** 2 + S[1, 2] ** 2
+    spread = math.sqrt(((S[0, 0] - mean) ** 2 + (S[1, 1] - mean) ** 2 + (S[2, 2] - mean) ** 2 + 2.0 * off) / 6.0)
+    if spread == 0.0:
+        values[0] = values[1] = values[2] = mean
+        return
+    for i in range(3):
+        S[i, i] -= mean
+    angle = math.acos(max(-1.0, min(1.0, _determinant(S, 3) / (2.0 * spread ** 3)))) / 3.0
+    values[0] = mean + 2.0 * spread * math.cos(angle)
+    values[2] = mean + 2.0 * spread * math.cos(angle + 2.0 * math.pi / 3.0)
+    values[1] = 3.0 * mean - values[0] - values[2]
+
+
+@numba.njit(cache=True)
+def _gram(F, d, S):
+    """S = F^T F (d, d)."""
+    for i in range(d):
+        for j in range(d):
+            value = 0.0
+            for m in range(d):
+                value += F[m, i] * F[m, j]
+            S[i, j] = value
+
+
+@numba.njit(cache=True)
+def _singular_values(F, d, S, sigma):
+    """The signed singular values of F (descending, the last with the sign of det F) from the closed-form eigenvalues
+    of F^T F: accurate to round-off of |F|^2 in sigma^2, which is what the projection's screening needs (the
+    full SVD costs three times more). S (d, d) is scratch."""
+    _gram(F, d, S)
+    _closed_form_eigenvalues(S, d, sigma)
+    for i in range(d):
+        sigma[i] = math.sqrt(max(sigma[i], 0.0))
+    if _determinant(F, d) < 0.0:
+        sigma[d - 1] = -sigma[d - 1]
+
+
+@numba.njit(cache=True)
+def _positive_definite_small(H, d):
+    """Whether the symmetric d x d (d <= 3) matrix H is positive definite, by its leading principal minors."""
+    if not H[0, 0] > 0.0:
+        return False
+    minor = H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
+    if not minor > 0.0:
+        return False
+    return d == 2 or _determinant(H, 3) > 0.0
+
+
+@numba.njit(cache=True)
+def _signed_svd(F, d, U, sigma, V, S):
+    """F = U diag(sigma) V^T with U and V rotations, sigma descending but for the last, which takes the sign of det F
+    (the rotation-variant SVD of Irving et al. 2004). V and sigma^2 from the eigensystem of F^T F; U's columns
+    F v_i / sigma_i, the last one the cross product of the others, so that U is a rotation even for a flat element.
+    S (d, d) is scratch."""
+    _gram(F, d, S)
+    _symmetric_eigen(S, d, sigma, V)
+    if _determinant(V, d) < 0.0:
+        for i in range(d):
+            V[i, d - 1] = -V[i, d - 1]
+    floor = RANK_FLOOR * math.sqrt(max(sigma[0], 0.0))  # sigma holds sigma^2 here
+    for a in range(d - 1):
+        for i in range(d):
+            value = 0.0
+            for j in range(d):
+                value += F[i, j] * V[j, a]
+            U[i, a] = value
+        for b in range(a):  # Gram-Schmidt against the columns before: round-off of F^T F's eigenvectors
+            overlap = 0.0
+            for i in range(d):
+                overlap += U[i, a] * U[i, b]
+            for i in range(d):
+                U[i, a] -= overlap * U[i, b]
+        norm = 0.0
+        for i in range(d):
+            norm += U[i, a] * U[i, a]
+        norm = math.sqrt(norm)
+        if norm > floor and norm > 0.0:
+            for i in range(d):
+                U[i, a] /= norm
+        elif a == 0:  # F = 0: any direction
+            for i in range(d):
+                U[i, 0] = 1.0 if i == 0 else 0.0
+        else:  # 3-D, F of rank 1: a unit vector orthogonal to the first column, from the axis least along it
+            axis = 0
+            for k in range(1, 3):
+                if abs(U[k, 0]) < abs(U[axis, 0]):
+                    axis = k
+            U[0, 1] = (U[1, 0] if axis == 2 else 0.0) - (U[2, 0] if axis == 1 else 0.0)
+            U[1, 1] = (U[2, 0] if axis == 0 else 0.0) - (U[0, 0] if axis == 2 else 0.0)
+            U[2, 1] = (U[0, 0] if axis == 1 else 0.0) - (U[1, 0] if axis == 0 else 0.0)
+            norm = math.sqrt(U[0, 1] ** 2 + U[1, 1] ** 2 + U[2, 1] ** 2)
+            for i in range(3):
+                U[i, 1] /= norm
+    if d == 2:
+        U[0, 1], U[1, 1] = -U[1, 0], U[0, 0]
+    else:
+        U[0, 2] = U[1, 0] * U[2, 1] - U[2, 0] * U[1, 1]
+        U[1, 2] = U[2, 0] * U[0, 1] - U[0, 0] * U[2, 1]
+        U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
+    for a in range(d):
+        value = 0.0
+        for i in range(d):
+            for j in range(d):
+                value += U[i, a] * F[i, j] * V[j, a]
+        sigma[a] = value
