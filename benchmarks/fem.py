@@ -7,6 +7,10 @@ factorisation of its matrix, and the course code's Newton iteration on its own s
   tet on this machine.
 - A backward Euler step of a 12 x 12 x 12 box hanging from one face (projected Newton, the direct solver): the
   cost of one Newton iteration over one symmetric-mode SuperLU factorisation of its Newton matrix. Target: <= 1.5.
+- A shell on a 64 x 64 grid (7,938 StVK membrane triangles, 11,781 discrete-shell hinges), one thread: gradient and
+  SPD-projected Hessian with its scatter, over the mass-spring cloth's (clamped springs) on the same grid; per
+  triangle and per hinge for information. No target in the issue: a hinge's 9 x 9 eigenproblem (the projection of
+  its indefinite Hessian) is most of it.
 - The course code's 2-D neo-Hookean square (solid-sim-tutorial 6_inv_free), 16 segments: its Newton iteration (its
   own functions, Python loops per element) over simrun's on the same scene. Target: >= 50. The course code is not
   part of simrun: set SIMRUN_COURSE_CODE to its 6_inv_free folder, or the row says it is skipped.
@@ -58,6 +62,28 @@ def _element_rows() -> list[tuple[str, float, str, str]]:
                      f"<= {ELEMENT_TARGET_US:g}",
                      f"energy {times['energy']:.2f}, gradient {times['gradient']:.2f}, Hessian {times[kind]:.2f} us/tet"))
     return rows
+
+
+def _shell_row() -> tuple[str, float, str, str]:
+    grid = {"resolution": [64, 64], "size": [1.0, 1.0]}
+    shell = SYSTEMS["fem"].model_validate({
+        "type": "fem", "model": {"grid": grid}, "thickness": 1.0e-3, "bending": {"stiffness": 1.0e-4},
+        "material": {"model": "stvk", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3, "density": 1.0}}).build()
+    springs = SYSTEMS["cloth"].model_validate({"type": "cloth", "resolution": grid["resolution"], "size": grid["size"],
+                                               "pinned": []}).build()
+    noise = 0.05 / 63 * np.random.default_rng(0).standard_normal(shell.dof_count)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        times = [best_of(lambda: (system.gradient(system.x0 + noise), system.hessian_data(system.x0 + noise, "clamp")),
+                         repeats=3) for system in (shell, springs)]
+    finally:
+        numba.set_num_threads(threads)
+    triangles, hinges = len(shell.elements), len(shell.hinges)
+    return (f"fem shell 64x64, {triangles:,} triangles + {hinges:,} hinges, 1 thread: grad + projected Hessian / "
+            "spring cloth's", times[0] / times[1], "(information)",
+            f"{times[0] * 1e3:.1f} ms against {times[1] * 1e3:.1f} ms; {times[0] / (triangles + hinges) * 1e6:.2f} us "
+            "per triangle or hinge")
 
 
 def _iteration_row() -> tuple[str, float, str, str]:
@@ -124,7 +150,7 @@ def _course_row() -> tuple[str, float, str, str]:
 
 
 def rows() -> list[tuple[str, float, str, str]]:
-    return [*_element_rows(), _iteration_row(), _course_row()]
+    return [*_element_rows(), _shell_row(), _iteration_row(), _course_row()]
 
 
 __all__ = ["rows"]

@@ -204,6 +204,22 @@ def add_diagonal(matrix, diagonal: np.ndarray, in_place: bool = False):
     return result
 
 
+def add_mass(matrix, system: System, in_place: bool = False):
+    """matrix + M: the system's diagonal mass, and a consistent mass's correction where it has one."""
+    matrix = add_diagonal(matrix, system.mass, in_place=in_place)
+    if system.mass_correction is not None:
+        matrix = matrix + (system.mass_correction if scipy.sparse.issparse(matrix) else system.mass_correction.toarray())
+    return matrix
+
+
+def mass_refusal(name: str, system: System) -> str | None:
+    """Why a method that takes M as a diagonal (its inverse per dof, or per vertex) cannot step ``system``, or None."""
+    if system.mass_correction is None:
+        return None
+    return (f"{name} takes M as a diagonal, and the system's mass is a consistent matrix: use mass: lumped, or a "
+            "method that takes M whole (the incremental-potential and explicit methods)")
+
+
 # round-off of M (y - y~): a few ulps of its largest term, and, where that term is subnormal (a motion damped to 1e-300
 # m and below), a few of the subnormals' fixed spacing, which is then the round-off (relative digits are gone)
 RESIDUAL_ULPS = 64.0 * np.finfo(float).eps
@@ -355,7 +371,7 @@ class IncrementalPotential:
 
     def value(self, y: np.ndarray) -> float:
         offset = y - self.y_tilde
-        energy = 0.5 * float(np.dot(self.system.mass * offset, offset)) + self.scale * self.system.potential_energy(y)
+        energy = 0.5 * float(np.dot(self.system.mass_times(offset), offset)) + self.scale * self.system.potential_energy(y)
         if self.damping is not None:
             rate = y - self.velocity_origin
             energy += 0.5 * self.damping_weight * float(rate @ (self.damping @ rate))
@@ -378,6 +394,8 @@ class IncrementalPotential:
         # the inertia term from y - y~, each difference with an error of about eps |y|
         offset = y - self.y_tilde
         momentum = np.abs(self.system.mass * offset)
+        if self.system.mass_correction is not None:
+            momentum += abs(self.system.mass_correction) @ np.abs(offset)
         magnitude = float(momentum @ (0.5 * np.abs(offset) + np.abs(y))) + self.scale * self.system.potential_magnitude(y)
         if self.damping is not None:
             rate = y - self.velocity_origin
@@ -387,7 +405,7 @@ class IncrementalPotential:
         return magnitude
 
     def gradient(self, y: np.ndarray) -> np.ndarray:
-        gradient = self.system.mass * (y - self.y_tilde) + self.scale * self.system.gradient(y)
+        gradient = self.system.mass_times(y - self.y_tilde) + self.scale * self.system.gradient(y)
         if self.damping is not None:
             gradient += self.damping_weight * (self.damping @ (y - self.velocity_origin))
         if self.friction is not None:
@@ -428,7 +446,7 @@ class IncrementalPotential:
         matrix = self.scale * stiffness
         if self.damping is not None:
             matrix = matrix + self.damping_weight * self.damping
-        return add_diagonal(matrix, self.system.mass)
+        return add_mass(matrix, self.system)
 
     @property
     def rest_key(self) -> tuple:
@@ -461,7 +479,7 @@ class IncrementalPotential:
             hessian = self.scale * system.hessian(y, project_spd=project_spd)  # a new array: ours to change
             if self.damping is not None:
                 hessian = hessian + self.damping_weight * self.damping
-            hessian = add_diagonal(hessian, system.mass, in_place=True)
+            hessian = add_mass(hessian, system, in_place=True)
             if self.friction is not None:
                 extra.append(self.scale * self.friction.point_matrix(y))
         return add_keeping_pattern(hessian, *extra) if extra else hessian
@@ -475,6 +493,8 @@ class IncrementalPotential:
         if self.damping is not None:
             data += self.damping_weight * self.damping.data
         data[system.diagonal_positions] += system.mass
+        if system.mass_correction is not None:  # in the same pattern
+            data += system.mass_correction_data
         return data
 
     # -- vertex by vertex: what vertex block descent needs (solvers/vbd.py) ------------------------------

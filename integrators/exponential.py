@@ -10,7 +10,7 @@ import scipy.sparse.linalg
 
 from simrun.solvers import EXPLICIT_STEP
 
-from .base import Integrator, State
+from .base import Integrator, State, mass_refusal
 
 
 class ExponentialRosenbrockEuler(Integrator):
@@ -32,6 +32,9 @@ class ExponentialRosenbrockEuler(Integrator):
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = True
     summary: ClassVar[str] = "Chen-Ascher-Pai exponential Rosenbrock-Euler; exact on linear problems, 2nd order"
+
+    def refusal(self, system):
+        return mass_refusal(self.name, system) or super().refusal(system)
 
     def step(self, system, state, dt, solver):
         n = system.dof_count

@@ -9,7 +9,7 @@ import numpy as np
 
 from simrun.systems import System
 
-from .base import add_diagonal, constrained_start, initial_guess, residual_floor
+from .base import add_mass, constrained_start, initial_guess, residual_floor
 
 
 class SegmentPotential:
@@ -73,7 +73,7 @@ class SegmentPotential:
         matrix = self._rest_scale * stiffness
         if self.damping_end is not None and self.system.damping_is_constant:
             matrix = matrix + (self.h2 / self.velocity_divisor) * self.damping_end
-        return add_diagonal(matrix, self.system.mass)
+        return add_mass(matrix, self.system)
 
     @property
     def rest_key(self) -> tuple:
@@ -85,7 +85,7 @@ class SegmentPotential:
 
     def value(self, y: np.ndarray) -> float:
         offset = y - self.y_tilde
-        energy = 0.5 * float(np.dot(self.system.mass * offset, offset))
+        energy = 0.5 * float(np.dot(self.system.mass_times(offset), offset))
         for s, c, z in zip(self.nodes, self.weights, self._points(y)):
             # P(z_j) whole, not P(z_j) - P(x_n): the constant changes no comparison, and without it |E|
             # keeps the size of its terms, which the line search's round-off allowance is relative to
@@ -100,6 +100,8 @@ class SegmentPotential:
         """As ``IncrementalPotential.value_magnitude``: the size of the terms ``value`` sums."""
         offset = y - self.y_tilde
         momentum = np.abs(self.system.mass * offset)
+        if self.system.mass_correction is not None:
+            momentum += abs(self.system.mass_correction) @ np.abs(offset)
         magnitude = float(momentum @ (0.5 * np.abs(offset) + np.abs(y)))
         for s, c, z in zip(self.nodes, self.weights, self._points(y)):
             magnitude += self.h2 * abs(c) * self.system.potential_magnitude(z) / s
@@ -110,7 +112,7 @@ class SegmentPotential:
         return magnitude
 
     def gradient(self, y: np.ndarray) -> np.ndarray:
-        gradient = self.system.mass * (y - self.y_tilde)
+        gradient = self.system.mass_times(y - self.y_tilde)
         for c, z in zip(self.weights, self._points(y)):
             gradient += self.h2 * c * self.system.gradient(z)
         if self.damping_end is not None:
@@ -138,4 +140,4 @@ class SegmentPotential:
             hessian = term if hessian is None else hessian + term
         if self.damping_end is not None:
             hessian = hessian + (self.h2 / self.velocity_divisor) * self.damping_end
-        return add_diagonal(hessian, self.system.mass)
+        return add_mass(hessian, self.system)

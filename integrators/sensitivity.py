@@ -36,6 +36,8 @@ def exact_refusal(system: System, integrator: Integrator) -> str | None:
         return "contact (barriers, CCD-cut steps and lagged friction) is not differentiated"
     if system.sliding is not None:
         return "sliding constraints are not differentiated"
+    if system.mass_correction is not None:
+        return "the tangent equations take a diagonal M, not a consistent mass matrix"
     if not system.damping_is_constant and type(system).damping_derivative is System.damping_derivative:
         return f"{type(system).__name__}'s damping matrix moves with x and the system gives no derivative of it"
     return None

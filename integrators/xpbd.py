@@ -20,7 +20,7 @@ from pydantic import Field
 from simrun.solvers import EXPLICIT_STEP
 from simrun.systems.compliant import ANCHORED
 
-from .base import Integrator, State
+from .base import Integrator, State, mass_refusal
 
 
 class XPBD(Integrator):
@@ -61,7 +61,7 @@ class XPBD(Integrator):
         reason = system.compliant_form
         if reason is not None:
             return f"xpbd needs the system's springs as compliant constraints: {reason}"
-        return super().refusal(system)
+        return mass_refusal(self.name, system) or super().refusal(system)
 
     def step(self, system, state, dt, solver):
         projection = spring_projection(system)

@@ -138,6 +138,9 @@ class VertexBlockDescent(NonlinearSolver):
         if getattr(system, "has_friction", False) or system.off_pattern_hessian(system.x0) is not None:
             return ("vbd's vertex blocks hold the springs and the colliders, not friction or mesh contact (which couple "
                     "vertices through ipctk): use newton, projected_newton or lbfgs")
+        if system.mass_correction is not None:
+            return ("vbd's vertex blocks take each vertex's own mass, and a consistent mass matrix couples the vertices: "
+                    "use mass: lumped, or newton, projected_newton or lbfgs")
         return None
 
     # -- the iteration ------------------------------------------------------------------------

@@ -126,6 +126,10 @@ class System(ABC):
     dof_count: int
     dim: int
     mass: np.ndarray
+    # a consistent mass matrix's part off its lumped diagonal, M - diag(mass) (a CSR matrix in the Hessian's pattern,
+    # whose rows sum to 0), or None: M is the diagonal ``mass``. Only methods that take M as a matrix step such a
+    # system (``mass_refusal``); ``mass`` stays the lumped diagonal, what scales and safeguards read.
+    mass_correction = None
     x0: np.ndarray
     v0: np.ndarray
     fixed_dofs: np.ndarray = np.zeros(0, dtype=np.intp)
@@ -354,8 +358,15 @@ class System(ABC):
         return {}
 
     # -- derived quantities ---------------------------------------------------------------------
+    def mass_times(self, vector: np.ndarray) -> np.ndarray:
+        """M vector, M the whole mass matrix (kg x the vector's unit): the diagonal, plus a consistent mass's rest."""
+        product = self.mass * vector
+        if self.mass_correction is not None:
+            product += self.mass_correction @ vector
+        return product
+
     def kinetic_energy(self, v: np.ndarray) -> float:
-        return 0.5 * float((self.mass * v).dot(v))  # ndarray.dot: cheapest on the 1- to 3-element vectors of the small systems
+        return 0.5 * float(self.mass_times(v).dot(v))  # ndarray.dot: cheapest on the 1- to 3-element vectors of the small systems
 
     def total_energy(self, x: np.ndarray, v: np.ndarray) -> float:
         return self.kinetic_energy(v) + self.potential_energy(x)
@@ -392,7 +403,7 @@ class System(ABC):
 
     def momentum(self, v: np.ndarray) -> np.ndarray:
         """Linear momentum sum_i m_i v_i, shape (dim,)."""
-        return self._momentum(self.mass * v)
+        return self._momentum(self.mass_times(v))
 
     def _momentum(self, momenta: np.ndarray) -> np.ndarray:
         """sum_i p_i from the per-dof momenta m * v, shape (dim,); a single particle needs no sum."""
@@ -403,7 +414,7 @@ class System(ABC):
 
     def angular_momentum(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Angular momentum about the origin sum_i x_i x m_i v_i, shape (3,) (2-D systems: (0, 0, Lz))."""
-        return self._angular_momentum(x, self.mass * v)
+        return self._angular_momentum(x, self.mass_times(v))
 
     def _angular_momentum(self, x: np.ndarray, momenta: np.ndarray) -> np.ndarray:
         if self.dim == 1:
@@ -430,7 +441,7 @@ class System(ABC):
 
     def _mechanical_observables(self, x: np.ndarray, v: np.ndarray, potential: float) -> dict[str, np.ndarray | float]:
         """Energies and momenta at (x, v), given the potential energy P(x) (J)."""
-        momenta = self.mass * v  # shared by the kinetic energy and both momenta
+        momenta = self.mass_times(v)  # shared by the kinetic energy and both momenta
         kinetic = 0.5 * float(momenta.dot(v))  # = kinetic_energy(v), bit for bit
         values: dict[str, np.ndarray | float] = {
             "energy": kinetic + potential,

@@ -328,7 +328,7 @@ def test_a_fixed_free_bar_vibrates_axially_at_its_first_mode():
     ({"material": {"model": "ogden"}}, "stable_neo_hookean"),
     ({"damping": [{"model": "spring", "coefficient": 0.1}]}, "rayleigh"),
     ({"pinned": "top_left"}, "no vertex set 'top_left'"),
-    ({"mass": "consistent"}, "consistent mass is not built"),
+    ({"mass": {"matrix": "consistent", "per_vertex": 1.0}}, "takes a total"),
     ({"model": {"box": {"size": [1, 1, 1], "cells": [1, 1, 0]}}}, "cells >= 1"),
 ])
 def test_bad_input_is_one_line_naming_the_field(change, message):

@@ -14,6 +14,9 @@ import pytest
 import scipy.linalg
 
 from simrun.cli import main
+from simrun.errors import ConfigError
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import expand_runs
 from simrun.integrators import INTEGRATORS, State
 from simrun.results import load
 from simrun.solvers import solver_params
@@ -229,9 +232,6 @@ def test_a_mass_spring_model_and_a_finite_element_model_of_the_same_mesh_run_in_
 
 
 def test_swept_systems_without_labels_are_named_by_type_and_clashing_labels_are_refused():
-    from simrun.experiment.config import load_experiment
-    from simrun.experiment.sweep import expand_runs
-    from simrun.errors import ConfigError
 
     fem_square = {"type": "fem", **MIXED_SQUARE}
     springs = {"type": "mass_spring", **MIXED_SQUARE}
@@ -239,3 +239,46 @@ def test_swept_systems_without_labels_are_named_by_type_and_clashing_labels_are_
     assert [run.swept["system"] for run in runs] == ["fem", "mass_spring#2", "mass_spring#3"]
     with pytest.raises(ConfigError, match="two values are named 'same'"):
         expand_runs(load_experiment(mixed_sweep([{"label": "same", **fem_square}, {"label": "same", **springs}]))[0])
+
+
+def test_the_shipped_cloth_fem_falls_freely_then_rests_on_the_sphere(tmp_path):
+    """configs/cloth_fem.yaml with backward Euler at dt = 4 ms to 0.6 s: the spring cloth, the shell and the bare
+    membrane each fall freely (no stretch, so no elastic energy) until the first contact at the free-fall time
+    sqrt(2 x 0.3 m / g) = 0.247 s, land on the sphere (the vertex nearest its top within 5 mm of its surface) and
+    keep their triangles' areas within 10 %; the shell's hinges store bending energy, the bare membrane has none."""
+    results = load(run_config(tmp_path, "cloth_fem", "sweep.dt=[0.004]", "duration=0.6",
+                              "integrators=[backward_euler]"))
+    center, radius = np.array([0.5, 0.5, -0.6]), 0.3
+    landing = math.sqrt(2 * 0.3 / 9.81)
+    for stored in results.runs.values():
+        label = stored.swept["system"]
+        # Newton on the springs' penalty contact stalls above its tolerance at two steps of 150 (as in cloth_sphere)
+        assert stored.status.name.lower() == "ok" or (label == "springs" and int(stored.message.split()[0]) <= 2), \
+            stored.run_id
+        t, contact = stored.series("t"), stored.series("contact_energy")
+        first = t[np.flatnonzero(contact > 0)[0]]
+        assert abs(first - landing) < 3 * 0.004, (stored.run_id, first)
+        frames = stored["frames"]
+        top = int(np.argmin(np.linalg.norm(frames[0][:, :2] - center[:2], axis=1)))
+        assert abs(np.linalg.norm(frames[-1][top] - center) - radius) < 5e-3, stored.run_id
+        if label != "springs":
+            assert stored.series("volume_ratio_min").min() > 0.9 and stored.series("volume_ratio_max").max() < 1.1
+            before = t < landing - 0.01
+            assert np.abs(stored.series("elastic_energy")[before]).max() < 1e-9
+            bending_energy = stored.series("bending_energy")
+            assert (bending_energy.max() > 1e-6) if label == "stvk_shell" else (bending_energy.max() == 0.0)
+
+
+def test_a_sweep_of_whole_systems_needs_no_base_system():
+    """Without a top-level `system`, the first swept system (less its label) is the base; without either, the config
+    is refused naming `system`."""
+    fem_square = {"label": "neo-Hookean", "type": "fem", **MIXED_SQUARE}
+    springs = {"label": "springs", "type": "mass_spring", **MIXED_SQUARE, "stiffness": 1.0e4, "mass": {"total": 1000.0}}
+    config = mixed_sweep([fem_square, springs])
+    del config["system"]
+    experiment, _ = load_experiment(config)
+    assert experiment.system.type == "fem" and not hasattr(experiment.system, "label")
+    assert [run.system.type for run in expand_runs(experiment)] == ["fem", "mass_spring"]
+    del config["sweep"]["system"]
+    with pytest.raises(ConfigError, match="system"):
+        load_experiment(config)

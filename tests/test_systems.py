@@ -100,6 +100,18 @@ EXAMPLES: dict[str, list[tuple[str, dict]]] = {
         ("box-linear-prescribed", {"model": {"box": {"size": [0.2, 0.2, 0.1], "cells": [2, 2, 1]}},
                                    "material": {"model": "linear"},
                                    "prescribed": [{"vertices": "x_max", "velocity": [0.1, 0.0, 0.0]}]}),
+        ("box-corotated-consistent-mass", {"model": {"box": {"size": [0.2, 0.1, 0.1], "cells": [2, 1, 1]}},
+                                           "material": {"model": "corotated", "youngs_modulus": 1e4},
+                                           "mass": "consistent", "pinned": "left",
+                                           "prescribed": [{"vertices": "x_max", "velocity": [0.0, 0.1, 0.0]}],
+                                           "initial": {"spin": [0.4, -0.2, 1.5]}}),
+        ("shell-stvk-bending-sphere", {"model": {"grid": {"resolution": [4, 3], "size": [0.3, 0.2]}},
+                                       "material": {"model": "stvk", "youngs_modulus": 1e5, "density": 0.5},
+                                       "thickness": 1e-3, "bending": {"stiffness": 1e-3}, "pinned": ["top_left"],
+                                       "damping": [{"model": "rayleigh", "alpha": 0.1, "beta": 1e-4}],
+                                       "contact": {"sphere": {"center": [0.15, 0.1, -0.05], "radius": 0.06,
+                                                              "stiffness": 2e3}},
+                                       "initial": {"spin": [0.4, -0.2, 1.5]}}),
     ],
     # the plug-in of docs/systems.md; at the test state some of its springs are compressed (the projection acts)
     "pendulum_chain:ChainParams": [

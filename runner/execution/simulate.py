@@ -357,7 +357,13 @@ def _path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: flo
             force -= system.damping_matrix(x) @ v
         force = force[moving]
     accelerations = system.constraints.path_accelerations(t)
-    return float(v[moving] @ (system.mass[moving] * accelerations - force))
+    if system.mass_correction is None:
+        inertia = system.mass[moving] * accelerations
+    else:  # M a on the paths' dofs couples them to the free ones' accelerations
+        everywhere = system.acceleration(x, v)
+        everywhere[moving] = accelerations
+        inertia = system.mass_times(everywhere)[moving]
+    return float(v[moving] @ (inertia - force))
 
 
 # energies below this fraction of E(0) are in (or near) the subnormal range, where their digits go: not measured

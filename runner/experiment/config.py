@@ -308,10 +308,21 @@ def set_path(raw: dict, parts: list[str], value: Any, source: str) -> None:
 
 
 def validate_experiment(raw: dict) -> Experiment:
+    raw = _base_system_from_sweep(raw)
     try:
         return Experiment.model_validate(raw)
     except ValidationError as error:
         raise ConfigError(describe_error(error, raw)) from None
+
+
+def _base_system_from_sweep(raw: dict) -> dict:
+    """A config that sweeps whole systems (``sweep.system: [{...}, {...}]``) may leave out ``system``: the first swept
+    one, without its label, is then the base, so that no model is written out twice."""
+    sweep = raw.get("sweep")
+    swept = sweep.get("system") if isinstance(sweep, dict) else None
+    if "system" in raw or not isinstance(swept, list) or not swept or not isinstance(swept[0], dict):
+        return raw
+    return {**raw, "system": {key: value for key, value in swept[0].items() if key != "label"}}
 
 
 _SYSTEM_ALONE = TypeAdapter(SystemField)

@@ -182,6 +182,8 @@ BUDGET_TERMS = (  # dataset, legend text, colour
     ("potential_energy", "potential", "#55a868"),
     ("spring_energy", "potential: springs", "#55a868"),
     ("elastic_energy", "potential: elastic", "#55a868"),
+    ("membrane_energy", "potential: membrane", "#55a868"),
+    ("bending_energy", "potential: bending", "#64b5cd"),
     ("gravity_energy", "potential: gravity", "#ccb974"),
     ("contact_energy", "potential: contact", "#8172b2"),
     ("dissipated_energy", "dissipated by physical damping", "#c44e52"),
@@ -310,8 +312,10 @@ def _budget_dt(runs: list[RunData]) -> float:
 
 # the potential terms that can be negative (gravity: relative to where z = 0 happens to be)
 SHIFTED_TERMS = ("spring_energy", "elastic_energy", "gravity_energy", "contact_energy", "potential_energy")
-# the parts the potential is stored in: a mass-spring model's springs, a finite-element model's elements
-POTENTIAL_PARTS = (("spring_energy", "gravity_energy", "contact_energy"), ("elastic_energy", "gravity_energy", "contact_energy"))
+# the parts the potential is stored in: a shell's membrane and hinges, a mass-spring model's springs, a finite-element
+# solid's elements
+POTENTIAL_PARTS = (("membrane_energy", "bending_energy", "gravity_energy", "contact_energy"),
+                   ("spring_energy", "gravity_energy", "contact_energy"), ("elastic_energy", "gravity_energy", "contact_energy"))
 
 
 def _budget_terms(run: RunData) -> tuple[np.ndarray, dict[str, np.ndarray]]:

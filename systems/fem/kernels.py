@@ -14,7 +14,8 @@ B^T A B with B = dF/dx onto F-space is PSD exactly when A is, so the element Hes
 PSD.
 
 Each loop over elements runs in parallel (``prange``): every element writes only its own rows, so the result does
-not depend on the thread count; the scatters run serially in element order, so neither does round-off.
+not depend on the thread count; the scatters run serially in element order, so neither does round-off. The same
+scatters take the shells' membrane triangles (membrane.py) and hinges (bending.py).
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def element_energies(x, elements, shape_gradients, volumes, mu, lam, model):
 
 
 @numba.njit(cache=True, parallel=True)
-def _element_forces(x, elements, shape_gradients, volumes, mu, lam, model, forces):
+def element_forces(x, elements, shape_gradients, volumes, mu, lam, model, forces):
     """forces[e, a] = V P g_a, the gradient of element e's energy at its vertex a (N)."""
     count, d = elements.shape[0], shape_gradients.shape[2]
     for chunk in numba.prange((count + CHUNK - 1) // CHUNK):
@@ -80,17 +81,14 @@ def _element_forces(x, elements, shape_gradients, volumes, mu, lam, model, force
 
 
 @numba.njit(cache=True)
-def elastic_gradient(x, elements, shape_gradients, volumes, mu, lam, model):
-    """dPsi/dx of all elements (N), flat (n d,)."""
-    count, d = elements.shape[0], shape_gradients.shape[2]
-    forces = np.empty((count, d + 1, d))
-    _element_forces(x, elements, shape_gradients, volumes, mu, lam, model, forces)
-    gradient = np.zeros(x.size)
-    for e in range(count):  # serial: the sum's order, and so its round-off, is the elements' order
-        for a in range(d + 1):
+def scatter_forces(forces, elements, gradient):
+    """gradient[d v + i] += forces[e, a, i] for each element e's vertex v = elements[e, a]: serial, in element order,
+    so that the sum's order, and so its round-off, does not depend on the threads that made the forces."""
+    count, corners, d = forces.shape
+    for e in range(count):
+        for a in range(corners):
             for i in range(d):
                 gradient[d * elements[e, a] + i] += forces[e, a, i]
-    return gradient
 
 
 @numba.njit(cache=True)
@@ -109,8 +107,9 @@ def _tetrahedron_block(A, g, volume, AB, block):
 
 
 @numba.njit(cache=True, parallel=True)
-def _element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, projection, blocks):
-    """blocks[e] = V B^T A B, element e's Hessian ((d + 1) d square, vertex-major), A projected as asked."""
+def element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, projection, blocks):
+    """blocks[e] = V B^T A B, element e's Hessian ((d + 1) d square, vertex-major), A projected as asked (0 none, 1
+    clamp, 2 abs)."""
     count, d = elements.shape[0], shape_gradients.shape[2]
     size = d * d
     for chunk in numba.prange((count + CHUNK - 1) // CHUNK):
@@ -146,19 +145,14 @@ def _element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, pro
 
 
 @numba.njit(cache=True)
-def elastic_hessian_data(x, elements, shape_gradients, volumes, mu, lam, model, projection, positions, nnz, blocks):
-    """The elastic Hessian's values in the fixed CSR pattern (N/m): positions (elements, k, k) map each entry of an
-    element block (k = (d + 1) d) to its place in the pattern's data array of length nnz; blocks (elements, k, k) is
-    the caller's scratch, kept from call to call."""
-    count, d = elements.shape[0], shape_gradients.shape[2]
-    k = (d + 1) * d
-    _element_hessians(x, elements, shape_gradients, volumes, mu, lam, model, projection, blocks)
-    data = np.zeros(nnz)
-    for e in range(count):  # serial, in element order (as the gradient)
-        for row in range(k):
-            for column in range(k):
+def scatter_blocks(blocks, positions, data):
+    """data[positions[e, r, c]] += blocks[e, r, c]: the element blocks into the fixed CSR pattern's data array (positions
+    from the pattern, made once), serial in element order (as the gradient)."""
+    count, size = blocks.shape[0], blocks.shape[1]
+    for e in range(count):
+        for row in range(size):
+            for column in range(size):
                 data[positions[e, row, column]] += blocks[e, row, column]
-    return data
 
 
 @numba.njit(cache=True, parallel=True)

@@ -215,3 +215,148 @@ def _signed_svd(F, d, U, sigma, V, S):
             for j in range(d):
                 value += U[i, a] * F[i, j] * V[j, a]
         sigma[a] = value
+
+
+@numba.njit(cache=True)
+def _positive_definite_dense(M, n, shift, L):
+    """Whether M + shift I (symmetric n x n) is positive definite, by a Cholesky factorisation into the scratch L."""
+    for j in range(n):
+        value = M[j, j] + shift
+        for k in range(j):
+            value -= L[j, k] * L[j, k]
+        if not value > 0.0:
+            return False
+        L[j, j] = math.sqrt(value)
+        for i in range(j + 1, n):
+            value = M[i, j]
+            for k in range(j):
+                value -= L[i, k] * L[j, k]
+            L[i, j] = value / L[j, j]
+    return True
+
+
+@numba.njit(cache=True)
+def _tridiagonal_eigen(S, n, values, vectors, off):
+    """S = vectors diag(values) vectors^T for a symmetric n x n matrix, S overwritten (off (n,) is scratch): Householder
+    reduction to tridiagonal form, then implicit QR steps with Wilkinson's shift on the unreduced blocks, their Givens
+    rotations accumulated (Golub & Van Loan, "Matrix computations", algorithms 8.3.1 and 8.3.3). Each eigenvalue is
+    accurate to round-off of |S|; about a fifth of cyclic Jacobi's time at n = 12."""
+    for i in range(n):
+        for j in range(n):
+            vectors[i, j] = 1.0 if i == j else 0.0
+    # Householder: column k below the subdiagonal to zero, S <- P S P, vectors <- vectors P, P = I - 2 v v^T
+    v = values  # scratch until the end
+    for k in range(n - 2):
+        norm = 0.0
+        for i in range(k + 1, n):
+            norm += S[i, k] * S[i, k]
+        norm = math.sqrt(norm)
+        if norm == 0.0:
+            continue
+        alpha = -norm if S[k + 1, k] >= 0.0 else norm
+        for i in range(n):
+            v[i] = 0.0
+        v[k + 1] = S[k + 1, k] - alpha
+        for i in range(k + 2, n):
+            v[i] = S[i, k]
+        length = 0.0
+        for i in range(k + 1, n):
+            length += v[i] * v[i]
+        length = math.sqrt(length)
+        if length == 0.0:
+            continue
+        for i in range(k + 1, n):
+            v[i] /= length
+        # p = S v, K = v^T p, q = p - K v; S <- S - 2 v q^T - 2 q v^T
+        K = 0.0
+        for i in range(k, n):
+            value = 0.0
+            for j in range(k + 1, n):
+                value += S[i, j] * v[j]
+            off[i] = value
+            K += v[i] * value
+        for i in range(k, n):
+            off[i] -= K * v[i]
+        for i in range(k, n):
+            for j in range(k, n):
+                S[i, j] -= 2.0 * (v[i] * off[j] + off[i] * v[j])
+        for i in range(n):
+            value = 0.0
+            for j in range(k + 1, n):
+                value += vectors[i, j] * v[j]
+            for j in range(k + 1, n):
+                vectors[i, j] -= 2.0 * value * v[j]
+    d = values
+    for i in range(n):
+        d[i] = S[i, i]
+        off[i] = S[i + 1, i] if i + 1 < n else 0.0
+    # implicit symmetric QR on the tridiagonal (d, off), deflating from the bottom: an off-diagonal entry below
+    # round-off of the whole matrix is 0
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(d[i]) + abs(off[i]))
+    small = 2.3e-16 * scale
+    high = n - 1
+    for _ in range(30 * n):
+        while high > 0 and abs(off[high - 1]) <= small:
+            off[high - 1] = 0.0
+            high -= 1
+        if high == 0:
+            break
+        low = high - 1
+        while low > 0 and abs(off[low - 1]) > small:
+            low -= 1
+        # Wilkinson's shift: the eigenvalue of the trailing 2 x 2 nearer d[high]
+        half = 0.5 * (d[high - 1] - d[high])
+        square = off[high - 1] * off[high - 1]
+        root = math.sqrt(half * half + square)
+        shift = d[high] - square / (half + (root if half >= 0.0 else -root)) if square > 0.0 else d[high]
+        x, z = d[low] - shift, off[low]
+        for k in range(low, high):
+            radius = math.hypot(x, z)
+            c, s = (1.0, 0.0) if radius == 0.0 else (x / radius, -z / radius)
+            if k > low:
+                off[k - 1] = radius
+            # the rotation G(k, k + 1) applied on both sides of the 2 x 2 block and to its neighbours
+            dk, dk1, ek = d[k], d[k + 1], off[k]
+            d[k] = c * c * dk - 2.0 * c * s * ek + s * s * dk1
+            d[k + 1] = s * s * dk + 2.0 * c * s * ek + c * c * dk1
+            off[k] = c * s * (dk - dk1) + (c * c - s * s) * ek
+            if k < high - 1:
+                x, z = off[k], -s * off[k + 1]
+                off[k + 1] = c * off[k + 1]
+            for i in range(n):
+                vk, vk1 = vectors[i, k], vectors[i, k + 1]
+                vectors[i, k], vectors[i, k + 1] = c * vk - s * vk1, s * vk + c * vk1
+
+
+@numba.njit(cache=True)
+def project_dense(M, n, mode, shift, scratch, values, vectors):
+    """The symmetric n x n matrix M made PSD in place, its eigenvalues below -shift max|M_ii| clamped to 0 (mode 1) or
+    mirrored (mode 2): a Cholesky test first, which leaves the PSD ones (most of them) untouched, then the Jacobi
+    eigensystem. True where M was changed. scratch, vectors (n, n) and values (2 n,) are the caller's."""
+    if mode == 0:
+        return False
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(M[i, i]))
+    if scale == 0.0 or _positive_definite_dense(M, n, shift * scale, scratch):
+        return False
+    for i in range(n):
+        for j in range(n):
+            scratch[i, j] = M[i, j]
+    _tridiagonal_eigen(scratch, n, values[:n], vectors, values[n:])
+    largest = 0.0
+    for k in range(n):
+        largest = max(largest, abs(values[k]))
+    changed = False
+    for k in range(n):
+        if values[k] >= -shift * largest:
+            continue
+        changed = True
+        change = -values[k] if mode == 1 else -2.0 * values[k]
+        for i in range(n):
+            scaled = change * vectors[i, k]
+            for j in range(n):
+                M[i, j] += scaled * vectors[j, k]
+    return changed

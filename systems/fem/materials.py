@@ -5,6 +5,10 @@ reading of a 2-D solid, as the course code has it). The stable neo-Hookean energ
 that its Hessian at rest is linear elasticity's with the given E and nu (Smith, de Goes & Kim 2018, sec. 3.4, there
 for d = 3): mu' = mu (d + 1) / d, lambda' = lambda + mu' (d (d + 1) - 2) / (d + 1)^2, which in 3-D is mu' = 4 mu / 3,
 lambda' = lambda + 5 mu / 6 (docs/fem.md derives it).
+
+A shell's membrane is in plane stress (a thin sheet free to thin): lambda = E nu / (1 - nu^2), the 3-D lambda with the
+normal stress eliminated, 2 mu lambda / (lambda + 2 mu), so that a membrane under uniaxial stress has Young's modulus
+E and Poisson ratio nu in its own plane; the stable neo-Hookean re-parametrisation is then the one of d = 2.
 """
 
 from __future__ import annotations
@@ -25,11 +29,13 @@ def lame(youngs_modulus: np.ndarray, poisson_ratio: np.ndarray) -> tuple[np.ndar
     return mu, lam
 
 
-def energy_parameters(material: str, dim: int, youngs_modulus: np.ndarray, poisson_ratio: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """The (mu, lambda) the kernels' energy ``material`` takes (Pa): the Lame parameters, re-parametrised for the
-    stable neo-Hookean energy."""
+def energy_parameters(material: str, dim: int, youngs_modulus: np.ndarray, poisson_ratio: np.ndarray,
+                      shell: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The (mu, lambda) the kernels' energy ``material`` takes (Pa): the Lame parameters (plane stress for a shell,
+    whose dim is 2), re-parametrised for the stable neo-Hookean energy."""
     mu, lam = lame(youngs_modulus, poisson_ratio)
+    if shell:
+        lam = youngs_modulus * poisson_ratio / (1.0 - poisson_ratio * poisson_ratio)
     if material == "stable_neo_hookean":
         mu_snh = mu * (dim + 1.0) / dim
         return mu_snh, lam + mu_snh * (dim * (dim + 1.0) - 2.0) / (dim + 1.0) ** 2

@@ -1,8 +1,10 @@
 """The meshes of the finite-element system: simplices (triangles in 2-D, tetrahedra in 3-D), from a file or a generator.
 
 ``SimplexMesh`` is what every source produces: the rest shape, the elements in the source's vertex order, and the
-vertex sets a config may name. Sources: any file meshio reads with ``tetra`` or ``triangle`` cells (a 3-D file whose
-triangles are flat in z is a 2-D solid), ``{box: {size, cells}}`` (each cell of a grid cut into six tetrahedra
+vertex sets a config may name. A mesh of triangles in 3-D is a shell (``is_shell``). Sources: any file meshio reads
+with ``tetra`` or ``triangle`` cells (a 3-D file whose triangles are flat in z is a 2-D solid, unless the config
+gives a thickness; any other a shell),
+``{grid: {resolution, size, height}}`` (the cloth's grid of triangles, vertex for vertex), ``{box: {size, cells}}`` (each cell of a grid cut into six tetrahedra
 along its main diagonal, the Kuhn triangulation, which conforms across cells) and ``{square: {segments, size}}``
 (the triangles of the course code's 2-D FEM square, solid-sim-tutorial 6_inv_free/square_mesh.py) and
 ``{tetrahedralize: {surface, edge_length}}`` (a closed surface filled with tets by fTetWild).
@@ -18,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from ..mass_spring.generators import Finite, GridCount, GridModel, Positive
 from ..mass_spring.model import ModelError
 
 
@@ -37,6 +40,16 @@ class SimplexMesh:
         return int(self.vertices.shape[1])
 
     @property
+    def element_dim(self) -> int:
+        """2 for triangles, 3 for tetrahedra."""
+        return int(self.elements.shape[1]) - 1
+
+    @property
+    def is_shell(self) -> bool:
+        """Triangles in 3-D: a surface, whose elements are membranes."""
+        return self.element_dim < self.dim
+
+    @property
     def vertex_count(self) -> int:
         return int(self.vertices.shape[0])
 
@@ -48,13 +61,15 @@ class SimplexMesh:
     triangles = None
 
     def rest_volumes(self) -> np.ndarray:
-        """Signed volumes (areas in 2-D) of the elements at rest: det(D_m) / d!."""
+        """Signed volumes (areas in 2-D) of the elements at rest: det(D_m) / d!; a shell's triangles' areas."""
+        if self.is_shell:
+            return triangle_areas(self.vertices, self.elements)
         return signed_volumes(self.vertices, self.elements)
 
     def boundary_faces(self) -> np.ndarray:
         """The faces that belong to one element only, oriented outwards: triangles (f, 3) of a tet mesh, edges
-        (f, 2) of a triangle mesh, in the order of the elements they bound."""
-        d = self.dim
+        (f, 2) of a triangle mesh (a solid's or a shell's), in the order of the elements they bound."""
+        d = self.element_dim
         # the faces of a positively oriented simplex, each ordered so that its normal points out
         local = [(1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1)] if d == 3 else [(1, 2), (2, 0), (0, 1)]
         faces = np.concatenate([self.elements[:, list(face)] for face in local])
@@ -65,8 +80,27 @@ class SimplexMesh:
 
     def edges(self) -> np.ndarray:
         """Every edge of the elements once, (m, 2), its smaller vertex first."""
-        pairs = np.concatenate([self.elements[:, [a, b]] for a, b in itertools.combinations(range(self.dim + 1), 2)])
+        pairs = np.concatenate([self.elements[:, [a, b]] for a, b in itertools.combinations(range(self.element_dim + 1), 2)])
         return np.unique(np.sort(pairs, axis=1), axis=0)
+
+    def hinges(self) -> np.ndarray:
+        """(h, 4): every interior edge (x0, x1) with the vertex x2 opposite it in one triangle and x3 in the other, in
+        the order of the edges; ModelError naming the edge's vertices where more than two triangles meet."""
+        local = [(0, 1, 2), (1, 2, 0), (2, 0, 1)]
+        corners = np.concatenate([self.elements[:, list(order)] for order in local])  # edge (a, b), opposite c
+        keys = np.sort(corners[:, :2], axis=1)
+        order = np.lexsort((keys[:, 1], keys[:, 0]))
+        keys, corners = keys[order], corners[order]
+        _, first, counts = np.unique(keys, axis=0, return_index=True, return_counts=True)
+        crowded = np.flatnonzero(counts > 2)
+        if crowded.size:
+            edge = keys[first[crowded[0]]]
+            raise ModelError(f"the edge between vertices {int(edge[0])} and {int(edge[1])} is shared by "
+                             f"{int(counts[crowded[0]])} triangles ({crowded.size} such edges): a hinge needs a "
+                             "manifold surface, each edge in at most two triangles")
+        pairs = first[counts == 2]
+        return np.stack([corners[pairs, 0], corners[pairs, 1], corners[pairs, 2], corners[pairs + 1, 2]],
+                        axis=1).astype(np.intp)
 
     def validate(self) -> "SimplexMesh":
         """Raise ModelError for a mesh that cannot be simulated (naming the element or vertex); return self with every
@@ -79,6 +113,8 @@ class SimplexMesh:
             bad = int(np.flatnonzero(~np.isfinite(vertices).all(axis=1))[0])
             raise ModelError(f"vertex {bad} has a non-finite coordinate {vertices[bad].tolist()}")
         d = vertices.shape[1]
+        if d == 3 and elements.ndim == 2 and elements.shape[1] == 3 and elements.shape[0] > 0:
+            return self._validate_shell()
         if elements.ndim != 2 or elements.shape[1] != d + 1 or elements.shape[0] == 0:
             kind = "tetrahedra" if d == 3 else "triangles"
             raise ModelError(f"a {d}-D solid needs {kind} ({d + 1} vertices each); got an element array of shape "
@@ -105,6 +141,30 @@ class SimplexMesh:
                              "other way round from the other elements' (swap two of them)")
         return SimplexMesh(vertices.astype(float), np.ascontiguousarray(elements, dtype=np.intp),
                            self.named_vertices, self.source)
+
+
+    def _validate_shell(self) -> "SimplexMesh":
+        """A shell's checks: indices in range and no triangle of zero area (a shell has no orientation to check)."""
+        vertices, elements = self.vertices, self.elements
+        n = vertices.shape[0]
+        outside = (elements < 0) | (elements >= n)
+        if outside.any():
+            row = int(np.flatnonzero(outside.any(axis=1))[0])
+            raise ModelError(f"triangle {row} has vertices {elements[row].tolist()}: indices must be in 0..{n - 1}")
+        areas = triangle_areas(vertices, elements)
+        flat = areas <= 1e-14 * float(np.max(np.ptp(vertices, axis=0))) ** 2
+        if flat.any():
+            row = int(np.flatnonzero(flat)[0])
+            raise ModelError(f"triangle {row} (vertices {elements[row].tolist()}) has zero area at rest (degenerate): "
+                             "every triangle of a shell needs a positive one")
+        return SimplexMesh(vertices.astype(float), np.ascontiguousarray(elements, dtype=np.intp), self.named_vertices,
+                           self.source)
+
+
+def triangle_areas(vertices: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """Areas of triangles in 3-D, |(X_1 - X_0) x (X_2 - X_0)| / 2."""
+    first, second = vertices[elements[:, 1]] - vertices[elements[:, 0]], vertices[elements[:, 2]] - vertices[elements[:, 0]]
+    return 0.5 * np.linalg.norm(np.cross(first, second), axis=1)
 
 
 def signed_volumes(vertices: np.ndarray, elements: np.ndarray) -> np.ndarray:
@@ -191,6 +251,22 @@ class SquareMesh(BaseModel):
                            f"square {self.segments}x{self.segments}").validate()
 
 
+class GridMesh(BaseModel):
+    """The cloth's grid as a shell: the triangles of mass_spring's ``{grid}`` (and the ``cloth`` system's), vertex for
+    vertex and with its vertex names (top_left, ..., left, right), flat at z = height."""
+
+    model_config = ConfigDict(extra="forbid")
+    resolution: tuple[GridCount, GridCount] = Field((32, 32), description="vertices along x and y")
+    size: tuple[Positive, Positive] = Field((1.0, 1.0), description="side lengths along x and y (m)")
+    height: Finite = Field(0.0, description="z of the flat grid (m)")
+
+    def build(self) -> SimplexMesh:
+        grid = GridModel(resolution=self.resolution, size=self.size, height=self.height).build()
+        names = {**_face_names(grid.vertices), **grid.named_vertices}
+        return SimplexMesh(grid.vertices, grid.triangles, names,
+                           f"grid {self.resolution[0]}x{self.resolution[1]}").validate()
+
+
 class MeshFile(BaseModel):
     """A volume mesh file (any format meshio reads: .msh, .vtk, .vtu, .mesh, ...) with tetra cells, or triangle cells
     of a 2-D solid (3-D files with a constant z are read as 2-D)."""
@@ -202,7 +278,9 @@ class MeshFile(BaseModel):
         return read_mesh_file(self.file)
 
 
-def read_mesh_file(path: Path) -> SimplexMesh:
+def read_mesh_file(path: Path, shell: bool = False) -> SimplexMesh:
+    """The mesh of a file: its tetrahedra, or its triangles, as a 2-D solid where they lie flat in z (unless ``shell``:
+    the config gives a thickness) and as a shell otherwise."""
     import meshio
 
     path = Path(path)
@@ -221,13 +299,13 @@ def read_mesh_file(path: Path) -> SimplexMesh:
         vertices = points if points.shape[1] == 3 else np.column_stack([points, np.zeros(len(points))])
     elif "triangle" in cells:
         elements = np.concatenate(cells["triangle"])
-        if points.shape[1] == 3 and np.ptp(points[:, 2]) != 0:
-            raise ModelError(f"{path}: its triangles are not flat in z: a 2-D solid needs constant z (shells of "
-                             "triangles in 3-D are not yet simulated)")
-        vertices = points[:, :2]
+        if shell:
+            vertices = points if points.shape[1] == 3 else np.column_stack([points, np.zeros(len(points))])
+        else:  # flat in z: a 2-D solid; any other surface in 3-D: a shell
+            vertices = points[:, :2] if points.shape[1] == 2 or np.ptp(points[:, 2]) == 0 else points
     else:
         raise ModelError(f"{path}: no tetra or triangle cells (it has {', '.join(cells) or 'no cells'}): a solid "
-                         "needs tetrahedra (3-D) or triangles (2-D)")
+                         "needs tetrahedra (3-D) or triangles (2-D), a shell triangles in 3-D")
     try:
         return SimplexMesh(vertices, elements.astype(np.intp), _face_names(vertices), str(path)).validate()
     except ModelError as error:
@@ -254,12 +332,13 @@ class TetrahedralizedSurface(BaseModel):
 
 
 # config key -> generator; a string is a file
-MESH_SOURCES: dict[str, type[BaseModel]] = {"box": BoxMesh, "square": SquareMesh, "file": MeshFile,
+MESH_SOURCES: dict[str, type[BaseModel]] = {"box": BoxMesh, "square": SquareMesh, "grid": GridMesh, "file": MeshFile,
                                             "tetrahedralize": TetrahedralizedSurface}
 
 
-def mesh_source(value) -> BoxMesh | SquareMesh | MeshFile | TetrahedralizedSurface:
-    """The source a config's ``model:`` names: a path, ``{file: path}``, ``{box: {...}}``, ``{square: {...}}`` or
+def mesh_source(value) -> BoxMesh | SquareMesh | GridMesh | MeshFile | TetrahedralizedSurface:
+    """The source a config's ``model:`` names: a path, ``{file: path}``, ``{box: {...}}``, ``{square: {...}}``,
+    ``{grid: {...}}`` or
     ``{tetrahedralize: {surface, edge_length}}``.
     Raises ValueError naming what is allowed."""
     if isinstance(value, tuple(MESH_SOURCES.values())):

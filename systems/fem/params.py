@@ -25,7 +25,7 @@ from ..mass_spring.laws import Damping
 from ..mass_spring.model import ModelError
 from ..mass_spring.params import Box, DampingTerm, InitialShape, Prescribed, Selector, Sliding, Vector
 from .materials import MATERIALS, energy_parameters
-from .mesh import MeshFile, SimplexMesh, TetrahedralizedSurface, mesh_source
+from .mesh import MeshFile, SimplexMesh, TetrahedralizedSurface, mesh_source, read_mesh_file
 from .system import Fem
 
 __all__ = ["FemParams", "Material"]
@@ -41,7 +41,7 @@ class MaterialRegion(BaseModel):
     box: Box = Field(description="[[min...], [max...]] (m), in the mesh's rest shape")
     youngs_modulus: Positive | None = Field(None, description="E (Pa)")
     poisson_ratio: Poisson | None = Field(None, description="nu, in (-1, 0.5)")
-    density: Positive | None = Field(None, description="kg/m^3 (kg/m^2 for a 2-D solid)")
+    density: Positive | None = Field(None, description="kg/m^3 (kg/m^2 for a 2-D solid or a shell)")
 
 
 class Material(BaseModel):
@@ -49,31 +49,44 @@ class Material(BaseModel):
     model: Literal[tuple(MATERIALS)] = Field("stable_neo_hookean", description=" | ".join(MATERIALS))  # type: ignore[valid-type]
     youngs_modulus: Positive = Field(1.0e5, description="E (Pa)")
     poisson_ratio: Poisson = Field(0.4, description="nu, in (-1, 0.5)")
-    density: Positive = Field(1000.0, description="kg/m^3 (kg/m^2 for a 2-D solid)")
+    density: Positive = Field(1000.0, description="kg/m^3 (kg/m^2 for a 2-D solid or a shell)")
     regions: list[MaterialRegion] = Field([], description="boxes with their own E, nu or density (later entries win)")
+
+
+class Bending(BaseModel):
+    """The bending energy of a shell: discrete_shell, the hinge energy of Grinspun et al. 2003 (docs/fem.md)."""
+
+    model_config = ConfigDict(extra="forbid")
+    model: Literal["discrete_shell"] = Field("discrete_shell", description="discrete_shell")
+    stiffness: Annotated[float, Field(ge=0, allow_inf_nan=False)] = Field(
+        description="k (N m): E = k 3 |e|^2 / (A_1 + A_2) (theta - theta_rest)^2 per interior edge")
 
 
 class FemMass(BaseModel):
     """lumped (default): each element's mass, density x rest volume, shared equally among its vertices; or
-    {total: kg} (the lumped shares scaled to this total; by: equal for equal shares) or {per_vertex: kg}."""
+    consistent: the mass matrix of the linear shape functions, M_e = m_e / (k (k + 1)) (1 + delta_ab) I per element of
+    k vertices (its rows sum to the lumped shares); or {total: kg} (the shares scaled to this total; by: equal for
+    equal shares) or {per_vertex: kg}."""
 
     model_config = ConfigDict(extra="forbid")
+    matrix: Literal["lumped", "consistent"] = Field("lumped", description="lumped (diagonal) | consistent (the shape "
+                                                                         "functions' mass matrix)")
     total: Positive | None = Field(None, description="kg in all")
     by: Literal["volume", "equal"] = Field("volume", description="how a total is shared: by lumped volume, or equally")
     per_vertex: Positive | None = Field(None, description="kg at every vertex")
 
     @model_validator(mode="before")
     @classmethod
-    def _lumped_shorthand(cls, data: Any) -> Any:
-        if data == "consistent":
-            raise ValueError("consistent mass is not built: every integrator of simrun takes a diagonal M; use lumped "
-                             "(each element's mass shared equally among its vertices)")
-        return {} if data == "lumped" else data
+    def _shorthand(cls, data: Any) -> Any:
+        return {"matrix": data} if data in ("lumped", "consistent") else data
 
     @model_validator(mode="after")
     def _one_rule(self) -> "FemMass":
         if self.total is not None and self.per_vertex is not None:
             raise ValueError("give total or per_vertex, not both")
+        if self.matrix == "consistent" and (self.per_vertex is not None or self.by == "equal"):
+            raise ValueError("a consistent mass matrix comes from the elements' masses: it takes a total (scaled by "
+                             "volume), not per_vertex or by: equal")
         return self
 
 
@@ -83,11 +96,17 @@ class FemParams(SystemParams):
     model_config = ConfigDict(extra="forbid")
     type: Literal["fem"] = "fem"
     model: Union[str, dict[str, Any]] = Field({"square": {"segments": 4, "size": 1.0}},
-                                              description="a mesh file (tetra or 2-D triangle cells, any meshio format), "
-                                                          "{box: {size, cells}}, {square: {segments, size}} or "
-                                                          "{tetrahedralize: {surface, edge_length}}")
+                                              description="a mesh file (tetra cells; triangles, flat in z for a 2-D "
+                                                          "solid, else a shell; any meshio format), {box: {size, cells}}, "
+                                                          "{square: {segments, size}}, {grid: {resolution, size, height}} "
+                                                          "(a shell) or {tetrahedralize: {surface, edge_length}}")
     material: Material = Material()
-    mass: FemMass = Field(FemMass(), description="lumped (default) | {total: kg, by: volume|equal} | {per_vertex: kg}")
+    thickness: Positive | None = Field(None, description="a shell's thickness (m): its membrane energy is thickness x "
+                                                         "area x psi; required for shells, refused for solids; makes a "
+                                                         "file's triangles flat in z a shell, not a 2-D solid")
+    bending: Bending | None = Field(None, description="a shell's bending: {model: discrete_shell, stiffness: N m}")
+    mass: FemMass = Field(FemMass(), description="lumped (default) | consistent | {matrix: lumped|consistent, total: kg, "
+                                                 "by: volume|equal} | {per_vertex: kg}")
     gravity: Vector | None = Field(None, description="m/s^2, one component per dimension (default: -9.81 along the last axis)")
     initial: InitialShape = InitialShape()
     damping: list[DampingTerm] = Field([], description="{model: rayleigh, alpha, beta} (K: the elastic Hessian at rest) "
@@ -152,10 +171,10 @@ class FemParams(SystemParams):
     def mesh(self) -> SimplexMesh:
         if self._file is not None:
             stat = self._file.stat()
-            return _loaded_file(str(self._file), stat.st_size, stat.st_mtime_ns)
+            return _loaded_file(str(self._file), stat.st_size, stat.st_mtime_ns, self.thickness is not None)
         if self._surface is not None:
             stat = self._surface.stat()
-            return _loaded_file(json.dumps(self.model, sort_keys=True), stat.st_size, stat.st_mtime_ns)
+            return _loaded_file(json.dumps(self.model, sort_keys=True), stat.st_size, stat.st_mtime_ns, False)
         return _generated(json.dumps(self.model, sort_keys=True))
 
     @property
@@ -171,10 +190,13 @@ FemParams.system_class = Fem
 
 
 @functools.lru_cache(maxsize=8)
-def _loaded_file(source: str, size: int, mtime: int) -> SimplexMesh:
-    """The mesh of a file (its path) or of a tetrahedralized surface (the model's JSON), keyed by the file's stat too."""
+def _loaded_file(source: str, size: int, mtime: int, shell: bool) -> SimplexMesh:
+    """The mesh of a file (its path; its triangles a shell where ``shell``, the config giving a thickness) or of a
+    tetrahedralized surface (the model's JSON), keyed by the file's stat too."""
     try:
-        return mesh_source(json.loads(source) if source.startswith("{") else source).build()
+        if source.startswith("{"):
+            return mesh_source(json.loads(source)).build()
+        return read_mesh_file(Path(source), shell=shell)
     except ModelError as error:
         raise ModelError(f"model: {error}") from None
 
@@ -197,24 +219,64 @@ def resolve(params: FemParams) -> dict[str, Any]:
         gravity[-1] = -9.81
     else:
         gravity = assemble._vector(params.gravity, dim, "gravity")
+    _check_shell_keys(params, mesh)
     youngs, poisson, density = _element_materials(params.material, mesh)
-    mu, lam = energy_parameters(params.material.model, dim, youngs, poisson)
+    mu, lam = energy_parameters(params.material.model, mesh.element_dim, youngs, poisson, shell=mesh.is_shell)
     volumes = mesh.rest_volumes()
-    masses = _masses(params.mass, mesh, volumes * density)
+    element_masses = volumes * density
+    masses = _masses(params.mass, mesh, element_masses)
+    if params.mass.total is not None:
+        element_masses = element_masses * (params.mass.total / float(element_masses.sum()))
+    consistent = params.mass.matrix == "consistent"
+    if consistent and params.constraints:
+        raise ModelError("mass: a consistent mass matrix couples a sliding vertex's constrained direction to its "
+                         "neighbours, which the sliding filters do not keep: use lumped mass with sliding constraints")
     x0, v0 = assemble._initial_state(params, mesh, rest)
     _refuse_inverted(mesh, x0)
     constraints = assemble._constraints(params, mesh, rest, x0)
     boundary = mesh.boundary_faces()
-    surface = boundary if dim == 3 else None
-    edges = (np.unique(np.sort(np.concatenate([boundary[:, [0, 1]], boundary[:, [1, 2]], boundary[:, [2, 0]]]), axis=1),
-                       axis=0) if dim == 3 else boundary)
+    if mesh.is_shell:  # the surface is the shell itself: every triangle and edge collides
+        surface, edges = mesh.elements, mesh.edges()
+    elif dim == 3:
+        surface = boundary
+        edges = np.unique(np.sort(np.concatenate([boundary[:, [0, 1]], boundary[:, [1, 2]], boundary[:, [2, 0]]]),
+                                  axis=1), axis=0)
+    else:
+        surface, edges = None, boundary
+    hinges = None
+    if params.bending is not None and params.bending.stiffness > 0:
+        try:
+            hinges = mesh.hinges()
+        except ModelError as error:
+            raise ModelError(f"bending: {error}") from None
     contact = build_contact(params.contact, dim=dim, rest=rest, x0=x0, masses=masses, triangles=surface, edges=edges,
                             find_file=find_file)
     damping = tuple(Damping(term.model, term.coefficient, term.alpha, term.beta) for term in params.damping
                     if term.coefficient > 0 or term.alpha > 0 or term.beta > 0)
     return dict(mesh=mesh, material=params.material.model, mu=mu, lam=lam, youngs_modulus=youngs, poisson_ratio=poisson,
                 masses=masses, gravity=gravity, x0=x0, v0=v0, damping=damping, constraints=constraints, contact=contact,
-                boundary=boundary, surface_edges=edges)
+                boundary=boundary, surface_edges=edges, thickness=params.thickness, hinges=hinges,
+                consistent_masses=element_masses if consistent else None,
+                bending_stiffness=params.bending.stiffness if params.bending is not None else 0.0)
+
+
+def _check_shell_keys(params: FemParams, mesh: SimplexMesh) -> None:
+    """ModelError for the keys that belong to shells alone, or that a shell cannot take."""
+    kind = "a shell" if mesh.is_shell else ("a tetrahedral solid" if mesh.dim == 3 else "a 2-D solid")
+    if mesh.is_shell:
+        if params.thickness is None:
+            raise ModelError(f"thickness: {mesh.source or 'the model'} is a shell (triangles in 3-D), whose membrane "
+                             "energy is thickness x area x psi: give thickness (m)")
+        if params.material.model == "linear":
+            raise ModelError("material.model: linear elasticity is not rotation invariant, and a shell's triangles "
+                             "turn out of their plane: take stvk, corotated, neo_hookean or stable_neo_hookean")
+        return
+    if params.thickness is not None:
+        raise ModelError(f"thickness: the model is {kind}, whose elements have their own volume; thickness is for "
+                         "shells (triangles in 3-D)")
+    if params.bending is not None:
+        raise ModelError(f"bending: the model is {kind}; the discrete-shell hinges bend shells (triangles in 3-D), "
+                         "whose elements have no thickness of their own")
 
 
 def _element_materials(material: Material, mesh: SimplexMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -238,7 +300,8 @@ def _element_materials(material: Material, mesh: SimplexMesh) -> tuple[np.ndarra
 def _masses(spec: FemMass, mesh: SimplexMesh, element_masses: np.ndarray) -> np.ndarray:
     """Vertex masses (kg): each element's mass shared equally among its d + 1 vertices, then scaled or replaced as
     ``spec`` says; a vertex that no element uses is refused (it would have no mass and no force)."""
-    lumped = np.bincount(mesh.elements.ravel(), weights=np.repeat(element_masses / (mesh.dim + 1), mesh.dim + 1),
+    corners = mesh.elements.shape[1]
+    lumped = np.bincount(mesh.elements.ravel(), weights=np.repeat(element_masses / corners, corners),
                          minlength=mesh.vertex_count)
     unused = np.flatnonzero(lumped == 0.0)
     if unused.size:
@@ -257,9 +320,11 @@ def _refuse_inverted(mesh: SimplexMesh, x0: np.ndarray) -> None:
     """ModelError naming the first element whose start state has no positive volume (the neo-Hookean energy is
     undefined there, and no step filter can bring an element back through zero)."""
     from .kernels import volume_ratios
+    from .membrane import area_ratios
     from .system import shape_gradients
 
-    ratios = volume_ratios(np.ascontiguousarray(x0, dtype=float).ravel(), mesh.elements, shape_gradients(mesh))
+    ratios = (area_ratios if mesh.is_shell else volume_ratios)(np.ascontiguousarray(x0, dtype=float).ravel(),
+                                                                mesh.elements, shape_gradients(mesh))
     bad = np.flatnonzero(~(ratios > 0.0))
     if bad.size:
         element = int(bad[0])

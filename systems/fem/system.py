@@ -1,6 +1,9 @@
-"""The finite-element system: a hyperelastic solid of linear simplices in 2-D or 3-D (docs/fem.md).
+"""The finite-element system: a hyperelastic solid of linear simplices in 2-D or 3-D, or a shell of triangles in 3-D
+(docs/fem.md).
 
-P(x) = sum_e V_e psi(F_e) - sum_i m_i g . x_i + contact, with psi one of the kernels' energy densities; damping
+P(x) = sum_e V_e psi(F_e) + bending - sum_i m_i g . x_i + contact, with psi one of the kernels' energy densities (a
+shell's V_e its triangle's rest area times the thickness, and F_e 3 x 2: membrane.py) and, for a shell, the
+discrete-shell hinges (bending.py); damping
 f_d = -(alpha M + beta K_rest) v - c v (Rayleigh, K_rest the elastic Hessian at the rest shape, and drag); vertex
 constraints (pins, sliding, prescribed paths) as filters, as for mass_spring. The element loops are compiled
 (kernels.py); the Hessian's CSR pattern and each element block's place in it are built once, so an evaluation
@@ -18,7 +21,7 @@ from ..base import System, vertex_energy_reference
 from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
-from . import kernels
+from . import bending, kernels, membrane
 from .materials import MATERIALS
 from .mesh import SimplexMesh
 
@@ -36,7 +39,9 @@ class Fem(ContactHooks, System):
     MATERIALS name; mu, lam: (elements,) the energy's parameters (Pa); youngs_modulus, poisson_ratio: (elements,)
     E (Pa) and nu as configured; masses: (n,) kg; gravity: (d,) m/s^2; x0, v0: (n, d); damping: rayleigh and drag
     terms; constraints: VertexConstraints; contact: a ContactModel or None; boundary: the boundary faces (f, d);
-    surface_edges: (m, 2) the edges drawn in frames.
+    surface_edges: (m, 2) the edges drawn in frames. A shell (mesh.is_shell) takes thickness (m), its element
+    weights V_e = thickness x area, and optionally bending_stiffness k (N m) of the hinges (h, 4) of mesh.hinges().
+    consistent_masses: (elements,) kg, for the consistent mass matrix (``mass_correction``); None: lumped.
     """
 
     records_state_per_sample = False  # positions go to `frames`
@@ -46,7 +51,9 @@ class Fem(ContactHooks, System):
                  youngs_modulus: np.ndarray, poisson_ratio: np.ndarray, masses: np.ndarray, gravity: np.ndarray,
                  x0: np.ndarray, v0: np.ndarray, damping: tuple = (), constraints: VertexConstraints | None = None,
                  contact: ContactModel | None = None, boundary: np.ndarray | None = None,
-                 surface_edges: np.ndarray | None = None):
+                 surface_edges: np.ndarray | None = None, thickness: float | None = None,
+                 hinges: np.ndarray | None = None, bending_stiffness: float = 0.0,
+                 consistent_masses: np.ndarray | None = None):
         d = mesh.dim
         self.mesh = mesh
         self.dim = self.vertex_dim = d
@@ -66,11 +73,18 @@ class Fem(ContactHooks, System):
         self._gravity_force = (masses[:, None] * self.gravity).ravel()
         self.damping_terms = tuple(damping)
         self.contact = contact
+        self.is_shell = mesh.is_shell
+        self.thickness = thickness
         boundary = mesh.boundary_faces() if boundary is None else boundary
-        self.frame_triangles = (boundary if d == 3 else mesh.elements).astype(np.int32)
+        self.frame_triangles = (boundary if d == 3 and not self.is_shell else mesh.elements).astype(np.int32)
         self.frame_edges = (surface_edges if surface_edges is not None else mesh.edges()).astype(np.int32)
         self.shape_gradients = shape_gradients(mesh)
-        self.volumes = np.abs(mesh.rest_volumes())
+        # the elements' weights: rest volumes (a 2-D solid's areas; a shell's areas times its thickness)
+        self.volumes = np.abs(mesh.rest_volumes()) * (thickness if self.is_shell else 1.0)
+        self._kernels = membrane if self.is_shell else kernels
+        self.hinges = np.zeros((0, 4), dtype=np.intp) if hinges is None else np.ascontiguousarray(hinges, dtype=np.intp)
+        self.bending_stiffness = float(bending_stiffness)
+        self.hinge_stiffness, self.rest_angles = _hinge_constants(mesh, self.hinges, self.bending_stiffness)
         self.constraints = constraints
         if constraints is not None:
             self.fixed_dofs = constraints.fixed_dofs
@@ -80,22 +94,30 @@ class Fem(ContactHooks, System):
                 self.v0[constraints.moving_dofs] = constraints.path(0.0)[1]
         self._moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
         self._build_pattern()
+        self.mass_correction = None if consistent_masses is None else self._consistent_correction(consistent_masses)
         self._rest_stiffness = self._elastic_hessian_data(self.rest.ravel(), 1)
         self._constant_damping = self._assemble_constant_damping()
 
     # -- setup ----------------------------------------------------------------------------------
     def _build_pattern(self) -> None:
-        """The CSR pattern of all element blocks, and where each entry of each block goes in its data array."""
+        """The CSR pattern of all element and hinge blocks, and where each entry of each block goes in its data array."""
         d, n = self.dim, self.dof_count
-        dofs = (d * self.elements[:, :, None] + np.arange(d)).reshape(len(self.elements), -1)  # (elements, k)
-        rows = np.broadcast_to(dofs[:, :, None], dofs.shape + (dofs.shape[1],)).ravel()
-        cols = np.broadcast_to(dofs[:, None, :], dofs.shape + (dofs.shape[1],)).ravel()
+        groups = [self.elements, self.hinges]
+        entries = []
+        for group in groups:
+            dofs = (d * group[:, :, None] + np.arange(d)).reshape(len(group), group.shape[1] * d)  # (elements, k)
+            rows = np.broadcast_to(dofs[:, :, None], dofs.shape + (dofs.shape[1],)).ravel()
+            cols = np.broadcast_to(dofs[:, None, :], dofs.shape + (dofs.shape[1],)).ravel()
+            entries.append((rows, cols, dofs.shape))
+        rows = np.concatenate([rows for rows, _, _ in entries])
+        cols = np.concatenate([cols for _, cols, _ in entries])
         pattern = scipy.sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
         pattern.sum_duplicates()
         pattern.sort_indices()
         keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr)) * n + pattern.indices
-        self._positions = np.searchsorted(keys, rows.astype(np.int64) * n + cols).reshape(
-            len(self.elements), dofs.shape[1], dofs.shape[1])
+        self._positions, self._hinge_positions = (
+            np.searchsorted(keys, rows.astype(np.int64) * n + cols).reshape(shape[0], shape[1], shape[1])
+            for rows, cols, shape in entries)
         self._nnz = pattern.nnz
         self.hessian_pattern = pattern
         self.diagonal_positions = np.searchsorted(keys, np.arange(n, dtype=np.int64) * (n + 1))
@@ -103,15 +125,51 @@ class Fem(ContactHooks, System):
         self._vertex_positions = np.searchsorted(keys, (vertex[:, :, None] * n + vertex[:, None, :]).ravel()).reshape(
             self.vertex_count, d, d)
 
+    def _consistent_correction(self, element_masses: np.ndarray):
+        """M_consistent - M_lumped in the Hessian's pattern (CSR): per element of k vertices and mass m_e, the block
+        (a, b) is m_e / (k (k + 1)) (1 + delta_ab) I less the lumped m_e / k I on the diagonal (rows sum to 0)."""
+        k, d = self.elements.shape[1], self.dim
+        local = (np.ones((k, k)) + np.eye(k)) / (k * (k + 1)) - np.eye(k) / k
+        blocks = element_masses[:, None, None, None, None] * local[None, :, None, :, None] * np.eye(d)[None, None, :, None, :]
+        data = np.zeros(self._nnz)
+        kernels.scatter_blocks(np.ascontiguousarray(blocks.reshape(len(self.elements), k * d, k * d)), self._positions,
+                               data)
+        correction = self.pattern_matrix(data)
+        self.mass_correction_data = data
+        return correction
+
+    def _prepare_paths(self) -> None:
+        self.__dict__.pop("_consistent_solve", None)  # released vertices join the free dofs of M a = f
+
+    @functools.cached_property
+    def _consistent_solve(self):
+        """(free dofs, M_ff's factorisation, M_fm): what M a = f needs with the pinned dofs' a = 0 and the prescribed
+        ones' a on their paths."""
+        import scipy.sparse.linalg
+
+        matrix = (scipy.sparse.diags_array(self.mass) + self.mass_correction).tocsr()
+        held = np.union1d(self.fixed_dofs, self._moving)
+        free = np.setdiff1d(np.arange(self.dof_count), held)
+        factor = scipy.sparse.linalg.splu(matrix[free][:, free].tocsc())
+        return free, factor, matrix[free][:, self._moving]
+
     def _elastic_hessian_data(self, x: np.ndarray, projection: int) -> np.ndarray:
-        return kernels.elastic_hessian_data(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
-                                            self._model, projection, self._positions, self._nnz, self._blocks)
+        """The elements' and hinges' Hessian blocks, projected as asked, scattered into the pattern's data."""
+        data = np.zeros(self._nnz)
+        self._kernels.element_hessians(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
+                                       self._model, projection, self._blocks)
+        kernels.scatter_blocks(self._blocks, self._positions, data)
+        if len(self.hinges):
+            blocks = np.empty((len(self.hinges), 12, 12))
+            bending.hinge_hessians(x, self.hinges, self.hinge_stiffness, self.rest_angles, projection, blocks)
+            kernels.scatter_blocks(blocks, self._hinge_positions, data)
+        return data
 
     @functools.cached_property
     def _blocks(self) -> np.ndarray:
         """The element blocks' scratch (elements, k, k), made once: 55 MB for 48,000 tets, whose first touch cost more
         than the blocks themselves when it was made per call."""
-        k = (self.dim + 1) * self.dim
+        k = self.elements.shape[1] * self.dim
         return np.empty((len(self.elements), k, k))
 
     def _assemble_constant_damping(self) -> np.ndarray | None:
@@ -129,9 +187,15 @@ class Fem(ContactHooks, System):
 
     # -- energy, gradient, Hessian ---------------------------------------------------------------
     def elastic_energy(self, x: np.ndarray) -> float:
-        """sum_e V_e psi(F_e) (J); infinite where a neo-Hookean element is inverted."""
-        return float(kernels.element_energies(x, self.elements, self.shape_gradients, self.volumes, self.mu,
-                                              self.lam, self._model).sum())
+        """sum_e V_e psi(F_e) + bending (J); infinite where a neo-Hookean element is inverted."""
+        return (float(self._kernels.element_energies(x, self.elements, self.shape_gradients, self.volumes, self.mu,
+                                                     self.lam, self._model).sum()) + self.bending_energy(x))
+
+    def bending_energy(self, x: np.ndarray) -> float:
+        """The hinges' energy (J): 0 without bending."""
+        if not len(self.hinges):
+            return 0.0
+        return float(bending.hinge_energies(x, self.hinges, self.hinge_stiffness, self.rest_angles).sum())
 
     def gravity_energy(self, x: np.ndarray) -> float:
         return -float(np.dot(self._gravity_force, x))
@@ -141,9 +205,20 @@ class Fem(ContactHooks, System):
 
     def _elastic_gradient(self, x: np.ndarray) -> np.ndarray:
         """dP/dx without contact (N), flat (n d,)."""
-        gradient = kernels.elastic_gradient(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
-                                            self._model)
+        gradient = self._element_gradient(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam)
+        if len(self.hinges):
+            forces = np.empty((len(self.hinges), 4, 3))
+            bending.hinge_forces(x, self.hinges, self.hinge_stiffness, self.rest_angles, forces)
+            kernels.scatter_forces(forces, self.hinges, gradient)
         gradient -= self._gravity_force
+        return gradient
+
+    def _element_gradient(self, x, elements, gradients, volumes, mu, lam) -> np.ndarray:
+        """dPsi/dx of the given elements (N), flat (n d,)."""
+        forces = np.empty((len(elements), elements.shape[1], self.dim))
+        self._kernels.element_forces(x, elements, gradients, volumes, mu, lam, self._model, forces)
+        gradient = np.zeros(x.size)
+        kernels.scatter_forces(forces, elements, gradient)
         return gradient
 
     def gradient(self, x):
@@ -163,13 +238,19 @@ class Fem(ContactHooks, System):
         return data
 
     def volume_ratios(self, x: np.ndarray) -> np.ndarray:
-        """J = det F of every element (its volume over its rest volume), (elements,)."""
+        """J = det F of every element (its volume over its rest volume; a shell's triangle's area over its rest area),
+        (elements,)."""
+        if self.is_shell:
+            return membrane.area_ratios(x, self.elements, self.shape_gradients)
         return kernels.volume_ratios(x, self.elements, self.shape_gradients)
 
     def max_step(self, x: np.ndarray, direction: np.ndarray) -> float:
         """The fraction of the step x -> x + direction that keeps every element above KEPT_VOLUME of its volume at x,
         and that crosses no contact surface."""
-        fraction = kernels.inversion_free_step(x, direction, self.elements, KEPT_VOLUME)
+        if self.is_shell:
+            fraction = membrane.area_keeping_step(x, direction, self.elements, KEPT_VOLUME)
+        else:
+            fraction = kernels.inversion_free_step(x, direction, self.elements, KEPT_VOLUME)
         if self.contact is None or not self.contact.requires_step_filter:  # penalty contact: no surface to keep
             return fraction
         return min(fraction, self.contact.max_step(x, direction))
@@ -211,7 +292,10 @@ class Fem(ContactHooks, System):
         proportional to E (the stable neo-Hookean's re-parametrised ones too, whose alpha depends on their ratio
         alone), and its stress is linear in (mu, lambda): an element's gradient moves by its own gradient times
         dE_e/dtheta / E_e, and Rayleigh's beta K_rest by beta times K_rest's elements scaled the same way."""
-        same = ("elements", "rest", "vertex_masses", "x0", "v0", "gravity", "fixed_dofs", "poisson_ratio")
+        same = ("elements", "rest", "vertex_masses", "x0", "v0", "gravity", "fixed_dofs", "poisson_ratio", "volumes",
+                "hinge_stiffness")
+        if self.mass_correction is not None:  # the sensitivities' equations take a diagonal M
+            return None
         if (type(changed) is not type(self) or changed.material != self.material or self.contact is not None
                 or changed.contact is not None or self.sliding is not None
                 or any(not np.array_equal(getattr(self, name), getattr(changed, name)) for name in same)
@@ -230,13 +314,15 @@ class Fem(ContactHooks, System):
         def gradient(x: np.ndarray) -> np.ndarray:
             if not moved.size:
                 return np.zeros(self.dof_count)
-            return kernels.elastic_gradient(x, *scaled, self._model)
+            return self._element_gradient(x, *scaled)
 
         stiffness_rate = None
         if moved.size and any(term.model == "rayleigh" and term.beta for term in self.damping_terms):
-            k = (self.dim + 1) * self.dim
-            stiffness_rate = kernels.elastic_hessian_data(self.rest.ravel(), *scaled, self._model, 1,
-                                                          self._positions[moved], self._nnz, np.empty((moved.size, k, k)))
+            k = self.elements.shape[1] * self.dim
+            blocks = np.empty((moved.size, k, k))
+            self._kernels.element_hessians(self.rest.ravel(), *scaled, self._model, 1, blocks)
+            stiffness_rate = np.zeros(self._nnz)
+            kernels.scatter_blocks(blocks, self._positions[moved], stiffness_rate)
         if not any(any(term[:3]) for term in terms) and stiffness_rate is None:
             return ParameterDerivative(gradient=gradient)
         data = np.zeros(self._nnz)
@@ -252,9 +338,18 @@ class Fem(ContactHooks, System):
 
     # -- vertices on prescribed paths -----------------------------------------------------------
     def acceleration(self, x, v):
-        acceleration = self.force(x, v) / self.mass
+        """M^-1 f, with the prescribed dofs' accelerations their paths'; a solve with a consistent M."""
+        force = self.force(x, v)
+        if self.mass_correction is None:
+            acceleration = force / self.mass
+            if self._moving.size:
+                acceleration[self._moving] = self.constraints.accelerations_along(v)
+            return acceleration
+        free, factor, coupling = self._consistent_solve
+        acceleration = np.zeros(self.dof_count)
         if self._moving.size:
             acceleration[self._moving] = self.constraints.accelerations_along(v)
+        acceleration[free] = factor.solve(force[free] - coupling @ acceleration[self._moving])
         return acceleration
 
     @functools.cached_property
@@ -267,8 +362,14 @@ class Fem(ContactHooks, System):
         values = self._mechanical_observables(x, v, elastic + gravity + contact)
         ratios = self.volume_ratios(x)
         values.update(elastic_energy=elastic, gravity_energy=gravity, contact_energy=contact,
+                      **(self._shell_parts(x, elastic) if self.is_shell else {}),
                       volume_ratio_min=float(ratios.min()), volume_ratio_max=float(ratios.max()))
         return values
+
+    def _shell_parts(self, x: np.ndarray, elastic: float) -> dict[str, float]:
+        """A shell's elastic energy in its two parts (J): membrane and bending (hinges)."""
+        bending_part = self.bending_energy(x)
+        return {"membrane_energy": elastic - bending_part, "bending_energy": bending_part}
 
     def potential_magnitude(self, x):
         """J: |elastic energy| + sum_i |g_i x_i| (as the base class has it), the gravity and contact terms, and the
@@ -281,7 +382,7 @@ class Fem(ContactHooks, System):
 
     @functools.cached_property
     def _cancelling(self) -> float:
-        return float(self.dim * np.sum(self.volumes * (self.mu + np.abs(self.lam))))
+        return float(self.mesh.element_dim * np.sum(self.volumes * (self.mu + np.abs(self.lam))))
 
     def _energy_reference(self) -> tuple[float, str]:
         """(E_ref, what it is): |KE0| + |elastic PE0| where that exceeds the floor, M |g| L (lifting the body by its
@@ -301,10 +402,30 @@ class Fem(ContactHooks, System):
 
 
 def shape_gradients(mesh: SimplexMesh) -> np.ndarray:
-    """(elements, d + 1, d): the gradients g_a of the element's shape functions at rest (1/m). D_m^-1's rows are
-    g_1..g_d, and g_0 = -sum of them, so that F = sum_a x_a g_a^T."""
-    d = mesh.dim
+    """(elements, d + 1, d): the gradients g_a of the element's shape functions at rest (1/m), d its own dimension.
+    D_m^-1's rows are g_1..g_d, and g_0 = -sum of them, so that F = sum_a x_a g_a^T. A shell's triangle has D_m in
+    its rest plane's frame: t_1 along its first edge, t_2 = n x t_1."""
+    d = mesh.element_dim
     edges = np.stack([mesh.vertices[mesh.elements[:, a]] - mesh.vertices[mesh.elements[:, 0]] for a in range(1, d + 1)],
                      axis=2)
+    if mesh.is_shell:  # (t, 3, 2) -> the edges' coordinates in each triangle's frame (t, 2, 2)
+        first = edges[:, :, 0] / np.linalg.norm(edges[:, :, 0], axis=1, keepdims=True)
+        normal = np.cross(edges[:, :, 0], edges[:, :, 1])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        frame = np.stack([first, np.cross(normal, first)], axis=1)  # (t, 2, 3): rows t_1, t_2
+        edges = frame @ edges
     inverse = np.linalg.inv(edges)
     return np.ascontiguousarray(np.concatenate([-inverse.sum(axis=1, keepdims=True), inverse], axis=1))
+
+
+def _hinge_constants(mesh: SimplexMesh, hinges: np.ndarray, stiffness: float) -> tuple[np.ndarray, np.ndarray]:
+    """(k_h, theta_rest) per hinge: k_h = k 3 |e_rest|^2 / (A_1 + A_2) (N m), Grinspun et al. 2003's |e| / h_e with h_e
+    a third of the mean of the two triangles' heights over the edge, and the rest shape's dihedral angle (rad)."""
+    if not len(hinges):
+        return np.zeros(0), np.zeros(0)
+    rest = mesh.vertices
+    edge = rest[hinges[:, 1]] - rest[hinges[:, 0]]
+    first = 0.5 * np.linalg.norm(np.cross(edge, rest[hinges[:, 2]] - rest[hinges[:, 0]]), axis=1)
+    second = 0.5 * np.linalg.norm(np.cross(edge, rest[hinges[:, 3]] - rest[hinges[:, 0]]), axis=1)
+    weights = stiffness * 3.0 * np.einsum("ij,ij->i", edge, edge) / (first + second)
+    return weights, bending.rest_angles(np.ascontiguousarray(rest.ravel()), hinges)
