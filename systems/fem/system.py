@@ -270,12 +270,40 @@ class Fem(ContactHooks, System):
         return not (self.contact is not None and self.contact.is_damped)
 
     def rest_stiffness(self):
-        """K_rest: the elastic Hessian at the rest shape (linear elasticity's stiffness matrix for every energy)."""
+        """K_r, the matrix of projective dynamics' global step and L-BFGS's initial Hessian: for the as-rigid-as-possible
+        energy (``projective_form`` None) projective dynamics' own sum_e 2 mu_e V_e B_e^T B_e, B_e = dF_e/dx (Bouaziz
+        et al. 2014), whose block (a, b) is 2 mu V (g_a . g_b) I; for every other energy the elastic Hessian at the
+        rest shape, linear elasticity's stiffness matrix (which Rayleigh damping takes in every case)."""
+        if self.projective_form is None:
+            return self.pattern_matrix(self._projective_stiffness.copy())
         return self.pattern_matrix(self._rest_stiffness.copy())
+
+    @functools.cached_property
+    def _projective_stiffness(self) -> np.ndarray:
+        g = self.shape_gradients
+        weights = 2.0 * self.mu * self.volumes
+        products = np.einsum("e,eai,ebi->eab", weights, g, g)  # 2 mu V (g_a . g_b)
+        k, d = self.elements.shape[1], self.dim
+        blocks = (products[:, :, None, :, None] * np.eye(d)[None, None, :, None, :]).reshape(len(g), k * d, k * d)
+        data = np.zeros(self._nnz)
+        kernels.scatter_blocks(np.ascontiguousarray(blocks), self._positions, data)
+        return data
 
     @property
     def projective_form(self) -> str | None:
-        return "finite elements are not springs: projective dynamics' per-element projection is not built for them"
+        """None for the as-rigid-as-possible energy, the co-rotated one with lambda = 0 (nu = 0): mu ||F - R||^2 =
+        (w/2) dist(F, SO(d))^2 with w = 2 mu, projective dynamics' own element constraint (Bouaziz et al. 2014),
+        whose local step is the polar rotation. Its solver's step y - A^-1 grad E is then exactly its local-global
+        step. Every other energy, a bending term or contact: the reason."""
+        if self.material != "corotated" or np.any(self.lam != 0.0):
+            return ("projective dynamics' element constraint is the distance of F to the rotations: the co-rotated "
+                    "energy with poisson_ratio 0 (as-rigid-as-possible), not "
+                    + (f"{self.material}" if self.material != "corotated" else "a volume term (poisson_ratio != 0)"))
+        if len(self.hinges):
+            return "the discrete-shell hinges are not of projective form"
+        if self.contact is not None:
+            return "contact is not an element constraint"
+        return None
 
     @property
     def compliant_form(self) -> str | None:
