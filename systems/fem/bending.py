@@ -36,6 +36,18 @@ def _epsilon(i, j, k):
 
 
 @numba.njit(cache=True)
+def _product(A, B, out, transpose_a):
+    """out = A B, or A^T B with transpose_a (square 9 x 9 here)."""
+    n = out.shape[0]
+    for i in range(n):
+        for j in range(n):
+            value = 0.0
+            for k in range(n):
+                value += (A[k, i] if transpose_a else A[i, k]) * B[k, j]
+            out[i, j] = value
+
+
+@numba.njit(cache=True)
 def _hinge_vectors(x, hinge, z):
     """z (3, 3): the rows e, w_1, w_2 of one hinge."""
     base = 3 * hinge[0]
@@ -112,9 +124,7 @@ def _angle_derivatives(z, gradient, hessian, want_hessian, work):
         thetay[i] = (c_value * sy[i] - s * cy[i]) / r
     # theta_z = Y^T theta_y, Y = dy/dz: dN_1/de = -[w_1]x, dN_1/dw_1 = [e]x, dN_2/dw_2 = -[e]x, dN_2/de = [w_2]x
     Y = work[1]
-    for i in range(9):
-        for j in range(9):
-            Y[i, j] = 0.0
+    Y[:, :] = 0.0
     for a in range(3):
         for b in range(3):
             for c in range(3):
@@ -135,9 +145,7 @@ def _angle_derivatives(z, gradient, hessian, want_hessian, work):
         return theta
     # second derivatives in y: T_yy (Levi-Civita with y), |e|'s, then s_yy, c_yy and theta_yy
     syy, thetayy = work[2], work[3]
-    for i in range(9):
-        for j in range(9):
-            syy[i, j] = 0.0
+    syy[:, :] = 0.0
     for a in range(3):
         for b in range(3):
             for c in range(3):
@@ -164,17 +172,8 @@ def _angle_derivatives(z, gradient, hessian, want_hessian, work):
             thetayy[i, j] = ((sy[i] * cy[j] - cy[i] * sy[j] + c_value * syy[i, j] - s * cyy) / r
                              - numerator * 2.0 * (s * sy[j] + c_value * cy[j]) / (r * r))
     # theta_zz = Y^T theta_yy Y + the cross products' second derivatives weighted by theta_N
-    for i in range(9):
-        for j in range(9):
-            syy[i, j] = 0.0
-            for k in range(9):
-                syy[i, j] += thetayy[i, k] * Y[k, j]
-    for i in range(9):
-        for j in range(9):
-            value = 0.0
-            for k in range(9):
-                value += Y[k, i] * syy[k, j]
-            hessian[i, j] = value
+    _product(thetayy, Y, syy, False)
+    _product(Y, syy, hessian, True)
     for a in range(3):
         for b in range(3):
             for c in range(3):

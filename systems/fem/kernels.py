@@ -168,11 +168,10 @@ def volume_ratios(x, elements, shape_gradients):
 
 
 @numba.njit(cache=True)
-def _first_root(c0, c1, c2, c3):
-    """The smallest t in (0, 1] with c0 + c1 t + c2 t^2 + c3 t^3 = 0 (c0 > 0), or 2.0 if there is none: the cubic is
-    monotone between the roots of its derivative, so each such interval holds at most one root, found by bisection."""
+def _critical_cuts(a, b, c):
+    """[0, the roots of a t^2 + b t + c in (0, 1) ascending, 1]: the pieces of [0, 1] on which a polynomial whose
+    derivative this is stays monotone."""
     cuts = [0.0]
-    a, b, c = 3.0 * c3, 2.0 * c2, c1  # the derivative a t^2 + b t + c
     if a != 0.0:
         discriminant = b * b - 4.0 * a * c
         if discriminant >= 0.0:
@@ -183,19 +182,37 @@ def _first_root(c0, c1, c2, c3):
     elif b != 0.0 and 0.0 < -c / b < 1.0:
         cuts.append(-c / b)
     cuts.append(1.0)
+    return cuts
+
+
+@numba.njit(cache=True)
+def cubic_crossings(c0, c1, c2, c3):
+    """Where c0 + c1 t + c2 t^2 + c3 t^3 passes from > 0 to <= 0 or back in (0, 1], ascending: one per monotone
+    piece at most (``_critical_cuts`` of its derivative), found by bisection; each the end of its bracket on the
+    side of the piece's start."""
+    cuts = _critical_cuts(3.0 * c3, 2.0 * c2, c1)
+    crossings = [0.0 for _ in range(0)]
     for number in range(len(cuts) - 1):
         low, high = cuts[number], cuts[number + 1]
-        value_high = c0 + high * (c1 + high * (c2 + high * c3))
-        if value_high > 0.0:
+        start = c0 + low * (c1 + low * (c2 + low * c3)) > 0.0
+        if (c0 + high * (c1 + high * (c2 + high * c3)) > 0.0) == start:
             continue
         for _ in range(60):
             middle = 0.5 * (low + high)
-            if c0 + middle * (c1 + middle * (c2 + middle * c3)) > 0.0:
+            if (c0 + middle * (c1 + middle * (c2 + middle * c3)) > 0.0) == start:
                 low = middle
             else:
                 high = middle
-        return low
-    return 2.0
+        crossings.append(low)
+    return crossings
+
+
+@numba.njit(cache=True)
+def _first_root(c0, c1, c2, c3):
+    """The smallest t in (0, 1] with c0 + c1 t + c2 t^2 + c3 t^3 <= 0 (c0 > 0), or 2.0 if there is none (its last
+    point above 0: a step cut there keeps the element above the fraction)."""
+    crossings = cubic_crossings(c0, c1, c2, c3)
+    return crossings[0] if len(crossings) else 2.0
 
 
 @numba.njit(cache=True, parallel=True)

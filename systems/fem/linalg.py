@@ -331,10 +331,29 @@ def _tridiagonal_eigen(S, n, values, vectors, off):
 
 
 @numba.njit(cache=True)
+def largest_magnitude(values, n):
+    largest = 0.0
+    for k in range(n):
+        largest = max(largest, abs(values[k]))
+    return largest
+
+
+@numba.njit(cache=True)
+def rank_one_update(M, n, change, vector):
+    """M += change vector vector^T (n x n, in place): one eigenvalue of a symmetric M moved by change, vector its unit
+    eigenvector."""
+    for i in range(n):
+        scaled = change * vector[i]
+        for j in range(n):
+            M[i, j] += scaled * vector[j]
+
+
+@numba.njit(cache=True)
 def project_dense(M, n, mode, shift, scratch, values, vectors):
     """The symmetric n x n matrix M made PSD in place, its eigenvalues below -shift max|M_ii| clamped to 0 (mode 1) or
-    mirrored (mode 2): a Cholesky test first, which leaves the PSD ones (most of them) untouched, then the Jacobi
-    eigensystem. True where M was changed. scratch, vectors (n, n) and values (2 n,) are the caller's."""
+    mirrored (mode 2): a Cholesky test first, which leaves the PSD ones (most of them) untouched, then the
+    tridiagonal QR eigensystem. True where M was changed. scratch, vectors (n, n) and values (2 n,) are the
+    caller's."""
     if mode == 0:
         return False
     scale = 0.0
@@ -346,17 +365,11 @@ def project_dense(M, n, mode, shift, scratch, values, vectors):
         for j in range(n):
             scratch[i, j] = M[i, j]
     _tridiagonal_eigen(scratch, n, values[:n], vectors, values[n:])
-    largest = 0.0
-    for k in range(n):
-        largest = max(largest, abs(values[k]))
+    largest = largest_magnitude(values, n)
     changed = False
     for k in range(n):
         if values[k] >= -shift * largest:
             continue
         changed = True
-        change = -values[k] if mode == 1 else -2.0 * values[k]
-        for i in range(n):
-            scaled = change * vectors[i, k]
-            for j in range(n):
-                M[i, j] += scaled * vectors[j, k]
+        rank_one_update(M, n, -values[k] if mode == 1 else -2.0 * values[k], vectors[:, k])
     return changed

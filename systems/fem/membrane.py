@@ -32,6 +32,7 @@ import numba
 import numpy as np
 
 from .energies import COROTATED, NEO_HOOKEAN, STVK
+from .kernels import cubic_crossings
 from .linalg import project_dense
 
 # J below this is taken as this in the terms that divide by it: a triangle collapsed to a segment, where J is not
@@ -226,38 +227,12 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 @numba.njit(cache=True)
 def _first_crossing(q0, q1, q2, q3, q4):
-    """The smallest t in (0, 1] where the quartic q0 + q1 t + ... + q4 t^4 (q0 > 0) reaches 0, or 2.0 if it stays
-    positive: its derivative's roots split [0, 1] into pieces on which it is monotone (the derivative's own
-    critical points from the quadratic q'' = 0, then bisection on each of its monotone pieces), and each piece is
-    bisected for a sign change."""
-    # the cubic q'(t) = d0 + d1 t + d2 t^2 + d3 t^3 and its derivative q''(t) = 2 d2 ... in closed form
-    d0, d1, d2, d3 = q1, 2.0 * q2, 3.0 * q3, 4.0 * q4
-    cuts2 = [0.0]
-    a, b, c = 3.0 * d3, 2.0 * d2, d1
-    if a != 0.0:
-        discriminant = b * b - 4.0 * a * c
-        if discriminant >= 0.0:
-            root = math.sqrt(discriminant)
-            for t in sorted([(-b - root) / (2.0 * a), (-b + root) / (2.0 * a)]):
-                if 0.0 < t < 1.0:
-                    cuts2.append(t)
-    elif b != 0.0 and 0.0 < -c / b < 1.0:
-        cuts2.append(-c / b)
-    cuts2.append(1.0)
+    """The smallest t in (0, 1] where the quartic q0 + q1 t + ... + q4 t^4 (q0 > 0) reaches 0 (its last point above),
+    or 2.0 if it stays positive: its derivative's roots (a cubic's, kernels.cubic_crossings) split [0, 1] into
+    pieces on which it is monotone, and each piece is bisected for a sign change."""
     cuts = [0.0]
-    for number in range(len(cuts2) - 1):  # q' is monotone on each piece: at most one root
-        low, high = cuts2[number], cuts2[number + 1]
-        value_low = d0 + low * (d1 + low * (d2 + low * d3))
-        value_high = d0 + high * (d1 + high * (d2 + high * d3))
-        if value_low * value_high >= 0.0:
-            continue
-        for _ in range(60):
-            middle = 0.5 * (low + high)
-            if (d0 + middle * (d1 + middle * (d2 + middle * d3))) * value_low > 0.0:
-                low = middle
-            else:
-                high = middle
-        cuts.append(0.5 * (low + high))
+    for t in cubic_crossings(q1, 2.0 * q2, 3.0 * q3, 4.0 * q4):
+        cuts.append(t)
     cuts.append(1.0)
     for number in range(len(cuts) - 1):
         low, high = cuts[number], cuts[number + 1]

@@ -119,11 +119,7 @@ class SimplexMesh:
             kind = "tetrahedra" if d == 3 else "triangles"
             raise ModelError(f"a {d}-D solid needs {kind} ({d + 1} vertices each); got an element array of shape "
                              f"{elements.shape}")
-        n = vertices.shape[0]
-        outside = (elements < 0) | (elements >= n)
-        if outside.any():
-            row = int(np.flatnonzero(outside.any(axis=1))[0])
-            raise ModelError(f"element {row} has vertices {elements[row].tolist()}: indices must be in 0..{n - 1}")
+        _check_indices(elements, vertices.shape[0], "element")
         volumes = signed_volumes(vertices, elements)
         scale = float(np.max(np.ptp(vertices, axis=0))) ** d
         flat = np.abs(volumes) <= 1e-14 * scale
@@ -146,11 +142,7 @@ class SimplexMesh:
     def _validate_shell(self) -> "SimplexMesh":
         """A shell's checks: indices in range and no triangle of zero area (a shell has no orientation to check)."""
         vertices, elements = self.vertices, self.elements
-        n = vertices.shape[0]
-        outside = (elements < 0) | (elements >= n)
-        if outside.any():
-            row = int(np.flatnonzero(outside.any(axis=1))[0])
-            raise ModelError(f"triangle {row} has vertices {elements[row].tolist()}: indices must be in 0..{n - 1}")
+        _check_indices(elements, vertices.shape[0], "triangle")
         areas = triangle_areas(vertices, elements)
         flat = areas <= 1e-14 * float(np.max(np.ptp(vertices, axis=0))) ** 2
         if flat.any():
@@ -159,6 +151,14 @@ class SimplexMesh:
                              "every triangle of a shell needs a positive one")
         return SimplexMesh(vertices.astype(float), np.ascontiguousarray(elements, dtype=np.intp), self.named_vertices,
                            self.source)
+
+
+def _check_indices(elements: np.ndarray, count: int, kind: str) -> None:
+    """ModelError naming the first element with a vertex index outside 0..count - 1."""
+    outside = (elements < 0) | (elements >= count)
+    if outside.any():
+        row = int(np.flatnonzero(outside.any(axis=1))[0])
+        raise ModelError(f"{kind} {row} has vertices {elements[row].tolist()}: indices must be in 0..{count - 1}")
 
 
 def triangle_areas(vertices: np.ndarray, elements: np.ndarray) -> np.ndarray:

@@ -11,7 +11,8 @@ import numba
 import numpy as np
 
 from .energies import COROTATED, LINEAR, NEO_HOOKEAN, ROTATION_FLOOR, STABLE_NEO_HOOKEAN
-from .linalg import _closed_form_eigenvalues, _positive_definite_small, _signed_svd, _singular_values, _symmetric_eigen
+from .linalg import (_closed_form_eigenvalues, _positive_definite_small, _signed_svd, _singular_values, _symmetric_eigen,
+                     largest_magnitude, rank_one_update)
 
 # A + PSD_SHIFT max|lambda| I: eigenvalues above -PSD_SHIFT of the largest count as 0 (round-off: the rotation-invariant
 # energies' tangent is singular at rest, where rigid rotations cost nothing), and leave the exact tangent as it is
@@ -165,9 +166,7 @@ def project_tangent(model, F, d, mu, lam, A, mode, scratch):
         values[k] = curvatures[k]
     for pair in range(d * (d - 1) // 2):
         values[d + 2 * pair], values[d + 2 * pair + 1] = pairs[pair, 0], pairs[pair, 1]
-    largest = 0.0
-    for k in range(size):
-        largest = max(largest, abs(values[k]))
+    largest = largest_magnitude(values, size)
     changed = False
     for k in range(size):
         if values[k] >= -PSD_SHIFT * largest:
@@ -187,9 +186,5 @@ def project_tangent(model, F, d, mu, lam, A, mode, scratch):
             for i in range(d):
                 for j in range(d):
                     vector[i * d + j] = math.sqrt(0.5) * (U[i, a] * V[j, b] + sign * U[i, b] * V[j, a])
-        change = -values[k] if mode == 1 else -2.0 * values[k]  # to 0, or to -lambda
-        for row in range(size):
-            scaled = change * vector[row]
-            for column in range(size):
-                A[row, column] += scaled * vector[column]
+        rank_one_update(A, size, -values[k] if mode == 1 else -2.0 * values[k], vector)  # to 0, or to -lambda
     return changed
