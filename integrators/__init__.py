@@ -15,7 +15,8 @@ from .explicit import RK4, ButcherTableau, ExplicitMidpoint, ExplicitRungeKutta,
 from .exponential import ExponentialRosenbrockEuler
 from .implicit import (AverageVectorField, GeneralizedAlpha, ImplicitMidpoint, Newmark,
                        SemiImplicitBackwardEuler)
-from .multistep import BDF2, BDF2MidpointMix
+from .dirk import ESDIRK, SDIRK2, SDIRK3, TRBDF2
+from .multistep import BDF, BDF2, BDF2MidpointMix
 from .xpbd import XPBD
 
 # config name -> class: the one place where a new method is made known
@@ -37,6 +38,11 @@ INTEGRATORS: dict[str, type[Integrator]] = {
         ExponentialRosenbrockEuler,
         AverageVectorField,
         XPBD,
+        SDIRK2,
+        SDIRK3,
+        TRBDF2,
+        ESDIRK,
+        BDF,
     )
 }
 

@@ -1,13 +1,15 @@
-"""Two-step methods: BDF2 and Ascher's theta-mix of BDF2 and the implicit midpoint rule.
+"""Multistep methods: BDF2, Ascher's theta-mix of BDF2 and the implicit midpoint rule, and the k-step BDF (k <= 5).
 
-Both carry the previous state (x_{n-1}, v_{n-1}) in ``State.aux``; it is empty at the start, and the
-first step is then taken with backward Euler (BDF1). A run keeps dt fixed, as the formulas assume.
+BDF2 and the mix carry the previous state (x_{n-1}, v_{n-1}) in ``State.aux``; it is empty at the start, and the
+first step is then taken with backward Euler (BDF1). The k-step BDF carries k - 1 previous states and starts with a
+one-step method of order k - 1 or more. A run keeps dt fixed, as the formulas assume.
 """
 
 from __future__ import annotations
 
 from typing import ClassVar
 
+import numpy as np
 from pydantic import Field
 
 from .base import Integrator, State, StepPlan, on_paths, solve_step
@@ -100,3 +102,94 @@ class BDF2MidpointMix(Integrator):
         problem.prescribed = on_paths(system, state, dt)
         x, stats = solve_step(solver, problem, problem.start_point(state.x))
         return State(state.t + dt, x, (x - origin) / divisor, (state.x, state.v)), stats
+
+
+def bdf_coefficients(k: int) -> tuple[np.ndarray, float]:
+    """(alpha, beta) of the k-step BDF, u_{n+1} + sum_{j=1..k} alpha_j u_{n+1-j} = h beta F(u_{n+1}) (alpha_0 = 1):
+    sum_{j=1..k} (1/j) nabla^j u_{n+1} = h F(u_{n+1}) (Hairer, Norsett & Wanner I, sec. III.1), normalised."""
+    from math import comb
+
+    alpha = np.zeros(k + 1)
+    for j in range(1, k + 1):  # nabla^j u_{n+1} = sum_i (-1)^i C(j, i) u_{n+1-i}
+        for i in range(j + 1):
+            alpha[i] += (-1) ** i * comb(j, i) / j
+    beta = 1.0 / alpha[0]
+    return alpha / alpha[0], beta
+
+
+class BDF(Integrator):
+    """The k-step backward differentiation formula, k = ``order`` (1..5), on u = (x, v):
+
+        x_{n+1} + sum_j alpha_j x_{n+1-j} = h beta v_{n+1},   M (v_{n+1} + sum_j alpha_j v_{n+1-j}) = h beta f(x_{n+1}, v_{n+1}),
+
+    the incremental potential of BDF2's form with x^ = -sum_j alpha_j x_{n+1-j}, v^ likewise, divisor b = h beta,
+    y~ = x^ + b v^ and scale b^2 (BDF2 is k = 2). The history (x, v)_{n-1..n-k+1} rides in ``State.aux``. Order k;
+    A-stable for k <= 2 only: BDF3-5 are A(alpha)-stable and grow on the undamped spring at small h w, where the
+    root locus of rho(r) - z sigma(r) crosses the imaginary axis.
+
+    Started so that the observed order stays k: the first k - 1 steps by a one-step method of order >= k - 1
+    (whose local error O(h^k) leaves the global error O(h^k)): sdirk3 for k <= 4; for k = 5 sdirk3 with Richardson
+    extrapolation, (8 u_{two half steps} - u_{one step}) / 7, of order 4. Until the history is full its missing
+    entries are NaN, so that the state's layout is the same from the first step on (what the amplification probe
+    reads). Source: Hairer & Wanner, Solving ODEs II (1996), sec. V.1; Hairer, Norsett & Wanner I, sec. III.1.
+    """
+
+    name: ClassVar[str] = "bdf"
+    explicit: ClassVar[bool] = False
+    problem_kind: ClassVar[str | None] = "incremental_potential"
+    summary: ClassVar[str] = "k-step BDF (order: 1..5), started by sdirk3; A-stable to k = 2, BDF3-5 grow at small h w"
+    order: int = Field(2, ge=1, le=5, description="k, the number of steps and the order (1..5)")
+
+    @property
+    def order_of_accuracy(self) -> int:
+        return self.order
+
+    def refusal(self, system):
+        if self.order == 5 and system.has_contact and system.contact_needs_step_filter:
+            return ("starts with Richardson-extrapolated steps, combinations of states that CCD does not keep out of a "
+                    "collider: IPC contact takes bdf up to order 4")
+        return super().refusal(system)
+
+    def step(self, system, state, dt, solver):
+        k = self.order
+        history = state.aux
+        if k == 1 or (history and not np.isnan(history[-1][0])):
+            return self._bdf_step(system, state, dt, solver)
+        # the start: a one-step method of order >= k - 1, the history filled in as it goes
+        start, stats = self._start_step(system, state, dt, solver)
+        known = [(state.x, state.v)] + [(history[2 * j], history[2 * j + 1]) for j in range(len(history) // 2)
+                                        if not np.isnan(history[2 * j][0])]
+        missing = np.full_like(state.x, np.nan)
+        pairs = known[:k - 1] + [(missing, missing)] * (k - 1 - len(known[:k - 1]))
+        return State(start.t, start.x, start.v, tuple(part for pair in pairs for part in pair)), stats
+
+    def _start_step(self, system, state, dt, solver):
+        from .dirk import SDIRK3, _add
+
+        method = SDIRK3()
+        if self.order < 5:
+            return method.step(system, state, dt, solver)
+        whole, stats = method.step(system, state, dt, solver)
+        half, first = method.step(system, state, 0.5 * dt, solver)
+        half, second = method.step(system, half, 0.5 * dt, solver)
+        x = (8.0 * half.x - whole.x) / 7.0
+        v = (8.0 * half.v - whole.v) / 7.0
+        return State(state.t + dt, x, v), _add(_add(stats, first), second)
+
+    def _bdf_step(self, system, state, dt, solver):
+        k = self.order
+        alpha, beta = bdf_coefficients(k)
+        past = [(state.x, state.v)] + [(state.aux[2 * j], state.aux[2 * j + 1]) for j in range(k - 1)]
+        x_hat = -sum(alpha[j + 1] * x for j, (x, _) in enumerate(past))
+        v_hat = -sum(alpha[j + 1] * v for j, (_, v) in enumerate(past))
+        divisor = beta * dt
+        predictor = x_hat + divisor * v_hat
+        plan = StepPlan(predictor, divisor * divisor, x_hat, divisor, predictor)
+        problem = plan.problem(system, state, dt)
+        y, stats = solve_step(solver, problem, problem.start_point(state.x))
+        v = (y - x_hat) / divisor
+        history = tuple(part for pair in past[:k - 1] for part in pair)
+        return State(state.t + dt, y, v, history), stats
+
+
+BDF.order = 2  # the class's order at the default k (the field shadows the ClassVar of Integrator)

@@ -1,0 +1,98 @@
+"""The k-step BDF (integrators/multistep.py BDF) against theory: observed order k on the spring and on Kepler's
+orbit for k = 1..5, the start that keeps it (a naive start raising the order one step at a time at the full step
+loses it), and BDF3-5's growth on the undamped spring at small h w, at the root locus's value."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from simrun.analysis.oscillator import amplification_matrix, spectral_radius
+from simrun.integrators import INTEGRATORS, State
+from simrun.integrators.multistep import bdf_coefficients
+from simrun.solvers import solver_params
+from simrun.systems import CircularMotionParams, SpringMassParams
+
+SOLVER = solver_params(tolerance=1e-14, max_iterations=50).build()
+
+
+def final_error(method, system, exact, duration, count, naive=False):
+    """|x - exact| after ``count`` steps; ``naive``: BDF1, BDF2, ... at the full step while the history fills, instead
+    of the method's own start."""
+    state = method.start(system, State(0.0, system.x0.copy(), system.v0.copy()))
+    dt = duration / count
+    past = []  # (x, v) of the earlier steps, the newest first
+    for number in range(count):
+        if naive:
+            order = min(number + 1, method.order)
+            history = tuple(part for pair in past[:order - 1] for part in pair)
+            new, _ = INTEGRATORS["bdf"](order=order)._bdf_step(system, State(state.t, state.x, state.v, history), dt,
+                                                               SOLVER)
+            past.insert(0, (state.x, state.v))
+            state = new
+            continue
+        state, _ = method.step(system, state, dt, SOLVER)
+    return np.linalg.norm(state.x - exact)
+
+
+def slopes(errors):
+    return np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+
+
+KEPLER_STEPS = {1: [1600, 3200, 6400], 2: [1600, 3200, 6400], 3: [400, 800, 1600], 4: [200, 400, 800],
+                5: [150, 300, 600]}
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5])
+def test_observed_order_is_k_on_the_spring_and_on_kepler(k):
+    """Halving dt divides the final error by 2^k (within 0.15) in the asymptotic range."""
+    method = INTEGRATORS["bdf"](order=k)
+    spring = SpringMassParams(stiffness=100.0, x0=1.0, v0=0.0).build()
+    counts = [400, 800, 1600] if k > 1 else [1600, 3200, 6400]
+    errors = [final_error(method, spring, np.array([math.cos(10.0)]), 1.0, count) for count in counts]
+    assert np.all(np.abs(slopes(errors) - k) < 0.15), (k, slopes(errors))
+    kepler = CircularMotionParams(force="gravity").build()
+    exact = kepler.exact_solution(2 * math.pi)[0][0]
+    counts = KEPLER_STEPS[k]  # asymptotic, and above the round-off (about 1e-10 after a revolution)
+    errors = [final_error(method, kepler, exact, 2 * math.pi, count) for count in counts]
+    assert np.all(np.abs(slopes(errors) - k) < 0.15), (k, slopes(errors))
+
+
+@pytest.mark.parametrize("k", [3, 4])
+def test_raising_the_order_one_step_at_a_time_loses_order(k):
+    """BDF1, then BDF2, ... at the full step leaves the first steps' local errors O(h^j + 1), j < k: the global error
+    is then O(h^2) (BDF1's O(h^2) local error) instead of O(h^k)."""
+    method = INTEGRATORS["bdf"](order=k)
+    spring = SpringMassParams(stiffness=100.0, x0=1.0, v0=0.0).build()
+    exact = np.array([math.cos(10.0)])
+    naive = [final_error(method, spring, exact, 1.0, count, naive=True) for count in (400, 800, 1600)]
+    started = [final_error(method, spring, exact, 1.0, count) for count in (400, 800, 1600)]
+    assert np.all(np.abs(slopes(naive) - 2.0) < 0.2), slopes(naive)
+    assert np.all(np.abs(slopes(started) - k) < 0.15), slopes(started)
+
+
+def root_locus_radius(k, hw):
+    alpha, beta = bdf_coefficients(k)
+    polynomial = alpha.astype(complex)
+    polynomial[0] -= 1j * hw * beta
+    return np.abs(np.roots(polynomial)).max()
+
+
+# where each grows (the root locus's |r| > 1 on the imaginary axis, z = i h w): BDF3 for h w < 1.94, BDF4 for
+# h w < 4.72, BDF5 for 0.71 < h w < 9.39 (it damps below: its region holds the axis near 0)
+GROWTH = {1: [], 2: [], 3: [0.05, 0.2, 1.0], 4: [0.2, 1.0, 4.0], 5: [1.0, 2.4, 9.0]}
+DAMPED = {1: [0.05, 0.2, 1.0, 50.0], 2: [0.05, 0.2, 1.0, 50.0], 3: [2.0, 50.0], 4: [5.0, 50.0], 5: [0.2, 0.5, 10.0, 50.0]}
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5])
+def test_bdf3_to_5_grow_on_the_undamped_spring_where_the_root_locus_says(k):
+    """The probed amplification matrix's spectral radius equals the root locus's largest |r| of rho(r) = z sigma(r) at
+    z = i h w; BDF1-2 (A-stable) never exceed 1; BDF3 and BDF4 grow at small h w, BDF5 from h w = 0.71, and each
+    damps again beyond its interval."""
+    method = INTEGRATORS["bdf"](order=k)
+    for hw in GROWTH[k] + DAMPED[k]:
+        radius = spectral_radius(amplification_matrix(method, hw))
+        assert radius == pytest.approx(root_locus_radius(k, hw), rel=1e-9, abs=1e-12)
+        assert (radius > 1.0 + 1e-12) == (hw in GROWTH[k]), (k, hw, radius)
