@@ -282,3 +282,24 @@ def test_a_sweep_of_whole_systems_needs_no_base_system():
     del config["sweep"]["system"]
     with pytest.raises(ConfigError, match="system"):
         load_experiment(config)
+
+
+def test_a_cold_compilation_cache_runs_in_parallel_workers(tmp_path):
+    """A fresh install's first parallel run of finite elements compiles the kernels in the pool's workers, after the
+    worker has limited numba's threads: that limit must not touch NUMBA_NUM_THREADS once numba's pool is running
+    (every compilation re-reads the variable and refuses a change). A fresh cache folder makes the compilation
+    cold; the command runs in its own process, as a user's would."""
+    import os
+    import subprocess
+    import sys
+
+    config = {"name": "cold", "system": {"type": "fem", **MIXED_SQUARE}, "integrators": ["backward_euler"],
+              "duration": 0.02, "sweep": {"dt": [0.01, 0.02]}}
+    path = tmp_path / "cold.yaml"
+    path.write_text(json.dumps(config))
+    environment = {key: value for key, value in os.environ.items() if key != "NUMBA_NUM_THREADS"}
+    environment["NUMBA_CACHE_DIR"] = str(tmp_path / "numba-cache")
+    done = subprocess.run([sys.executable, "-m", "simrun", str(path), "--output", str(tmp_path / "out"), "-j", "2",
+                           "-q", "--no-plots"], env=environment, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert any((tmp_path / "numba-cache").rglob("*.nbi"))

@@ -125,10 +125,14 @@ def _limit_compiled_threads(threads: int) -> None:
     per Newton iteration instead of 0.05 ms. A user who set NUMBA_NUM_THREADS chose the count."""
     if "NUMBA_NUM_THREADS" in os.environ:
         return
-    os.environ["NUMBA_NUM_THREADS"] = str(threads)
     numba = sys.modules.get("numba")
-    if numba is not None:  # imported already (the fork server's preload): its pool takes the count from here on
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    if numba is None:  # not imported yet: numba reads the count when it is
+        os.environ["NUMBA_NUM_THREADS"] = str(threads)
+        return
+    # imported already (the fork server's preload): its pool takes the count from here on. The variable is left
+    # alone: once the pool runs, every compilation re-reads it, and a value other than the pool's size is an error
+    # (a cold cache compiles in the worker: a fresh install's first parallel FEM run failed there)
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
 
 
 def start_worker_server() -> None:
