@@ -17,6 +17,7 @@ from .implicit import (AverageVectorField, GeneralizedAlpha, ImplicitMidpoint, N
                        SemiImplicitBackwardEuler)
 from .dirk import ESDIRK, SDIRK2, SDIRK3, TRBDF2
 from .multistep import BDF, BDF2, BDF2MidpointMix
+from .rosenbrock import Rosenbrock
 from .xpbd import XPBD
 
 # config name -> class: the one place where a new method is made known
@@ -43,6 +44,7 @@ INTEGRATORS: dict[str, type[Integrator]] = {
         TRBDF2,
         ESDIRK,
         BDF,
+        Rosenbrock,
     )
 }
 

@@ -1,0 +1,166 @@
+"""Rosenbrock (linearly implicit) methods: one linear solve per stage with the step's Jacobian, no Newton (issue 28).
+
+On u = (x, v), u' = F(u) = (v, M^-1 f(x, v)), with J = dF/du at u_n, a Rosenbrock method in the form of Hairer &
+Wanner (Solving ODEs II, sec. IV.7, eq. 7.4') is
+
+    (I / (h gamma) - J) U_i = F(u_n + sum_{j<i} a_ij U_j) + sum_{j<i} (c_ij / h) U_j,    u_{n+1} = u_n + sum_i m_i U_i.
+
+With J = [[0, I], [-M^-1 K, -M^-1 D]] (K the Hessian of P at x_n, D the damping matrix there) and U_i = (p_i, q_i),
+r_i = (r_x, r_v) the right-hand side, the stage is p/(h gamma) - q = r_x and M q/(h gamma) + K p + D q = M r_v, so
+
+    (M / (h gamma)^2 + D / (h gamma) + K) p = M r_v + (M / (h gamma) + D) r_x,    q = p / (h gamma) - r_x,
+
+one solve of the size of x with the same matrix for every stage (factorised once per step), where M r_v =
+f(X_i, V_i) + M sum_j (c_ij / h) q_j: no M^-1 is formed. Pinned dofs keep p = q = 0.
+
+Schemes (coefficients as their authors give them in this form):
+- ``ros2``: Verwer, Spee, Blom & Hundsdorfer 1999, gamma = 1 + 1/sqrt(2), a_21 = 1/gamma, c_21 = -2/gamma,
+  m = (3/(2 gamma), 1/(2 gamma)); order 2, L-stable.
+- ``ros3p``: Lang & Verwer 2001 (BIT 41), gamma = 1/2 + sqrt(3)/6; order 3, A-stable (|R(inf)| = 0.73), designed
+  to keep its order on parabolic problems.
+- ``rodas3``: Sandu et al. 1997 (Atmos. Environ. 31), gamma = 1/2, four stages; order 3, stiffly accurate,
+  L-stable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
+from pydantic import Field
+
+from simrun.solvers import SolveStats
+
+from .base import Integrator, State, add_mass
+
+
+@dataclass(frozen=True)
+class RosenbrockScheme:
+    """gamma; a and c strictly lower triangular (s x s); m (s,); the order."""
+
+    gamma: float
+    a: tuple[tuple[float, ...], ...]
+    c: tuple[tuple[float, ...], ...]
+    m: tuple[float, ...]
+    order: int
+
+    def stability_function(self, z: complex) -> complex:
+        """R(z) on y' = lambda y (z = h lambda, J = lambda exact): (1/gamma - z) U_i = z (1 + sum a_ij U_j) +
+        sum c_ij U_j with y_n = 1, R = 1 + sum m_i U_i."""
+        stages = []
+        for i in range(len(self.m)):
+            right = z * (1.0 + sum(self.a[i][j] * stages[j] for j in range(i))) + sum(self.c[i][j] * stages[j]
+                                                                                 for j in range(i))
+            stages.append(right / (1.0 / self.gamma - z))
+        return complex(1.0 + sum(weight * stage for weight, stage in zip(self.m, stages)))
+
+
+def _ros2() -> RosenbrockScheme:
+    gamma = 1.0 + 1.0 / math.sqrt(2.0)
+    return RosenbrockScheme(gamma, ((0.0, 0.0), (1.0 / gamma, 0.0)), ((0.0, 0.0), (-2.0 / gamma, 0.0)),
+                            (1.5 / gamma, 0.5 / gamma), 2)
+
+
+def _ros3p() -> RosenbrockScheme:
+    gamma = 0.5 + math.sqrt(3.0) / 6.0
+    # Lang & Verwer's a_21 = a_31 = 1.267949192431123 = 1/gamma, c_21 = -1.607695154586736 = -1/gamma^2,
+    # c_31 = -3.464101615137755 = -2 sqrt(3), c_32 = -1.732050807568877 = -sqrt(3), m = (2, 0.5773502691896258,
+    # 0.4226497308103742) = (2, 1/sqrt(3), 1 - 1/sqrt(3)), written in closed form
+    root3 = math.sqrt(3.0)
+    return RosenbrockScheme(gamma, ((0.0, 0.0, 0.0), (1.0 / gamma, 0.0, 0.0), (1.0 / gamma, 0.0, 0.0)),
+                            ((0.0, 0.0, 0.0), (-1.0 / gamma ** 2, 0.0, 0.0), (-2.0 * root3, -root3, 0.0)),
+                            (2.0, 1.0 / root3, 1.0 - 1.0 / root3), 3)
+
+
+def _rodas3() -> RosenbrockScheme:
+    return RosenbrockScheme(0.5, ((0.0,) * 4, (0.0, 0.0, 0.0, 0.0), (2.0, 0.0, 0.0, 0.0), (2.0, 0.0, 1.0, 0.0)),
+                            ((0.0,) * 4, (4.0, 0.0, 0.0, 0.0), (1.0, -1.0, 0.0, 0.0), (1.0, -1.0, -8.0 / 3.0, 0.0)),
+                            (2.0, 0.0, 1.0, 1.0), 3)
+
+
+SCHEMES = {"ros2": _ros2(), "ros3p": _ros3p(), "rodas3": _rodas3()}
+
+
+class Rosenbrock(Integrator):
+    """Rosenbrock (linearly implicit) methods on u = (x, v): ``scheme`` ros2 (order 2, L-stable), ros3p (order 3,
+    A-stable) or rodas3 (order 3, L-stable, stiffly accurate). Per step one Jacobian (K and D at x_n), one
+    factorisation of M/(h gamma)^2 + D/(h gamma) + K and one solve and force evaluation per stage; no Newton
+    iteration, so nothing converges or fails to: the step is exact for linear problems' own order of accuracy only
+    as far as J is exact (it is, at u_n). The module docstring has the stage equations and the sources."""
+
+    name: ClassVar[str] = "rosenbrock"
+    order: ClassVar[int] = 3
+    # no nonlinear solve, as the exponential Rosenbrock-Euler method: the solver is never called (and IPC, whose
+    # steps a line search must cut, is refused)
+    explicit: ClassVar[bool] = True
+    summary: ClassVar[str] = "linearly implicit Rosenbrock: ros2, ros3p, rodas3; one solve per stage, no Newton"
+    scheme: Literal[tuple(SCHEMES)] = Field("ros3p", description="ros2 | ros3p | rodas3")  # type: ignore[valid-type]
+
+    @property
+    def order_of_accuracy(self) -> int:
+        return SCHEMES[self.scheme].order
+
+    def refusal(self, system):
+        if system.constraints is not None and system.constraints.moving_dofs.size:
+            return ("holds prescribed vertices still within its linearised stages: use an incremental-potential "
+                    "method (backward_euler, sdirk2, bdf2) with prescribed paths")
+        if system.sliding is not None:
+            return "solves without the sliding vertices' filters: use an incremental-potential method"
+        return super().refusal(system)
+
+    def step(self, system, state, dt, solver):
+        scheme = SCHEMES[self.scheme]
+        x, v = state.x, state.v
+        scale = dt * scheme.gamma  # h gamma
+        stiffness = system.hessian(x)
+        damping = system.damping_matrix(x) if system.is_damped else None
+        free = np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
+        # M/(h gamma)^2 + D/(h gamma) + K, and the operator M/(h gamma) + D that maps r_x into the right-hand side
+        matrix = add_mass(stiffness * (scale * scale), system) / (scale * scale)
+        if damping is not None:
+            matrix = matrix + damping / scale
+        solve = _factorised(matrix, free)
+        positions, velocities = [], []
+        for i in range(len(scheme.m)):
+            stage_x, stage_v = x, v
+            for j in range(i):
+                if scheme.a[i][j]:
+                    stage_x = stage_x + scheme.a[i][j] * positions[j]
+                    stage_v = stage_v + scheme.a[i][j] * velocities[j]
+            extra_x, extra_v = np.zeros_like(x), np.zeros_like(v)
+            for j in range(i):
+                if scheme.c[i][j]:
+                    extra_x += (scheme.c[i][j] / dt) * positions[j]
+                    extra_v += (scheme.c[i][j] / dt) * velocities[j]
+            r_x = stage_v + extra_x
+            force = system.force(stage_x, stage_v) + system.mass_times(extra_v)  # M r_v
+            right = force + system.mass_times(r_x) / scale
+            if damping is not None:
+                right = right + damping @ r_x
+            p = np.zeros_like(x)
+            p[free] = solve(right[free])
+            q = p / scale - r_x
+            q[system.fixed_dofs] = 0.0
+            positions.append(p)
+            velocities.append(q)
+        for weight, p, q in zip(scheme.m, positions, velocities):
+            x = x + weight * p
+            v = v + weight * q
+        stages = len(scheme.m)
+        return State(state.t + dt, x, v), SolveStats(iterations=0, linear_iterations=stages)
+
+
+def _factorised(matrix, free: np.ndarray):
+    """The solve of matrix[free, free] y = b, factorised once (SuperLU for a sparse matrix, LU for a dense one)."""
+    if scipy.sparse.issparse(matrix):
+        reduced = scipy.sparse.csc_matrix(matrix)[free][:, free]
+        factor = scipy.sparse.linalg.splu(scipy.sparse.csc_matrix(reduced))
+        return factor.solve
+    dense = np.asarray(matrix, dtype=float)[np.ix_(free, free)]
+    factor = scipy.linalg.lu_factor(dense)
+    return lambda right: scipy.linalg.lu_solve(factor, right)
