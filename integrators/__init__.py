@@ -17,6 +17,7 @@ from .implicit import (AverageVectorField, GeneralizedAlpha, ImplicitMidpoint, N
                        SemiImplicitBackwardEuler)
 from .dirk import ESDIRK, SDIRK2, SDIRK3, TRBDF2
 from .multistep import BDF, BDF2, BDF2MidpointMix
+from .radau import RadauIIA
 from .rosenbrock import Rosenbrock
 from .xpbd import XPBD
 
@@ -45,6 +46,7 @@ INTEGRATORS: dict[str, type[Integrator]] = {
         ESDIRK,
         BDF,
         Rosenbrock,
+        RadauIIA,
     )
 }
 

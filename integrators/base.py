@@ -493,8 +493,8 @@ class IncrementalPotential:
         if self.damping is not None:
             data += self.damping_weight * self.damping.data
         data[system.diagonal_positions] += system.mass
-        if system.mass_correction is not None:  # in the same pattern
-            data += system.mass_correction_data
+        if system.mass_correction is not None:  # a CSR matrix in the same pattern: its data adds entry for entry
+            data += system.mass_correction.data
         return data
 
     # -- vertex by vertex: what vertex block descent needs (solvers/vbd.py) ------------------------------

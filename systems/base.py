@@ -127,7 +127,7 @@ class System(ABC):
     dim: int
     mass: np.ndarray
     # a consistent mass matrix's part off its lumped diagonal, M - diag(mass) (a CSR matrix in the Hessian's pattern,
-    # whose rows sum to 0), or None: M is the diagonal ``mass``. Only methods that take M as a matrix step such a
+    # whose data adds to a Hessian's entry for entry, and whose rows sum to 0), or None: M is the diagonal ``mass``. Only methods that take M as a matrix step such a
     # system (``mass_refusal``); ``mass`` stays the lumped diagonal, what scales and safeguards read.
     mass_correction = None
     x0: np.ndarray

@@ -23,6 +23,7 @@ import scipy.sparse
 from pydantic_core import PydanticUndefined
 
 from simrun.integrators import INTEGRATORS, State
+from simrun.integrators.radau import stability_function as radau_stability
 from simrun.integrators.rosenbrock import SCHEMES
 from simrun.solvers import solver_params
 from simrun.systems import CircularMotionParams, SpringMassParams, System
@@ -41,6 +42,7 @@ VARIANTS = {
     "average_vector_field": [{"quadrature_points": 1}],
     "bdf": [{"order": 1}, {"order": 3}, {"order": 5}],
     "rosenbrock": [{"scheme": "ros2"}, {"scheme": "rodas3"}],
+    "radau_iia": [{"stages": 2}],
 }
 MORE_VARIANTS = {"generalized_alpha": [{"rho_inf": 0.3}, {"rho_inf": 0.8}], "bdf2_midpoint_mix": [{"theta": 0.25}],
                  "xpbd": [{"substeps": 1}, {"substeps": 3, "iterations": 2}]}
@@ -360,6 +362,10 @@ CLOSED_FORMS = {
     # Rosenbrock: |R(i x)| of the scheme with the exact Jacobian (what a linear problem gives it)
     "rosenbrock": lambda integrator, x: np.array([abs(SCHEMES[integrator.scheme].stability_function(1j * value))
                                                   for value in np.atleast_1d(x)]).reshape(np.shape(x)),
+    # Radau IIA: |R(i x)|, R(z) = 1 + z b^T (I - z A)^-1 1 with b = A's last row (the simplified Newton solves the
+    # linear spring's stages exactly)
+    "radau_iia": lambda integrator, x: np.array([abs(radau_stability(integrator.stages, 1j * value))
+                                                 for value in np.atleast_1d(x)]).reshape(np.shape(x)),
 }
 
 # expm_multiply's own round-off grows with ||h J|| ~ x (about 1e-13 at x = 100, 1e-11 at x = 1e3):
@@ -557,8 +563,11 @@ def test_the_mix_is_midpoint_at_theta_zero_and_bdf2_at_theta_one(system_name):
         assert np.max(np.abs(mixed[-1].v - pure[-1].v)) < 1e-11
 
 
-@pytest.mark.parametrize("integrator", [case for case in CASES if not case.explicit],
-                         ids=[case.label for case in CASES if not case.explicit])
+# the methods that hand the solver a problem (Radau IIA iterates on its coupled stages itself)
+SOLVED = [case for case in CASES if case.problem_kind is not None]
+
+
+@pytest.mark.parametrize("integrator", SOLVED, ids=[case.label for case in SOLVED])
 @pytest.mark.parametrize("system_name", ["kepler", "chain"])
 def test_the_problem_handed_to_the_solver_is_consistent(integrator, system_name):
     """Whatever an implicit method hands to the solver: its Hessian is the derivative of its gradient,

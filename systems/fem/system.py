@@ -134,9 +134,7 @@ class Fem(ContactHooks, System):
         data = np.zeros(self._nnz)
         kernels.scatter_blocks(np.ascontiguousarray(blocks.reshape(len(self.elements), k * d, k * d)), self._positions,
                                data)
-        correction = self.pattern_matrix(data)
-        self.mass_correction_data = data
-        return correction
+        return self.pattern_matrix(data)
 
     def _prepare_paths(self) -> None:
         self.__dict__.pop("_consistent_solve", None)  # released vertices join the free dofs of M a = f
@@ -280,6 +278,7 @@ class Fem(ContactHooks, System):
 
     @functools.cached_property
     def _projective_stiffness(self) -> np.ndarray:
+        """Projective dynamics' sum_e 2 mu_e V_e B_e^T B_e as the pattern's data."""
         g = self.shape_gradients
         weights = 2.0 * self.mu * self.volumes
         products = np.einsum("e,eai,ebi->eab", weights, g, g)  # 2 mu V (g_a . g_b)

@@ -1,0 +1,126 @@
+"""Radau IIA (integrators/radau.py) against theory: each step solves the collocation equations Z = h (A x I) F(u_n + Z)
+(checked independently on a nonlinear damped chain), orders 3 and 5 on the spring and on Kepler's orbit, L-stability,
+one iteration (and the confirming one) on a linear problem, the coefficients' simplifying conditions, and the
+vertices of prescribed paths on their paths at the stage times."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from simrun.errors import ConfigError
+from simrun.experiment.config import load_experiment
+from simrun.experiment.sweep import expand_runs
+from simrun.integrators import INTEGRATORS, State
+from simrun.integrators.radau import radau_tableau, stability_function
+from simrun.systems import CircularMotionParams, SpringMassParams
+from test_integrators import DampedChain
+
+
+@pytest.mark.parametrize("stages", [2, 3])
+def test_the_tableau_meets_the_simplifying_conditions_of_its_order(stages):
+    """B(2s - 1) and C(s) (Hairer & Wanner II, sec. IV.5): sum_i b_i c_i^(k-1) = 1/k for k <= 2s - 1 and
+    sum_j a_ij c_j^(k-1) = c_i^k / k for k <= s, with b = A's last row and c_s = 1."""
+    A, c = radau_tableau(stages)
+    b = A[-1]
+    for k in range(1, 2 * stages):
+        assert b @ c ** (k - 1) == pytest.approx(1.0 / k, abs=1e-14)
+    assert b @ c ** (2 * stages - 1) != pytest.approx(1.0 / (2 * stages), abs=1e-6)  # and no more
+    for k in range(1, stages + 1):
+        np.testing.assert_allclose(A @ c ** (k - 1), c ** k / k, atol=1e-14)
+
+
+@pytest.mark.parametrize("stages", [2, 3])
+def test_a_step_solves_the_collocation_equations(stages):
+    """On the damped nonlinear chain (a pinned dof), from a state off the start: Z = h (A x I) F(u_n + Z) solved here
+    on the first-order system by a dense Newton of our own (finite-difference Jacobian); the method's u_{n+1}, from
+    its iteration on the stage positions alone, equals u_n + Z_s."""
+    system = DampedChain(sparse=False)
+    method = INTEGRATORS["radau_iia"](stages=stages, tolerance=1e-14, max_iterations=100)
+    A, _ = radau_tableau(stages)
+    state = State(0.0, system.x0.copy(), system.v0.copy())
+    state, _ = method.step(system, state, 0.05, None)  # somewhere off the start
+    h, n = 0.08, system.dof_count
+    free = np.ones(n)
+    free[system.fixed_dofs] = 0.0
+
+    def rate(u):
+        return np.concatenate([free * u[n:], system.force(u[:n], u[n:]) / system.mass])
+
+    u0 = np.concatenate([state.x, state.v])
+    Z = np.zeros((stages, 2 * n))
+    for _ in range(50):
+        def defect(flat):
+            stages_z = flat.reshape(stages, 2 * n)
+            slopes = np.array([rate(u0 + z) for z in stages_z])
+            return (stages_z - h * A @ slopes).ravel()
+        value = defect(Z.ravel())
+        if np.abs(value).max() < 1e-13:
+            break
+        jacobian = np.empty((value.size, value.size))
+        for column in range(value.size):
+            step = np.zeros(value.size)
+            step[column] = 1e-7
+            jacobian[:, column] = (defect(Z.ravel() + step) - defect(Z.ravel() - step)) / 2e-7
+        Z = (Z.ravel() - np.linalg.solve(jacobian, value)).reshape(stages, 2 * n)
+    new, stats = method.step(system, state, h, None)
+    assert stats.converged
+    np.testing.assert_allclose(new.x, state.x + Z[-1, :n], atol=1e-10)
+    np.testing.assert_allclose(new.v, state.v + Z[-1, n:], atol=1e-9)
+
+
+@pytest.mark.parametrize("stages, order", [(2, 3), (3, 5)])
+def test_observed_order_on_the_spring_and_on_kepler(stages, order):
+    method = INTEGRATORS["radau_iia"](stages=stages, tolerance=1e-13)
+    spring = SpringMassParams(stiffness=100.0, x0=1.0, v0=0.0).build()
+    kepler = CircularMotionParams(force="gravity").build()
+    for system, duration, exact in ((spring, 1.0, np.array([math.cos(10.0)])),
+                                    (kepler, 2 * math.pi, kepler.exact_solution(2 * math.pi)[0][0])):
+        errors = []
+        for count in (50, 100, 200):
+            state = State(0.0, system.x0.copy(), system.v0.copy())
+            for _ in range(count):
+                state, stats = method.step(system, state, duration / count, None)
+                assert stats.converged
+            errors.append(np.linalg.norm(state.x - exact))
+        slopes = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+        assert np.all(np.abs(slopes - order) < 0.15), (stages, slopes)
+
+
+@pytest.mark.parametrize("stages", [2, 3])
+def test_l_stable_and_exact_in_one_iteration_on_a_linear_problem(stages):
+    """|R(i y)| <= 1, R(-inf) = 0; on the linear spring the simplified Newton matrix is the exact Jacobian, so the
+    first iteration solves the stages and the second confirms it."""
+    for y in np.logspace(-3, 6, 200):
+        assert abs(stability_function(stages, 1j * y)) <= 1.0 + 1e-14
+    assert abs(stability_function(stages, -1e9)) < 1e-6
+    spring = SpringMassParams(stiffness=100.0, damping=2.0, x0=1.0, v0=0.3).build()
+    _, stats = INTEGRATORS["radau_iia"](stages=stages).step(spring, State(0.0, spring.x0, spring.v0), 0.1, None)
+    assert stats.converged and stats.iterations == 2
+
+
+def test_prescribed_vertices_are_on_their_paths_at_the_stage_times(tmp_path):
+    """A rope whose first vertex moves at a constant velocity: after each step it is exactly on its path."""
+    config = {"name": "path", "system": {
+        "type": "mass_spring", "model": {"rope": {"count": 4, "length": 0.3}}, "stiffness": 50.0, "gravity": [0, 0, -9.81],
+        "prescribed": [{"vertices": [0], "velocity": [0.1, 0.0, 0.0]}]},
+        "integrators": ["radau_iia"], "duration": 0.05, "sweep": {"dt": [0.01]}}
+    run = expand_runs(load_experiment(config)[0])[0]
+    system = run.system.build()
+    state = State(0.0, system.x0.copy(), system.v0.copy())
+    moving = system.constraints.moving_dofs
+    for _ in range(5):
+        state, stats = run.integrator.step(system, state, 0.01, None)
+        assert stats.converged
+        np.testing.assert_allclose(state.x[moving], system.constraints.path(state.t)[0], atol=1e-14)
+
+
+def test_ipc_is_refused_in_one_line():
+    config = {"name": "bad", "system": {
+        "type": "fem", "model": {"box": {"size": [0.1, 0.1, 0.05], "cells": [1, 1, 1]}}, "initial": {"translate": [0, 0, 0.02]},
+        "contact": {"method": "ipc", "colliders": [{"shape": "plane", "normal": [0.0, 0.0, 1.0], "point": [0, 0, 0]}]}},
+        "integrators": ["radau_iia"], "sweep": {"dt": [0.01]}}
+    with pytest.raises(ConfigError, match="radau_iia: solves its stages together"):
+        expand_runs(load_experiment(config)[0])
