@@ -11,7 +11,7 @@ in tests/test_integrators.py then step it, and ask for its closed-form spectral 
 from .base import IncrementalPotential, Integrator, State
 from .segment import SegmentPotential
 from .euler import BackwardEuler, ForwardEuler, SymplecticEuler
-from .explicit import RK4, ButcherTableau, ExplicitMidpoint, ExplicitRungeKutta, Leapfrog
+from .explicit import RK4, ButcherTableau, Dopri5, ExplicitMidpoint, ExplicitRungeKutta, Leapfrog
 from .exponential import ExponentialRosenbrockEuler
 from .implicit import (AverageVectorField, GeneralizedAlpha, ImplicitMidpoint, Newmark,
                        SemiImplicitBackwardEuler)
@@ -47,6 +47,7 @@ INTEGRATORS: dict[str, type[Integrator]] = {
         BDF,
         Rosenbrock,
         RadauIIA,
+        Dopri5,
     )
 }
 

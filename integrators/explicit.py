@@ -126,3 +126,35 @@ class RK4(ExplicitRungeKutta):
     explicit: ClassVar[bool] = True
     summary: ClassVar[str] = "classical Runge-Kutta; 4th order, slightly dissipative, stable for h w < 2.83"
     tableau: ClassVar[ButcherTableau] = RK4_TABLEAU
+
+
+# Dormand & Prince (1980), "A family of embedded Runge-Kutta formulae", J. Comput. Appl. Math. 6: RK5(4)7M, the
+# fifth-order weights (its last stage, at the new point, is the next step's first: first same as last)
+DOPRI5_TABLEAU = ButcherTableau(
+    A=((0.0,) * 7,
+       (1.0 / 5.0,) + (0.0,) * 6,
+       (3.0 / 40.0, 9.0 / 40.0) + (0.0,) * 5,
+       (44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0) + (0.0,) * 4,
+       (19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0) + (0.0,) * 3,
+       (9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0, 0.0, 0.0),
+       (35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0, 0.0)),
+    b=(35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0, 0.0),
+    c=(0.0, 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0, 1.0, 1.0),
+    order=5,
+)
+# its embedded fourth-order weights, for the error estimate of adaptive steps (issue 28)
+DOPRI5_EMBEDDED = (5179.0 / 57600.0, 0.0, 7571.0 / 16695.0, 393.0 / 640.0, -92097.0 / 339200.0, 187.0 / 2100.0,
+                   1.0 / 40.0)
+
+
+class Dopri5(ExplicitRungeKutta):
+    """Dormand-Prince 5(4) (1980), the explicit baseline of error-controlled integration (scipy's RK45, MATLAB's
+    ode45): seven stages, fifth order. On the spring R(z) = sum_{k<=5} z^k/k! + z^6/600 (its seventh stage, at the
+    new point, adds the z^6 term): stable for h w < 3.4, slightly dissipative below. Source: Dormand & Prince,
+    J. Comput. Appl. Math. 6 (1980); Hairer, Norsett & Wanner, Solving ODEs I (1993), sec. II.5."""
+
+    name: ClassVar[str] = "dopri5"
+    order: ClassVar[int] = DOPRI5_TABLEAU.order
+    explicit: ClassVar[bool] = True
+    summary: ClassVar[str] = "Dormand-Prince 5(4), the fifth-order explicit baseline (scipy's RK45)"
+    tableau: ClassVar[ButcherTableau] = DOPRI5_TABLEAU

@@ -199,7 +199,10 @@ def final_error(integrator, system_name, steps):
 STEPS_PER_SECOND = {1: 100, 2: 50, 3: 30, 4: 20, 5: 40}
 # BDF5 on the damped chain: its error constant is large, and the slope reaches 5 from about 300 steps a second;
 # ros3p and ros2 there approach their orders from above and below (2.83-3.37 and 1.55-1.87 below 120 steps)
-STEPS_PER_SECOND_ON = {("bdf[order=5]", "chain"): 240, ("rosenbrock", "chain"): 120, ("rosenbrock[scheme=ros2]", "chain"): 200}
+# dopri5 on the damped chain: the slope falls toward 5 from above so slowly (5.36, 5.33, 5.24 from 40 to 160 steps a
+# second) that the reference's own error (DOP853 at 1e-12) arrives first; it is held to 0.3 there
+ORDER_SLACK = {("dopri5", "chain"): 0.3}
+STEPS_PER_SECOND_ON = {("bdf[order=5]", "chain"): 240, ("dopri5", "chain"): 60, ("rosenbrock", "chain"): 120, ("rosenbrock[scheme=ros2]", "chain"): 200}
 
 
 @pytest.mark.parametrize("system_name", ["spring", "damped_spring", "chain"])
@@ -220,7 +223,7 @@ def test_observed_order_of_convergence(integrator, system_name):
     if system_name in ("spring", "damped_spring") and errors.max() < ROUND_OFF_ERROR:
         return  # exact on the linear problem: the strongest possible "order"
     slope = np.polyfit(np.log(duration / steps), np.log(errors), 1)[0]
-    assert abs(slope - order) < 0.15, (slope, errors)
+    assert abs(slope - order) < ORDER_SLACK.get((integrator.label, system_name), 0.15), (slope, errors)
 
 
 @pytest.mark.parametrize("name", ["exponential_rosenbrock_euler", "average_vector_field", "leapfrog"])
@@ -337,6 +340,8 @@ CLOSED_FORMS = {
     # explicit RK with s = p stages: R(z) = sum_{k<=p} z^k/k! (Hairer & Wanner, Solving ODEs II, ch. IV)
     "explicit_midpoint": lambda integrator, x: abs(1 + 1j * x + (1j * x) ** 2 / 2),
     "rk4": lambda integrator, x: abs(1 + 1j * x + (1j * x) ** 2 / 2 + (1j * x) ** 3 / 6 + (1j * x) ** 4 / 24),
+    # Dormand-Prince 5(4): the Taylor polynomial to z^5, and z^6/600 from its seventh stage
+    "dopri5": lambda integrator, x: abs(sum((1j * x) ** k / math.factorial(k) for k in range(6)) + (1j * x) ** 6 / 600),
     # R(z) = (1 + z/2)/(1 - z/2): |R(i x)| = 1
     "implicit_midpoint": lambda integrator, x: 1.0,
     "newmark": newmark_radius,
@@ -613,7 +618,7 @@ RK_CLASSES = [cls for cls in INTEGRATORS.values() if hasattr(cls, "tableau")]
 def test_butcher_tableau_satisfies_its_order_conditions(cls):
     """Explicit (strictly lower A), rows of A sum to c, and the order conditions up to the declared
     order hold (Hairer, Norsett & Wanner I, ch. II: sum b = 1, b.c = 1/2, b.c^2 = 1/3, b.A c = 1/6,
-    b.c^3 = 1/4, b.(c * A c) = 1/8, b.A c^2 = 1/12, b.A A c = 1/24)."""
+    b.c^3 = 1/4, b.(c * A c) = 1/8, b.A c^2 = 1/12, b.A A c = 1/24; and the nine trees of order 5)."""
     tableau = cls.tableau
     A, b, c = np.array(tableau.A), np.array(tableau.b), np.array(tableau.c)
     assert cls.order == tableau.order and A.shape == (b.size, b.size) == (tableau.stage_count,) * 2
@@ -624,11 +629,14 @@ def test_butcher_tableau_satisfies_its_order_conditions(cls):
         2: [(b @ c, 1 / 2)],
         3: [(b @ c ** 2, 1 / 3), (b @ A @ c, 1 / 6)],
         4: [(b @ c ** 3, 1 / 4), (b @ (c * (A @ c)), 1 / 8), (b @ A @ c ** 2, 1 / 12), (b @ A @ A @ c, 1 / 24)],
+        5: [(b @ c ** 4, 1 / 5), (b @ (c ** 2 * (A @ c)), 1 / 10), (b @ (c * (A @ c ** 2)), 1 / 15),
+            (b @ (c * (A @ A @ c)), 1 / 30), (b @ ((A @ c) ** 2), 1 / 20), (b @ A @ c ** 3, 1 / 20),
+            (b @ A @ (c * (A @ c)), 1 / 40), (b @ A @ A @ c ** 2, 1 / 60), (b @ A @ A @ A @ c, 1 / 120)],
     }
     for order in range(1, tableau.order + 1):
         for value, expected in conditions[order]:
             assert value == pytest.approx(expected, abs=1e-15)
-    if tableau.order < 4:  # the next order must fail, or the declared order would be too low
+    if tableau.order < 5:  # the next order must fail, or the declared order would be too low
         assert any(abs(value - expected) > 1e-3 for value, expected in conditions[tableau.order + 1])
 
 
