@@ -81,7 +81,7 @@ def root_locus_radius(k, hw):
 
 
 # where each grows (the root locus's |r| > 1 on the imaginary axis, z = i h w): BDF3 for h w < 1.94, BDF4 for
-# h w < 4.72, BDF5 for 0.71 < h w < 9.39 (it damps below: its region holds the axis near 0)
+# h w < 4.71, BDF5 for 0.71 < h w < 9.39 (it damps below: its region holds the axis near 0)
 GROWTH = {1: [], 2: [], 3: [0.05, 0.2, 1.0], 4: [0.2, 1.0, 4.0], 5: [1.0, 2.4, 9.0]}
 DAMPED = {1: [0.05, 0.2, 1.0, 50.0], 2: [0.05, 0.2, 1.0, 50.0], 3: [2.0, 50.0], 4: [5.0, 50.0], 5: [0.2, 0.5, 10.0, 50.0]}
 
@@ -96,3 +96,15 @@ def test_bdf3_to_5_grow_on_the_undamped_spring_where_the_root_locus_says(k):
         radius = spectral_radius(amplification_matrix(method, hw))
         assert radius == pytest.approx(root_locus_radius(k, hw), rel=1e-9, abs=1e-12)
         assert (radius > 1.0 + 1e-12) == (hw in GROWTH[k]), (k, hw, radius)
+
+
+def test_the_analyses_say_where_each_grows():
+    """The phrase the figures, the analyze table and the findings use: BDF3 and BDF4 grow only below their crossing,
+    BDF5 grows between two; forward Euler everywhere; backward Euler nowhere."""
+    from simrun.analysis.oscillator import growth_phrase, predict
+
+    assert growth_phrase(predict(INTEGRATORS["bdf"](order=3))) == "grows for h w < 1.94"
+    assert growth_phrase(predict(INTEGRATORS["bdf"](order=4))) == "grows for h w < 4.71"
+    assert growth_phrase(predict(INTEGRATORS["bdf"](order=5))) == "stable for h w < 0.711 and above 9.39"
+    assert growth_phrase(predict(INTEGRATORS["forward_euler"]())) == "grows at every h"
+    assert growth_phrase(predict(INTEGRATORS["backward_euler"]())) is None

@@ -367,6 +367,29 @@ def _stability_limit(integrator: Integrator, hw: np.ndarray, rho: np.ndarray) ->
     return crossing
 
 
+def growth_phrase(prediction: "Prediction") -> str | None:
+    """Where the method grows on the undamped spring, in words, from the predicted curve: "grows at every h",
+    "grows for h w < b" (BDF3 and BDF4: unstable as h w -> 0, damped beyond b), "stable for h w < a", "stable for
+    h w < a and above b" (BDF5); None where it never grows on the grid."""
+    limit = prediction.stability_limit
+    if math.isinf(limit):
+        return None
+    growing = np.nonzero(prediction.rho > 1.0 + GROWTH_TOLERANCE)[0]
+    again = None
+    if growing.size and growing[-1] + 1 < prediction.hw.size:  # damped again above the last point that grows
+        low, high = math.log(prediction.hw[growing[-1]]), math.log(prediction.hw[growing[-1] + 1])
+        for _ in range(BISECTION_STEPS):
+            middle = 0.5 * (low + high)
+            if spectral_radius(amplification_matrix(prediction.integrator, math.exp(middle))) > 1.0 + GROWTH_TOLERANCE:
+                low = middle
+            else:
+                high = middle
+        again = math.exp(high)
+    if limit == 0.0:
+        return "grows at every h" if again is None else f"grows for h w < {again:.3g}"
+    return f"stable for h w < {limit:.3g}" + ("" if again is None else f" and above {again:.3g}")
+
+
 # h w at which the one-step map equals its limit h w -> infinity in double precision (its terms in 1/(h w)^2 are below round-off).
 HW_INFINITY = 1e9
 # Eigenvalues of the limit map closer than this belong to one cluster (a multiple root).

@@ -96,7 +96,8 @@ def format_predictions(predictions: dict) -> str:
              f"{'d/w at h w = 0.1':>16}  {'1':>9}  {'10':>9}"]
     for label, prediction in predictions.items():
         limit = prediction.stability_limit
-        limit_text = f"none ≤ {prediction.hw[-1]:g}" if math.isinf(limit) else ("unstable at every h" if limit == 0 else f"{limit:.6g}")
+        limit_text = (f"none ≤ {prediction.hw[-1]:g}" if math.isinf(limit)
+                      else (analysis.growth_phrase(prediction) if limit == 0 else f"{limit:.6g}"))
         # the limit map of an explicit method is not defined (it grows without bound), nor cheap for the exponential one
         radius = "–" if prediction.integrator.explicit else damping_text(analysis.high_frequency_radius(prediction.integrator))
         damping = [prediction.at(hw)[1] for hw in (0.1, 1.0, 10.0)]

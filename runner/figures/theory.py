@@ -142,10 +142,9 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
             notes.append("no damping: on the axis")
         elif twin is not None:
             notes.append(f"= {twin} here")
-        if prediction.stability_limit == 0.0:
-            notes.append("grows at every h")
-        elif np.isfinite(prediction.stability_limit):
-            notes.append(f"stable for h w < {prediction.stability_limit:.3g}")
+        phrase = analysis.growth_phrase(prediction)
+        if phrase is not None:
+            notes.append(phrase)
         note = f"  ({'; '.join(notes)})" if notes else ""
         handles.append(Line2D([], [], color=colours[label], marker=markers[label] if runs else None, ms=layout.LEGEND_MARKER_SIZE,
                               lw=1.6, label=label + note))
@@ -247,10 +246,8 @@ def _twin_note(label: str, predictions: dict[str, "analysis.Prediction"]) -> str
 
 
 def _limit_note(prediction: "analysis.Prediction") -> str:
-    limit = prediction.stability_limit
-    if limit == 0.0:
-        return "  (unstable at every h)"
-    if math.isinf(limit):
-        return ""
-    return f"  (stable for h w < {limit:.3g})"
+    from simrun.analysis import oscillator
+
+    phrase = oscillator.growth_phrase(prediction)
+    return "" if phrase is None else f"  ({phrase})"
 

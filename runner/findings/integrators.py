@@ -152,6 +152,11 @@ def _measured_stability(reached, diverged, failed) -> str:
 def _predicted_stability(limit: float, frequency: float | None, prediction) -> str:
     """The predicted limit in h w, and in dt where the sweep has one frequency (``frequency``; None: several)."""
     if limit == 0:
+        from simrun.analysis.oscillator import growth_phrase
+
+        phrase = growth_phrase(prediction)
+        if phrase != "grows at every h":  # BDF3, BDF4: unstable as h -> 0, damped beyond
+            return f"predicted: unstable at small steps ({phrase}: spectral radius ρ > 1 there)"
         return "predicted: unstable at every step size (spectral radius ρ > 1 at every h w)"
     if math.isinf(limit):
         return f"predicted: stable at every h w (ρ ≤ 1 up to h w = {prediction.hw[-1]:g})"
@@ -305,7 +310,7 @@ def damping_budget_findings(data, predictions) -> list[Finding]:
         value, prediction = largest[label], predictions[label]
         limit = prediction.stability_limit
         if limit == 0:
-            parts.append(f"{label} at no h w (unstable at every step size)")
+            parts.append(f"{label} at no h w from 0 (unstable at small steps)")
         elif math.isinf(value):
             parts.append(f"{label} at every h w up to {prediction.hw[-1]:g}")
         elif value == 0:

@@ -182,7 +182,7 @@ def stability_section(rows: list[StabilityRow]) -> str:
         if math.isinf(row.limit_hw):
             return "none"
         if row.limit_hw == 0:
-            return "0 (unstable at every h)"
+            return "0 (grows as h -> 0)"
         return f"{row.limit_hw:.4g}"
 
     headings = ([("group", True)] if several else []) + [("integrator", "label"), ("limit h w", False), ("limit dt (s)", False),
