@@ -15,7 +15,8 @@ solution is the conjugate). Each matrix is factorised once per step. The method 
 U_s. Orders 2s - 1 (3 and 5), L-stable.
 
 Pinned dofs keep X = 0; the dofs of prescribed paths take X_i = p(t_n + c_i h) - x_n, their stage positions on the
-path, and are held there by the iteration.
+path, and are held there by the iteration. Sliding vertices keep X in their filters' range S: the residual is
+filtered and each block solve is (S B S + I - S) y = S r, the filtered dynamics' own Newton equation.
 """
 
 from __future__ import annotations
@@ -24,15 +25,14 @@ import math
 from typing import ClassVar, Literal
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse
-import scipy.sparse.linalg
 from pydantic import Field
 
 from simrun.solvers import SolveStats
 from simrun.solvers.base import max_norm
 
 from .base import Integrator, State
+from .rosenbrock import factorised, filtered
 
 
 def radau_tableau(stages: int) -> tuple[np.ndarray, np.ndarray]:
@@ -73,8 +73,6 @@ class RadauIIA(Integrator):
         return 2 * self.stages - 1
 
     def refusal(self, system):
-        if system.sliding is not None:
-            return "solves without the sliding vertices' filters: use an incremental-potential method"
         if system.has_contact and system.contact_needs_step_filter:
             return ("solves its stages together by a Newton iteration without a line search, which CCD cannot cut: "
                     "IPC contact needs an incremental-potential method (backward_euler, sdirk2, bdf2)")
@@ -100,6 +98,7 @@ class RadauIIA(Integrator):
             for i in range(s):
                 X[i, moving] = constraints.path(state.t + c[i] * h)[0] - x[moving]
         free = np.setdiff1d(np.arange(n), held)
+        sliding = system.sliding.matrix if system.sliding is not None else None
         # one factorisation per distinct eigenvalue (a conjugate pair shares one)
         blocks = []
         for k, value in enumerate(values):
@@ -109,7 +108,9 @@ class RadauIIA(Integrator):
             complex_valued = abs(value.imag) > 1e-12
             value = value if complex_valued else value.real
             matrix = _mass_plus(system, value * value, stiffness * (h * h) + (0 if damping is None else damping * (h * value)))
-            blocks.append(_factorised(matrix, free, complex_valued))
+            if sliding is not None:
+                matrix = filtered(matrix, sliding)
+            blocks.append(factorised(matrix, free, complex_valued))
         momentum = system.mass_times(v)
         iterations, converged, residual = 0, False, math.inf
         for iterations in range(1, self.max_iterations + 1):
@@ -120,6 +121,8 @@ class RadauIIA(Integrator):
                 residual_rows[i] = (system.mass_times(WW[i] @ X) - h * row_sums[i] * momentum
                                     - h * h * system.force(x + X[i], velocities[i]))
             residual_rows[:, held] = 0.0
+            if sliding is not None:
+                residual_rows = (sliding @ residual_rows.T).T
             residual = max_norm(residual_rows)
             transformed = T_inverse @ residual_rows  # (s, n), complex
             update = np.zeros((s, n), dtype=complex)
@@ -131,6 +134,8 @@ class RadauIIA(Integrator):
                     partner = int(np.argmin(np.abs(values - np.conj(value))))
                     update[k] = np.conj(update[partner])
             change = np.real(T @ update)
+            if sliding is not None:
+                change = (sliding @ change.T).T
             X = X + change
             if max_norm(change) <= self.tolerance * max_norm(X) + 1e-14:
                 converged = True
@@ -147,16 +152,3 @@ def _mass_plus(system, factor, matrix):
     if system.mass_correction is not None:
         mass = mass + (system.mass_correction if scipy.sparse.issparse(matrix) else system.mass_correction.toarray())
     return factor * mass + matrix
-
-
-def _factorised(matrix, free: np.ndarray, complex_valued: bool):
-    """The solve of matrix[free, free] y = b, factorised once (SuperLU for sparse, LU for dense; complex where the
-    eigenvalue is)."""
-    dtype = complex if complex_valued else float
-    if scipy.sparse.issparse(matrix):
-        reduced = scipy.sparse.csc_matrix(matrix, dtype=dtype)[free][:, free]
-        factor = scipy.sparse.linalg.splu(scipy.sparse.csc_matrix(reduced))
-        return lambda right: factor.solve(right.astype(dtype) if complex_valued else np.real(right))
-    dense = np.asarray(matrix, dtype=dtype)[np.ix_(free, free)]
-    factor = scipy.linalg.lu_factor(dense)
-    return lambda right: scipy.linalg.lu_solve(factor, right.astype(dtype) if complex_valued else np.real(right))

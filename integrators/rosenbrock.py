@@ -11,7 +11,11 @@ r_i = (r_x, r_v) the right-hand side, the stage is p/(h gamma) - q = r_x and M q
     (M / (h gamma)^2 + D / (h gamma) + K) p = M r_v + (M / (h gamma) + D) r_x,    q = p / (h gamma) - r_x,
 
 one solve of the size of x with the same matrix for every stage (factorised once per step), where M r_v =
-f(X_i, V_i) + M sum_j (c_ij / h) q_j: no M^-1 is formed. Pinned dofs keep p = q = 0.
+f(X_i, V_i) + M sum_j (c_ij / h) q_j: no M^-1 is formed. Pinned dofs keep p = q = 0. Sliding vertices keep U in
+their filters' range S: the solve is (S A S + I - S) p = S b, the filtered dynamics' own stage equation (S commutes
+with a vertex's lumped mass). The dofs of prescribed paths have the rates J gives them as the exponential
+Rosenbrock-Euler method does, dx/dt = v and dv/dt = the path's acceleration, held constant: q = h gamma r_v and
+p = h gamma (r_x + q) there, explicitly, and their coupling to the free dofs moves to the right-hand side.
 
 Schemes (coefficients as their authors give them in this form):
 - ``ros2``: Verwer, Spee, Blom & Hundsdorfer 1999, gamma = 1 + 1/sqrt(2), a_21 = 1/gamma, c_21 = -2/gamma,
@@ -105,26 +109,24 @@ class Rosenbrock(Integrator):
     def order_of_accuracy(self) -> int:
         return SCHEMES[self.scheme].order
 
-    def refusal(self, system):
-        if system.constraints is not None and system.constraints.moving_dofs.size:
-            return ("holds prescribed vertices still within its linearised stages: use an incremental-potential "
-                    "method (backward_euler, sdirk2, bdf2) with prescribed paths")
-        if system.sliding is not None:
-            return "solves without the sliding vertices' filters: use an incremental-potential method"
-        return super().refusal(system)
-
     def step(self, system, state, dt, solver):
         scheme = SCHEMES[self.scheme]
         x, v = state.x, state.v
         scale = dt * scheme.gamma  # h gamma
         stiffness = system.hessian(x)
         damping = system.damping_matrix(x) if system.is_damped else None
-        free = np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
-        # M/(h gamma)^2 + D/(h gamma) + K, and the operator M/(h gamma) + D that maps r_x into the right-hand side
+        constraints = system.constraints
+        moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+        free = np.setdiff1d(np.arange(system.dof_count), np.union1d(system.fixed_dofs, moving))
+        # A = M/(h gamma)^2 + D/(h gamma) + K; with sliding vertices S A S + I - S
         matrix = add_mass(stiffness * (scale * scale), system) / (scale * scale)
         if damping is not None:
             matrix = matrix + damping / scale
-        solve = _factorised(matrix, free)
+        coupled = matrix  # the free rows' coupling to the prescribed dofs
+        sliding = system.sliding.matrix if system.sliding is not None else None
+        if sliding is not None:
+            matrix = filtered(matrix, sliding)
+        solve = factorised(matrix, free)
         positions, velocities = [], []
         for i in range(len(scheme.m)):
             stage_x, stage_v = x, v
@@ -142,10 +144,23 @@ class Rosenbrock(Integrator):
             right = force + system.mass_times(r_x) / scale
             if damping is not None:
                 right = right + damping @ r_x
-            p = np.zeros_like(x)
+            p, q = np.zeros_like(x), np.zeros_like(v)
+            if moving.size:  # the path's rates, explicitly, and their pull on the free dofs
+                q[moving] = scale * (constraints.accelerations_along(stage_v) + extra_v[moving])
+                p[moving] = scale * (r_x[moving] + q[moving])
+                held = np.zeros_like(x)
+                held[moving] = p[moving]
+                right = right - coupled @ held
+                if damping is not None:  # D q_m with q_m = p_m / (h gamma) - r_x on those dofs
+                    correction = np.zeros_like(v)
+                    correction[moving] = q[moving] - p[moving] / scale + r_x[moving]
+                    right = right - damping @ correction
+            if sliding is not None:
+                right = sliding @ right
             p[free] = solve(right[free])
-            q = p / scale - r_x
-            q[system.fixed_dofs] = 0.0
+            q[free] = p[free] / scale - r_x[free]
+            if sliding is not None:
+                q = sliding @ q
             positions.append(p)
             velocities.append(q)
         for weight, p, q in zip(scheme.m, positions, velocities):
@@ -155,12 +170,26 @@ class Rosenbrock(Integrator):
         return State(state.t + dt, x, v), SolveStats(iterations=0, linear_iterations=stages)
 
 
-def _factorised(matrix, free: np.ndarray):
-    """The solve of matrix[free, free] y = b, factorised once (SuperLU for a sparse matrix, LU for a dense one)."""
+def filtered(matrix, sliding):
+    """S A S + I - S: the filtered vertices' directions out of their filters' range get the identity."""
     if scipy.sparse.issparse(matrix):
-        reduced = scipy.sparse.csc_matrix(matrix)[free][:, free]
+        return (sliding @ matrix @ sliding + scipy.sparse.identity(sliding.shape[0]) - sliding).tocsr()
+    dense = sliding.toarray()
+    return dense @ np.asarray(matrix) @ dense + np.eye(dense.shape[0]) - dense
+
+
+def factorised(matrix, free: np.ndarray, complex_valued: bool = False):
+    """The solve of matrix[free, free] y = b, factorised once: SuperLU for a sparse matrix, LU for a dense one;
+    complex where the matrix is (Radau IIA's complex eigenblocks), else real (of b's real part)."""
+    dtype = complex if complex_valued else float
+
+    def cast(right):
+        return right.astype(dtype) if complex_valued else np.real(right)
+
+    if scipy.sparse.issparse(matrix):
+        reduced = scipy.sparse.csc_matrix(matrix, dtype=dtype)[free][:, free]
         factor = scipy.sparse.linalg.splu(scipy.sparse.csc_matrix(reduced))
-        return factor.solve
-    dense = np.asarray(matrix, dtype=float)[np.ix_(free, free)]
+        return lambda right: factor.solve(cast(right))
+    dense = np.asarray(matrix, dtype=dtype)[np.ix_(free, free)]
     factor = scipy.linalg.lu_factor(dense)
-    return lambda right: scipy.linalg.lu_solve(factor, right)
+    return lambda right: scipy.linalg.lu_solve(factor, cast(right))

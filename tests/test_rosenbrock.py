@@ -1,7 +1,7 @@
 """The Rosenbrock methods (integrators/rosenbrock.py) against theory: the step equals the scheme written on the
 first-order system u' = F(u) with the 2n x 2n Jacobian (the reduction to one n x n solve per stage is exact),
 observed orders on the spring and on Kepler's orbit, L-stability of ros2 and rodas3 and ros3p's |R(inf)| = sqrt(3) - 1,
-and the refusals."""
+and the refusal of IPC. Pins, sliding and prescribed vertices: tests/test_mass_spring.py's tests for every integrator."""
 
 from __future__ import annotations
 
@@ -91,8 +91,6 @@ def test_stability(scheme, at_infinity):
 
 
 @pytest.mark.parametrize("system, message", [
-    ({"type": "mass_spring", "model": {"rope": {"count": 3, "length": 0.2}}, "stiffness": 10.0,
-      "prescribed": [{"vertices": [0], "velocity": [0.1, 0.0, 0.0]}]}, "prescribed vertices"),
     ({"type": "fem", "model": {"box": {"size": [0.1, 0.1, 0.05], "cells": [1, 1, 1]}}, "initial": {"translate": [0, 0, 0.02]},
       "contact": {"method": "ipc", "colliders": [{"shape": "plane", "normal": [0.0, 0.0, 1.0], "point": [0, 0, 0]}]}},
      "IPC contact needs an incremental-potential method"),
