@@ -40,6 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from simrun.solvers import SolveStats
 
 from .base import Integrator, State, StepPlan, solve_step
+from .explicit import weighted_step
 
 # a tableau's sums match their order conditions to this (the published coefficients' digits)
 ORDER_TOLERANCE = 1e-10
@@ -203,12 +204,7 @@ class DiagonallyImplicitRungeKutta(Integrator):
             accelerations.append((velocity - v_hat) / divisor)
         if tableau.stiffly_accurate:
             return State(state.t + dt, y, velocities[-1]), stats
-        x, v = state.x, state.v
-        for weight, velocity, acceleration in zip(tableau.b, velocities, accelerations):
-            if weight:
-                x = x + (dt * weight) * velocity
-                v = v + (dt * weight) * acceleration
-        return State(state.t + dt, x, v), stats
+        return weighted_step(state, dt, tableau.b, velocities, accelerations), stats
 
 
 class SDIRK2(DiagonallyImplicitRungeKutta):

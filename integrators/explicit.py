@@ -76,12 +76,17 @@ class ExplicitRungeKutta(Integrator):
                     v = v + (dt * weight) * slope_v
             slopes_x.append(v)
             slopes_v.append(system.acceleration(x, v))
-        x, v = state.x, state.v
-        for weight, slope_x, slope_v in zip(tableau.b, slopes_x, slopes_v):
-            if weight:
-                x = x + (dt * weight) * slope_x
-                v = v + (dt * weight) * slope_v
-        return State(state.t + dt, x, v), EXPLICIT_STEP
+        return weighted_step(state, dt, tableau.b, slopes_x, slopes_v), EXPLICIT_STEP
+
+
+def weighted_step(state: State, dt: float, weights, slopes_x, slopes_v) -> State:
+    """u_n + h sum_i b_i F(U_i): a Runge-Kutta method's new state from its stages' slopes (velocities, accelerations)."""
+    x, v = state.x, state.v
+    for weight, slope_x, slope_v in zip(weights, slopes_x, slopes_v):
+        if weight:
+            x = x + (dt * weight) * slope_x
+            v = v + (dt * weight) * slope_v
+    return State(state.t + dt, x, v)
 
 
 EXPLICIT_MIDPOINT_TABLEAU = ButcherTableau(

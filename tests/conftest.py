@@ -49,6 +49,20 @@ def make_runs(system: dict, integrators: list, dt: list[float], duration: float 
     return expand_runs(validate_experiment(raw))
 
 
+def run_config_file(config: dict, folder):
+    """The config written as YAML into ``folder`` and run by the command line (its own process pool, no figures): its
+    first stored run, after asserting the command's exit status 0."""
+    import yaml
+
+    from simrun.cli import main
+    from simrun.results.reader import load
+
+    path = folder / f"{config['name']}.yaml"
+    path.write_text(yaml.safe_dump(config))
+    assert main([str(path), "--output", str(folder / "out"), "-q", "--no-plots"]) == 0
+    return next(iter(load(folder / "out" / "results.h5").runs.values()))
+
+
 def run_one(system: dict, integrator, dt: float, duration: float, **extra):
     (run,) = make_runs(system, [integrator], [dt], duration, **extra)
     return simulate(run)

@@ -10,6 +10,8 @@ import math
 import numpy as np
 import pytest
 
+from conftest import run_config_file
+
 from simrun.errors import ConfigError
 from simrun.experiment.config import load_experiment
 from simrun.experiment.sweep import expand_runs
@@ -114,10 +116,6 @@ def test_a_tableau_that_is_not_what_it_claims_is_refused_in_one_line(tableau, me
 def test_ipc_keeps_every_stage_out_of_the_ground(tmp_path, name):
     """A soft box dropped on the ground with IPC: each stage is a CCD-filtered incremental potential, so no vertex
     reaches the ground at any sample, and the box comes to rest on it."""
-    from simrun.cli import main
-    from simrun.results.reader import load
-    import yaml
-
     config = {"name": "drop", "system": {
         "type": "fem", "model": {"box": {"size": [0.1, 0.1, 0.05], "cells": [2, 2, 1]}},
         "material": {"model": "stable_neo_hookean", "youngs_modulus": 1e5, "poisson_ratio": 0.3, "density": 500.0},
@@ -126,10 +124,7 @@ def test_ipc_keeps_every_stage_out_of_the_ground(tmp_path, name):
                     "colliders": [{"shape": "plane", "normal": [0.0, 0.0, 1.0], "point": [0.0, 0.0, 0.0]}]}},
         "integrators": [name], "solver": {"type": "newton", "tolerance": 1e-8, "max_iterations": 50},
         "duration": 0.1, "sweep": {"dt": [0.005]}}
-    path = tmp_path / "drop.yaml"
-    path.write_text(yaml.safe_dump(config))
-    assert main([str(path), "--output", str(tmp_path / "out"), "-q", "--no-plots"]) == 0
-    stored = next(iter(load(tmp_path / "out" / "results.h5").runs.values()))
+    stored = run_config_file(config, tmp_path)
     assert stored.status.name.lower() == "ok"
     assert stored.series("contact_distance").min() > 0.0
     assert stored.series("active_contacts").max() > 0

@@ -9,7 +9,8 @@ import math
 
 import numpy as np
 import pytest
-import yaml
+
+from conftest import run_config_file
 
 from simrun.experiment.config import load_experiment
 from simrun.errors import ConfigError
@@ -291,9 +292,6 @@ def test_a_shell_draped_on_a_sphere_with_ipc_never_penetrates(tmp_path):
     """A stable neo-Hookean shell with bending and self-contact falls onto a sphere on a plane, IPC contact with
     friction on its own triangles: every step keeps a positive distance to the colliders, and the sheet ends at rest
     on them (below its start, above the plane)."""
-    from simrun.cli import main
-    from simrun.results.reader import load
-
     config = {"name": "shell_ipc", "system": {
         "type": "fem", "model": {"grid": {"resolution": [8, 8], "size": [0.5, 0.5], "height": 0.05}},
         "material": {"model": "stable_neo_hookean", "youngs_modulus": 1.0e6, "poisson_ratio": 0.3, "density": 0.5},
@@ -303,10 +301,7 @@ def test_a_shell_draped_on_a_sphere_with_ipc_never_penetrates(tmp_path):
                                   {"shape": "sphere", "center": [0.25, 0.25, -0.05], "radius": 0.08}]}},
         "integrators": ["backward_euler"], "solver": {"type": "newton", "tolerance": 1.0e-8, "max_iterations": 50},
         "duration": 0.4, "sweep": {"dt": [0.005]}}
-    path = tmp_path / "shell_ipc.yaml"
-    path.write_text(yaml.safe_dump(config))
-    assert main([str(path), "--output", str(tmp_path / "out"), "-q", "--no-plots"]) == 0
-    stored = next(iter(load(tmp_path / "out" / "results.h5").runs.values()))
+    stored = run_config_file(config, tmp_path)
     assert stored.status.name.lower() == "ok"
     assert stored.series("contact_distance").min() > 0.0
     assert stored.series("active_contacts").max() > 0
