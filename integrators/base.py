@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict
 from simrun.solvers import SolveStats
 from simrun.solvers.base import FLOAT64, INITIAL_GUESSES, SMALL_VECTOR, max_norm
 from simrun.systems import System
-from simrun.systems.base import add_keeping_pattern, diagonal_blocks
+from simrun.systems.patterns import add_keeping_pattern, diagonal_blocks
 
 from .lanes import LaneIncrementalPotential
 

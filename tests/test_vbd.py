@@ -25,7 +25,7 @@ from simrun.solvers import Newton, VertexBlockDescent, solver_params
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.vbd import ColourPlan
 from simrun.systems import ClothParams, SpringMassParams, System
-from simrun.systems.base import diagonal_blocks
+from simrun.systems.patterns import diagonal_blocks
 from simrun.systems.mass_spring.params import MassSpringParams
 from simrun.systems.mass_spring.laws import SPRING_LAWS
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..base import add_keeping_pattern
+from ..patterns import add_keeping_pattern
 
 
 class ContactHooks:

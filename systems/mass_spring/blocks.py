@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse
 
-from ..base import colour_vertices
+from ..patterns import colour_vertices
 from .laws import SpringGeometry
 
 
