@@ -131,6 +131,24 @@ class Integrator(BaseModel):
         """The order with these parameter values; ``order`` is the order at the defaults (Newmark: 1 unless gamma = 1/2)."""
         return self.order
 
+    # a multistep method's State.aux holds its history at its own past steps: a step from the same state at another
+    # size (Richardson's two half steps) is not the method's step, so no Richardson estimate is taken of it
+    carries_history: ClassVar[bool] = False
+
+    @property
+    def error_estimate(self) -> str | None:
+        """What its steps' own local error estimate is (``step_with_error``), for adaptive steps; None: it has none."""
+        return None
+
+    @property
+    def estimate_order(self) -> int:
+        """q in: the local error estimate is O(h^q); the step controller's exponent is 1/q."""
+        return self.order_of_accuracy + 1
+
+    def step_with_error(self, system: System, state: State, dt: float, solver) -> tuple[State, SolveStats, np.ndarray]:
+        """``step``, and the step's local error estimate as (2, dof_count) rows: positions (m), velocities (m/s)."""
+        raise TypeError(f"{self.name} has no error estimate of its own")
+
     @property
     def label(self) -> str:
         """The name, with every parameter that differs from its default: ``generalized_alpha[rho_inf=0]``."""
@@ -152,9 +170,7 @@ def solve_step(solver, problem, start: np.ndarray) -> tuple[np.ndarray, SolveSta
             break
         problem.relag(y)
         y, more = solver.minimize(problem, y)
-        stats = SolveStats(stats.iterations + more.iterations, stats.linear_iterations + more.linear_iterations,
-                           stats.line_search_steps + more.line_search_steps, more.residual, more.converged,
-                           max(stats.solver_index, more.solver_index), stats.safeguards | more.safeguards)
+        stats = stats.followed_by(more)
     return y, stats
 
 

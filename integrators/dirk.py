@@ -40,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from simrun.solvers import SolveStats
 
 from .base import Integrator, State, StepPlan, solve_step
-from .explicit import weighted_step
+from .explicit import weighted_error, weighted_step
 
 # a tableau's sums match their order conditions to this (the published coefficients' digits)
 ORDER_TOLERANCE = 1e-10
@@ -146,13 +146,8 @@ TABLEAUX = {
 
 
 def _add(total: SolveStats | None, stats: SolveStats) -> SolveStats:
-    """The statistics of a step's solves summed (the residual and convergence of the last, the worst solver index)."""
-    if total is None:
-        return stats
-    return SolveStats(total.iterations + stats.iterations, total.linear_iterations + stats.linear_iterations,
-                      total.line_search_steps + stats.line_search_steps, stats.residual,
-                      total.converged and stats.converged, max(total.solver_index, stats.solver_index),
-                      total.safeguards | stats.safeguards)
+    """The statistics of a step's solves summed (``SolveStats.followed_by``); None: none yet."""
+    return stats if total is None else total.followed_by(stats)
 
 
 class DiagonallyImplicitRungeKutta(Integrator):
@@ -178,7 +173,29 @@ class DiagonallyImplicitRungeKutta(Integrator):
                     "contact needs a stiffly accurate tableau (b = the last row of A)")
         return super().refusal(system)
 
+    @property
+    def error_estimate(self) -> str | None:
+        tableau = self.dirk_tableau
+        return None if tableau.b_hat is None else f"embedded order {tableau.embedded_order}"
+
+    @property
+    def estimate_order(self) -> int:
+        tableau = self.dirk_tableau
+        return min(tableau.order, tableau.embedded_order or tableau.order) + 1
+
     def step(self, system, state, dt, solver):
+        new, stats, _, _ = self._stages(system, state, dt, solver)
+        return new, stats
+
+    def step_with_error(self, system, state, dt, solver):
+        """The step and h sum_i (b_i - b_hat_i) F(U_i), its difference from the embedded solution, as (x, v) rows."""
+        new, stats, velocities, accelerations = self._stages(system, state, dt, solver)
+        tableau = self.dirk_tableau
+        weights = [dt * (b - b_hat) for b, b_hat in zip(tableau.b, tableau.b_hat)]
+        return new, stats, weighted_error(weights, velocities, accelerations)
+
+    def _stages(self, system, state, dt, solver):
+        """(the new state, the solves' statistics summed, the stages' velocities V_i and accelerations a_i)."""
         tableau = self.dirk_tableau
         velocities, accelerations, stats, y = [], [], None, state.x
         for i, row in enumerate(tableau.A):
@@ -203,8 +220,8 @@ class DiagonallyImplicitRungeKutta(Integrator):
             velocities.append(velocity)
             accelerations.append((velocity - v_hat) / divisor)
         if tableau.stiffly_accurate:
-            return State(state.t + dt, y, velocities[-1]), stats
-        return weighted_step(state, dt, tableau.b, velocities, accelerations), stats
+            return State(state.t + dt, y, velocities[-1]), stats, velocities, accelerations
+        return weighted_step(state, dt, tableau.b, velocities, accelerations), stats, velocities, accelerations
 
 
 class SDIRK2(DiagonallyImplicitRungeKutta):

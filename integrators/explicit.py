@@ -49,6 +49,8 @@ class ButcherTableau:
     b: tuple[float, ...]
     c: tuple[float, ...]
     order: int
+    b_hat: tuple[float, ...] | None = None  # embedded weights, for the error estimate of adaptive steps
+    embedded_order: int | None = None
 
     @property
     def stage_count(self) -> int:
@@ -64,7 +66,28 @@ class ExplicitRungeKutta(Integrator):
 
     tableau: ClassVar[ButcherTableau]
 
+    @property
+    def error_estimate(self) -> str | None:
+        tableau = self.tableau
+        return None if tableau.b_hat is None else f"embedded order {tableau.embedded_order}"
+
+    @property
+    def estimate_order(self) -> int:
+        tableau = self.tableau
+        return min(tableau.order, tableau.embedded_order or tableau.order) + 1
+
     def step(self, system, state, dt, solver):
+        new, _, _ = self._stages(system, state, dt)
+        return new, EXPLICIT_STEP
+
+    def step_with_error(self, system, state, dt, solver):
+        """The step and h sum_i (b_i - b_hat_i) F(U_i), its difference from the embedded solution, as (x, v) rows."""
+        new, slopes_x, slopes_v = self._stages(system, state, dt)
+        weights = [dt * (b - b_hat) for b, b_hat in zip(self.tableau.b, self.tableau.b_hat)]
+        return new, EXPLICIT_STEP, weighted_error(weights, slopes_x, slopes_v)
+
+    def _stages(self, system, state, dt):
+        """(the new state, the stages' slopes dx/dt and dv/dt)."""
         tableau = self.tableau
         slopes_x: list[np.ndarray] = []  # dx/dt at each stage (a velocity)
         slopes_v: list[np.ndarray] = []  # dv/dt at each stage (an acceleration)
@@ -76,7 +99,7 @@ class ExplicitRungeKutta(Integrator):
                     v = v + (dt * weight) * slope_v
             slopes_x.append(v)
             slopes_v.append(system.acceleration(x, v))
-        return weighted_step(state, dt, tableau.b, slopes_x, slopes_v), EXPLICIT_STEP
+        return weighted_step(state, dt, tableau.b, slopes_x, slopes_v), slopes_x, slopes_v
 
 
 def weighted_step(state: State, dt: float, weights, slopes_x, slopes_v) -> State:
@@ -87,6 +110,16 @@ def weighted_step(state: State, dt: float, weights, slopes_x, slopes_v) -> State
             x = x + (dt * weight) * slope_x
             v = v + (dt * weight) * slope_v
     return State(state.t + dt, x, v)
+
+
+def weighted_error(weights, slopes_x, slopes_v) -> np.ndarray:
+    """(2, n): sum_i w_i (slope_x_i, slope_v_i), a step's error estimate in its position and velocity rows."""
+    error = np.zeros((2, slopes_x[0].size))
+    for weight, slope_x, slope_v in zip(weights, slopes_x, slopes_v):
+        if weight:
+            error[0] += weight * slope_x
+            error[1] += weight * slope_v
+    return error
 
 
 EXPLICIT_MIDPOINT_TABLEAU = ButcherTableau(
@@ -146,12 +179,10 @@ DOPRI5_TABLEAU = ButcherTableau(
     b=(35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0, 0.0),
     c=(0.0, 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0, 1.0, 1.0),
     order=5,
+    # the embedded fourth-order weights, for the error estimate of adaptive steps
+    b_hat=(5179.0 / 57600.0, 0.0, 7571.0 / 16695.0, 393.0 / 640.0, -92097.0 / 339200.0, 187.0 / 2100.0, 1.0 / 40.0),
+    embedded_order=4,
 )
-# its embedded fourth-order weights, for the error estimate of adaptive steps (issue 28)
-DOPRI5_EMBEDDED = (5179.0 / 57600.0, 0.0, 7571.0 / 16695.0, 393.0 / 640.0, -92097.0 / 339200.0, 187.0 / 2100.0,
-                   1.0 / 40.0)
-
-
 class Dopri5(ExplicitRungeKutta):
     """Dormand-Prince 5(4) (1980), the explicit baseline of error-controlled integration (scipy's RK45, MATLAB's
     ode45): seven stages, fifth order. On the spring R(z) = sum_{k<=5} z^k/k! + z^6/600 (its seventh stage, at the

@@ -37,6 +37,7 @@ class BDF2(Integrator):
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "two-step BDF, started with one backward Euler step; 2nd order, L-stable (damps)"
+    carries_history: ClassVar[bool] = True
 
     def plan(self, state, dt):
         if not state.aux:  # the first step: backward Euler
@@ -78,6 +79,7 @@ class BDF2MidpointMix(Integrator):
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "segment_potential"
     summary: ClassVar[str] = "Ascher's theta * BDF2 + (1 - theta) * implicit midpoint; 2nd order, more theta = more damping"
+    carries_history: ClassVar[bool] = True
 
     theta: float = Field(0.5, ge=0.0, le=1.0, allow_inf_nan=False,
                          description="share of BDF2 in the increment: 0 = implicit midpoint (no damping), 1 = BDF2")
@@ -138,6 +140,7 @@ class BDF(Integrator):
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "k-step BDF (order: 1..5), started by sdirk3; A-stable to k = 2, BDF3-5 grow at small h w"
+    carries_history: ClassVar[bool] = True
     order: int = Field(2, ge=1, le=5, description="k, the number of steps and the order (1..5)")
 
     @property

@@ -52,6 +52,7 @@ class RosenbrockScheme:
     c: tuple[tuple[float, ...], ...]
     m: tuple[float, ...]
     order: int
+    m_hat: tuple[float, ...]  # the embedded solution's weights, of order ``order - 1``: the adaptive steps' estimate
 
     def stability_function(self, z: complex) -> complex:
         """R(z) on y' = lambda y (z = h lambda, J = lambda exact): (1/gamma - z) U_i = z (1 + sum a_ij U_j) +
@@ -67,7 +68,9 @@ class RosenbrockScheme:
 def _ros2() -> RosenbrockScheme:
     gamma = 1.0 + 1.0 / math.sqrt(2.0)
     return RosenbrockScheme(gamma, ((0.0, 0.0), (1.0 / gamma, 0.0)), ((0.0, 0.0), (-2.0 / gamma, 0.0)),
-                            (1.5 / gamma, 0.5 / gamma), 2)
+                            (1.5 / gamma, 0.5 / gamma), 2,
+                            # the embedded first-order solution u_n + U_1 / gamma (Verwer et al. 1999, sec. 2)
+                            (1.0 / gamma, 0.0))
 
 
 def _ros3p() -> RosenbrockScheme:
@@ -78,13 +81,17 @@ def _ros3p() -> RosenbrockScheme:
     root3 = math.sqrt(3.0)
     return RosenbrockScheme(gamma, ((0.0, 0.0, 0.0), (1.0 / gamma, 0.0, 0.0), (1.0 / gamma, 0.0, 0.0)),
                             ((0.0, 0.0, 0.0), (-1.0 / gamma ** 2, 0.0, 0.0), (-2.0 * root3, -root3, 0.0)),
-                            (2.0, 1.0 / root3, 1.0 - 1.0 / root3), 3)
+                            (2.0, 1.0 / root3, 1.0 - 1.0 / root3), 3,
+                            # the embedded second-order weights as Lang & Verwer give them
+                            (2.113248654051871, 1.0, 0.4226497308103742))
 
 
 def _rodas3() -> RosenbrockScheme:
     return RosenbrockScheme(0.5, ((0.0,) * 4, (0.0, 0.0, 0.0, 0.0), (2.0, 0.0, 0.0, 0.0), (2.0, 0.0, 1.0, 0.0)),
                             ((0.0,) * 4, (4.0, 0.0, 0.0, 0.0), (1.0, -1.0, 0.0, 0.0), (1.0, -1.0, -8.0 / 3.0, 0.0)),
-                            (2.0, 0.0, 1.0, 1.0), 3)
+                            (2.0, 0.0, 1.0, 1.0), 3,
+                            # the embedded solution is the third stage's (Sandu et al.): the error is U_4
+                            (2.0, 0.0, 1.0, 0.0))
 
 
 SCHEMES = {"ros2": _ros2(), "ros3p": _ros3p(), "rodas3": _rodas3()}
@@ -109,7 +116,31 @@ class Rosenbrock(Integrator):
     def order_of_accuracy(self) -> int:
         return SCHEMES[self.scheme].order
 
+    @property
+    def error_estimate(self) -> str | None:
+        return f"embedded order {SCHEMES[self.scheme].order - 1}"
+
+    @property
+    def estimate_order(self) -> int:
+        return SCHEMES[self.scheme].order
+
     def step(self, system, state, dt, solver):
+        new, stats, _, _ = self._stages(system, state, dt)
+        return new, stats
+
+    def step_with_error(self, system, state, dt, solver):
+        """The step and sum_i (m_i - m_hat_i) U_i, its difference from the embedded solution, as (x, v) rows."""
+        new, stats, positions, velocities = self._stages(system, state, dt)
+        scheme = SCHEMES[self.scheme]
+        error = np.zeros((2, system.dof_count))
+        for weight, weight_hat, p, q in zip(scheme.m, scheme.m_hat, positions, velocities):
+            if weight != weight_hat:
+                error[0] += (weight - weight_hat) * p
+                error[1] += (weight - weight_hat) * q
+        return new, stats, error
+
+    def _stages(self, system, state, dt):
+        """(the new state, its statistics, the stages' U_i = (p_i, q_i))."""
         scheme = SCHEMES[self.scheme]
         x, v = state.x, state.v
         scale = dt * scheme.gamma  # h gamma
@@ -167,7 +198,7 @@ class Rosenbrock(Integrator):
             x = x + weight * p
             v = v + weight * q
         stages = len(scheme.m)
-        return State(state.t + dt, x, v), SolveStats(iterations=0, linear_iterations=stages)
+        return State(state.t + dt, x, v), SolveStats(iterations=0, linear_iterations=stages), positions, velocities
 
 
 def filtered(matrix, sliding):

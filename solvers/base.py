@@ -77,6 +77,14 @@ class SolveStats(NamedTuple):
     solver_index: int = 0  # which solver of the fallback chain finished the step (0: the main one)
     safeguards: int = 0  # bits of the safeguards that fired (solvers/newton.py SAFEGUARDS; 0: none)
 
+    def followed_by(self, later: "SolveStats") -> "SolveStats":
+        """Two solves' statistics summed: the counts added, the residual and convergence of the later one (converged
+        only if both were), the worse solver index, the safeguards of both."""
+        return SolveStats(self.iterations + later.iterations, self.linear_iterations + later.linear_iterations,
+                          self.line_search_steps + later.line_search_steps, later.residual,
+                          self.converged and later.converged, max(self.solver_index, later.solver_index),
+                          self.safeguards | later.safeguards)
+
 
 EXPLICIT_STEP = SolveStats()  # what an explicit step reports: nothing solved
 

@@ -53,6 +53,8 @@ def lane_key(run: Run):
         return None
     if run.record.max_wall_time is not None:  # a budget per run: lanes step together, so each is stepped alone
         return None
+    if run.step_control is not None:  # each run chooses its own steps
+        return None
     if not run.integrator.explicit and lane_refusal(run.solver) is not None:
         return None
     solver = "" if run.integrator.explicit else run.solver.model_dump_json()

@@ -15,9 +15,17 @@ from simrun.integrators import State
 from simrun.solvers import EXPLICIT_STEP
 from simrun.solvers.linear import attach_factorisation_log
 
+from .evaluations import EvaluationCounts
+from .step_control import StepController, StepTooSmall
+
 
 # a path's ``until`` within this fraction of a step below a step's end is reached there (t = n dt rounds)
 RELEASE_SLACK = 1e-9
+# a step-controlled run's per-step rows at first (doubled when full)
+STEP_ROWS = 1024
+# the per-step solver counts, in the order simulate binds them
+PER_STEP_SOLVER_KEYS = ("newton_iterations", "linear_iterations", "line_search_steps", "residual", "solver_index",
+                        "safeguards")
 
 
 class Recorder:
@@ -64,6 +72,8 @@ class Recorder:
         """One sample at time t (s) of (x, v); returns its total energy (J), for the divergence check.
         dissipated_energy, work, friction: the physical damping's loss, the prescribed paths' work and the
         friction's loss (J) up to t."""
+        if self.count == self.table.shape[0]:  # only a step-controlled run's sample count is not known ahead
+            self.table = np.concatenate([self.table, np.empty_like(self.table)])
         row = self.table[self.count]
         energy = self.write_observables(x, v, row)
         row[self.t_column] = t
@@ -79,6 +89,9 @@ class Recorder:
         return energy
 
     def record_frame(self, t: float, x: np.ndarray) -> None:
+        if self.frame_count == self.frames.shape[0]:
+            self.frames = np.concatenate([self.frames, np.empty_like(self.frames)])
+            self.frame_t = np.concatenate([self.frame_t, np.empty_like(self.frame_t)])
         self.frames[self.frame_count] = x.reshape(self.frames.shape[1:])
         self.frame_t[self.frame_count] = t
         self.frame_count += 1
@@ -95,18 +108,72 @@ class Recorder:
         return arrays
 
 
+class SampleCadence:
+    """When a step-controlled run keeps a sample (and a frame): every k-th accepted step where record.every
+    (record.frames_every) says so, else at the first step that reaches each of record.max_samples (max_frames) even
+    times of the duration."""
+
+    def __init__(self, record, duration: float):
+        self.every, self.frames_every = record.every, record.frames_every
+        self.sample_spacing = duration / (record.max_samples - 1)
+        self.frame_spacing = duration / (record.max_frames - 1)
+        self.next_sample, self.next_frame = self.sample_spacing, self.frame_spacing
+        self.sample_rows = STEP_ROWS if self.every is not None else record.max_samples + 2
+        self.frame_rows = STEP_ROWS if self.frames_every is not None else record.max_frames + 2
+
+    def sample_due(self, steps: int, t: float) -> bool:
+        if self.every is not None:
+            return steps % self.every == 0
+        if t < self.next_sample * (1.0 - 1e-12):
+            return False
+        self.next_sample = (math.floor(t / self.sample_spacing + 1e-9) + 1) * self.sample_spacing
+        return True
+
+    def frame_due(self, steps: int, t: float) -> bool:
+        if self.frames_every is not None:
+            return steps % self.frames_every == 0
+        if t < self.next_frame * (1.0 - 1e-12):
+            return False
+        self.next_frame = (math.floor(t / self.frame_spacing + 1e-9) + 1) * self.frame_spacing
+        return True
+
+
+def _controlled_step(controller: StepController, system, state: State, solver, prepare):
+    """One accepted step of a step-controlled run: (its state, the statistics of every try it took, its size (s), its
+    error estimate (of the tolerance), the tries rejected before it). Raises StepTooSmall below dt_min."""
+    cost, rejected = None, 0
+    while True:
+        size = controller.step_size(system, state)
+        new, stats, error = controller.attempt(system, state, size, solver, prepare)
+        cost = stats if cost is None else cost.followed_by(stats)
+        if controller.judge(size, error, stats.converged):
+            return new, cost._replace(residual=stats.residual, converged=stats.converged), size, error, rejected
+        rejected += 1
+
+
 def simulate(run: Run) -> RunResult:
     """Run the integrator for run.step_count steps of run.dt on run.system; never raises for a bad run."""
     system = run.system.build()
     integrator = run.integrator
     solver = run.solver.build()
-    step_count, dt = run.step_count, run.dt
-    stride = run.record.stride(step_count)
     check_every = run.divergence.check_every
-    frame_stride = run.record.frame_stride(step_count)
-    error_step = run.record.error_step(dt, step_count, system.capabilities.test_frequency)
+    controller = None  # the step controller of a step-controlled run (runner/execution/step_control.py)
+    if run.step_control is None:
+        step_count, dt = run.step_count, run.dt
+        stride = run.record.stride(step_count)
+        frame_stride = run.record.frame_stride(step_count)
+        error_step = run.record.error_step(dt, step_count, system.capabilities.test_frequency)
+        recorder = Recorder(system, step_count // stride + 2, step_count // frame_stride + 2)
+    else:
+        # the rows grow as the steps come; samples and frames are kept at even times (or every k-th step)
+        step_count, dt, error_step = STEP_ROWS, math.nan, 0
+        error_time = run.record.error_at(system.capabilities.test_frequency)
+        error_time = run.duration if error_time is None else min(error_time, run.duration)
+        release_stops = list(system.constraints.release_times) if system.constraints is not None else []
+        controller = StepController(run.step_control, integrator, system, [run.duration, error_time, *release_stops])
+        cadence = SampleCadence(run.record, run.duration)
+        recorder = Recorder(system, cadence.sample_rows, cadence.frame_rows)
     error_state = None  # (t, x, v) at the end of step error_step, where the run's error is measured
-    recorder = Recorder(system, step_count // stride + 2, step_count // frame_stride + 2)
     with_frames = not system.records_state_per_sample
     per_step = {
         "newton_iterations": np.zeros(step_count, dtype=np.int32),
@@ -125,13 +192,16 @@ def simulate(run: Run) -> RunResult:
     if with_contact:  # per step: the smallest signed contact distance (m), active contacts, friction's loss (J)
         per_step.update(contact_distance=np.zeros(step_count), active_contacts=np.zeros(step_count, dtype=np.int32),
                         friction_work=np.zeros(step_count))
+    if controller is not None:  # per accepted step: its size (s), its error estimate (of the tolerance), rejected tries
+        per_step.update(dt=np.zeros(step_count), error_estimate=np.zeros(step_count),
+                        rejected_attempts=np.zeros(step_count, dtype=np.int16))
     stop_on_not_converged = run.solver.on_not_converged == "stop"
     # a real-time budget: a step that used up max_iterations is what the budget bought, not a failure
     accept_not_converged = run.solver.on_not_converged == "accept"
 
     state = State(0.0, system.x0.copy(), system.v0.copy())
     if with_contact:  # IPC's barrier stiffness (auto) before anything evaluates the energy
-        system.begin_run(dt, state.x)
+        system.begin_run(dt if controller is None else controller.step_size(system, state), state.x)
     energy0 = system.total_energy(state.x, state.v)
     energy_bound = run.divergence.energy_factor * system.energy_scale()
     dissipated = 0.0  # work of the physical damping forces so far (J), for the energy budget
@@ -149,6 +219,11 @@ def simulate(run: Run) -> RunResult:
     record_sample, record_frame, total_energy = recorder.record, recorder.record_frame, system.total_energy
     step = integrator.step
 
+    def prepare(t: float, size: float, x: np.ndarray) -> None:
+        """Before each try of a step-controlled run: the colliders move to its end (the system as released so far)."""
+        if with_contact:
+            system.begin_step(t, size, x)
+
     def record_stop(t: float, state: State, sampled: bool, framed: bool) -> None:
         """The sample (and frame) of the step a run stops at, unless the regular cadence took them already."""
         if not sampled:
@@ -165,23 +240,37 @@ def simulate(run: Run) -> RunResult:
     steps = 0
     max_wall_time = run.record.max_wall_time
     over_budget = False  # stopped at record.max_wall_time
+    evaluations = EvaluationCounts()  # what the stepping evaluates (as wall_time, the set-up left out)
+    evaluations.instrument(system)
     start = time.perf_counter()
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             state = integrator.start(system, state)
-            for n in range(step_count):
+            n = 0
+            while n < step_count if controller is None else not controller.done:
                 previous = state
-                if with_contact:  # colliders move to the step's end; IPC's stiffness is estimated and updated
-                    system.begin_step(dt * n, dt, state.x)
-                state, stats = step(system, state, dt, solver)
+                if controller is None:
+                    if with_contact:  # colliders move to the step's end; IPC's stiffness is estimated and updated
+                        system.begin_step(dt * n, dt, state.x)
+                    state, stats = step(system, state, dt, solver)
+                    t = dt * (n + 1)  # the loop owns t: no accumulated round-off, whatever state.t says
+                else:
+                    if n == step_count:  # the rows are full: twice as many
+                        per_step = {key: np.concatenate([value, np.zeros_like(value)]) for key, value in per_step.items()}
+                        (newton_iterations, linear_iterations, line_search_steps, residuals, solver_index,
+                         safeguards) = (per_step[key] for key in PER_STEP_SOLVER_KEYS)
+                        step_count *= 2
+                    state, stats, dt, error, rejected = _controlled_step(controller, system, state, solver, prepare)
+                    per_step["dt"][n], per_step["error_estimate"][n], per_step["rejected_attempts"][n] = dt, error, rejected
+                    t = controller.t  # every stop (the duration, the error time, a release) reached exactly
                 steps = n + 1
+                n = steps
                 if factorisations is not None:
-                    per_step["factorisation_path"][n] = factorisations.take_step()
-                t = dt * steps  # the loop owns t: no accumulated round-off, whatever state.t says
+                    per_step["factorisation_path"][steps - 1] = factorisations.take_step()
                 if with_contact:
                     distance, active, lost = system.contact_record(previous.x, state.x, state.v, dt)
-                    per_step["contact_distance"][n], per_step["active_contacts"][n] = distance, active
-                    per_step["friction_work"][n] = lost
+                    per_step["contact_distance"][steps - 1], per_step["active_contacts"][steps - 1] = distance, active
+                    per_step["friction_work"][steps - 1] = lost
                     friction += lost
                 if moving.size:  # the prescribed vertices where their paths are at t, and the work they did
                     state = _on_paths(system.constraints, moving, state, t)
@@ -194,6 +283,9 @@ def simulate(run: Run) -> RunResult:
                     # are continuous at the release, only the acceleration jumps)
                     system, moving = _release(system, release_times, t, dt)
                     total_energy = system.total_energy
+                    evaluations.instrument(system)
+                    if controller is not None:
+                        controller.changed(system)
                     path_power = _path_power(system, moving, state.x, state.v, t) if moving.size else 0.0
                 if damped:
                     # h v_bar^T D(x_bar) v_bar with the step's mean velocity and D at its mean position: the
@@ -204,19 +296,27 @@ def simulate(run: Run) -> RunResult:
                     mean_velocity = 0.5 * (previous.v + state.v)
                     dissipated += dt * float(mean_velocity @ (damping @ mean_velocity))
                 if stats is not EXPLICIT_STEP:  # the per-step arrays start at zero, what an explicit step reports
-                    newton_iterations[n] = stats.iterations
-                    linear_iterations[n] = stats.linear_iterations
-                    line_search_steps[n] = stats.line_search_steps
-                    residuals[n] = stats.residual
-                    solver_index[n] = stats.solver_index
-                    safeguards[n] = stats.safeguards
-                if steps == error_step:
-                    error_state = (t, state.x.copy(), state.v.copy())
-                last = steps == step_count
-                sampled = steps % stride == 0 or last
+                    row = steps - 1
+                    newton_iterations[row] = stats.iterations
+                    linear_iterations[row] = stats.linear_iterations
+                    line_search_steps[row] = stats.line_search_steps
+                    residuals[row] = stats.residual
+                    solver_index[row] = stats.solver_index
+                    safeguards[row] = stats.safeguards
+                if controller is None:
+                    if steps == error_step:
+                        error_state = (t, state.x.copy(), state.v.copy())
+                    last = steps == step_count
+                    sampled = steps % stride == 0 or last
+                    framed = with_frames and (steps % frame_stride == 0 or last)
+                else:
+                    if t == error_time:
+                        error_state = (t, state.x.copy(), state.v.copy())
+                    last = controller.done
+                    sampled = cadence.sample_due(steps, t) or last
+                    framed = with_frames and (cadence.frame_due(steps, t) or last)
                 # a sample's row carries the energy, so the check below needs no second evaluation
                 energy = record_sample(t, state.x, state.v, dissipated, work, friction) if sampled else None
-                framed = with_frames and (steps % frame_stride == 0 or last)
                 if framed:
                     record_frame(t, state.x)
                 if not stats.converged:  # counted first: a step can fail to converge and diverge at once
@@ -240,10 +340,13 @@ def simulate(run: Run) -> RunResult:
                     break
                 if max_wall_time is not None and not last and time.perf_counter() - start > max_wall_time:
                     over_budget = True
-                    message = (f"stopped at t = {t:.6g} s (step {steps} of {step_count}): {time.perf_counter() - start:.3g} s "
+                    of = f" of {step_count}" if controller is None else ""
+                    message = (f"stopped at t = {t:.6g} s (step {steps}{of}): {time.perf_counter() - start:.3g} s "
                                f"of wall time, over record.max_wall_time {max_wall_time:g} s")
                     record_stop(t, state, sampled, framed)
                     break
+    except StepTooSmall as error:  # the controller's own end: its message says where and why
+        status, message = Status.FAILED, str(error)
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = Status.FAILED, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start
@@ -261,7 +364,11 @@ def simulate(run: Run) -> RunResult:
              **(_contact_attrs(per_step, steps) if with_contact else {}),
              **({f"factorisations_{path}": count for path, count in factorisations.as_dict().items()}
                 if factorisations is not None else {}),
-             **system.capabilities.as_attrs()}
+             **evaluations.as_attrs(), **system.capabilities.as_attrs()}
+    if controller is not None:  # the stored dt is the mean accepted step; the counts of the controller
+        attrs.update(dt=t_reached / steps if (t_reached := controller.t) > 0 and steps else math.nan,
+                     planned_steps=steps, accepted_steps=controller.accepted_steps, rejected_steps=controller.rejected_steps,
+                     not_converged_attempts=controller.failed_solves)
     oscillator = system.capabilities.oscillator
     if oscillator is not None:  # the amplitude's decay per period, which the damping map compares with its prediction
         with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN (or a growth, inf)

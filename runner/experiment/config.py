@@ -20,11 +20,12 @@ from typing import Annotated, Any, Literal, Union, get_args, get_origin
 import numpy as np
 import yaml
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, TypeAdapter, ValidationError,
-                      field_validator)
+                      field_validator, model_validator)
 from pydantic_core import PydanticCustomError, PydanticKnownError
 
 from simrun.errors import ConfigError
 from simrun.experiment.fit import FitParams
+from simrun.experiment.step_control import StepControlParams
 from simrun.integrators import INTEGRATORS, Integrator
 from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
 from simrun.systems import SystemParams, plugins
@@ -152,13 +153,16 @@ class RecordParams(BaseModel):
     def error_step(self, dt: float, step_count: int, test_frequency: float | None) -> int:
         """The step at whose end the run's error is measured: the nearest to error_time (auto: ERROR_PERIODS
         periods 2 pi / w of the system's test frequency, else the whole run), within the run."""
-        if self.error_time == "auto":
-            if test_frequency is None:
-                return step_count
-            time = ERROR_PERIODS * 2.0 * math.pi / test_frequency
-        else:
-            time = self.error_time
+        time = self.error_at(test_frequency)
+        if time is None:
+            return step_count
         return min(step_count, max(1, round(time / dt)))
+
+    def error_at(self, test_frequency: float | None) -> float | None:
+        """The time (s) of error_time (auto: ERROR_PERIODS periods of the test frequency), None: the run's end."""
+        if self.error_time == "auto":
+            return None if test_frequency is None else ERROR_PERIODS * 2.0 * math.pi / test_frequency
+        return self.error_time
 
     def stride(self, step_count: int) -> int:
         if self.every is not None:
@@ -188,7 +192,10 @@ class Experiment(BaseModel):
     integrators: list[IntegratorField] = Field(min_length=1, description="names, or mappings with 'type' and parameters")
     solver: SolverField = NewtonParams()
     duration: float = Field(10.0, gt=0, allow_inf_nan=False, description="simulated time per run (s)")
-    sweep: dict[str, SweepValues] = Field(description="dt (s) and any other dotted key, each a list of values")
+    sweep: dict[str, SweepValues] = Field(default_factory=dict, description="dt (s) and any other dotted key, each a list of values; with "
+                                                      "step_control, no dt (step_control.tolerance is the axis)")
+    step_control: StepControlParams | None = Field(None, description="adaptive steps by a local error estimate "
+                                                                     "(docs/integrators.md); none: fixed steps of dt")
     record: RecordParams = RecordParams()
     divergence: DivergenceParams = DivergenceParams()
     output: str | None = Field(None, description="output folder; default results/<name>")
@@ -197,12 +204,24 @@ class Experiment(BaseModel):
     @field_validator("sweep")
     @classmethod
     def _sweep_has_valid_dt(cls, sweep: dict[str, list]) -> dict[str, list]:
-        if "dt" not in sweep:
-            raise ValueError("needs 'dt': a list of time steps (s)")
-        for dt in sweep["dt"]:
+        for dt in sweep.get("dt", ()):
             if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt) or dt <= 0:
                 raise ValueError(f"dt must be finite numbers > 0, got {dt!r}")
         return sweep
+
+    @model_validator(mode="after")
+    def _steps_are_fixed_or_controlled(self) -> "Experiment":
+        if self.step_control is None and "dt" not in self.sweep:
+            raise ValueError("sweep: needs 'dt': a list of time steps (s), or a step_control block")
+        if self.step_control is not None and "dt" in self.sweep:
+            raise ValueError("sweep.dt: step_control chooses every step; give step_control.dt_initial for the first, or "
+                             "drop step_control for fixed steps")
+        return self
+
+    @property
+    def steps(self) -> list[float]:
+        """The fixed steps of the sweep (s); one NaN (no fixed step) where step_control chooses them."""
+        return list(self.sweep["dt"]) if self.step_control is None else [math.nan]
 
     @property
     def output_dir(self) -> Path:
@@ -225,6 +244,8 @@ class Run(BaseModel):
     swept: dict[str, Any]  # the swept keys other than dt that this run uses, with this run's values
     # the integrator's label in its config: with the parameters its family varies (expand_runs); None: integrator.label
     label: str | None = None
+    # adaptive steps (dt is then NaN: no fixed step), or None
+    step_control: StepControlParams | None = None
 
     @property
     def integrator_label(self) -> str:
@@ -233,13 +254,18 @@ class Run(BaseModel):
 
     @property
     def step_count(self) -> int:
-        """Steps of dt that fit in the duration: every run of a sweep ends within one dt before it, never past it."""
+        """Steps of dt that fit in the duration: every run of a sweep ends within one dt before it, never past it;
+        a step-controlled run's first estimate (one step: its count is known only once it ran)."""
+        if self.step_control is not None:
+            return 1
         return max(1, math.floor(self.duration / self.dt + 1e-9))
 
     @property
     def params(self) -> dict[str, Any]:
-        """Every swept and method parameter of this run (stored as JSON in the results file)."""
-        return {"dt": self.dt, **self.swept, **{f"integrator.{key}": value for key, value in self.integrator.model_dump().items()}}
+        """Every swept and method parameter of this run (stored as JSON in the results file): dt, or the tolerance of
+        its step control (the rest of the block is in the stored config, and among the swept keys where swept)."""
+        steps = {"dt": self.dt} if self.step_control is None else {"step_control.tolerance": self.step_control.tolerance}
+        return {**steps, **self.swept, **{f"integrator.{key}": value for key, value in self.integrator.model_dump().items()}}
 
 
 # -- loading ---------------------------------------------------------------------------------------
@@ -503,6 +529,6 @@ def _fields_at(location: list, raw: dict) -> dict:
             model = SOLVER_PARAMS.get(solver_type) if isinstance(solver_type, str) else None
             continue
         field = model.model_fields.get(str(part))
-        annotation = getattr(field, "annotation", None)
+        annotation = _unwrap(getattr(field, "annotation", None))
         model = annotation if isinstance(annotation, type) and issubclass(annotation, BaseModel) else None
     return model.model_fields if model is not None else {}

@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import math
 from typing import Any
 
 import yaml
@@ -18,6 +19,7 @@ from pydantic import ValidationError
 
 from simrun.errors import ConfigError
 from simrun.experiment.config import Experiment, Run, describe_error, set_path
+from simrun.experiment.step_control import estimate_refusal
 from simrun.integrators import Integrator
 from simrun.solvers import SOLVERS, SOLVER_PARAMS, NonlinearSolver, SolverParams
 
@@ -36,7 +38,8 @@ def expand_runs(experiment: Experiment) -> list[Run]:
     combinations = [dict(zip(swept, values)) for values in _product(list(swept.values()))]
     # the same, as runs name them: a swept mapping (a whole system, say) by its label
     shown = [dict(zip(names, values)) for values in _product(list(names.values()))]
-    total = len(combinations) * len(experiment.integrators) * len(experiment.sweep["dt"])
+    steps = experiment.steps  # the fixed steps, or one NaN where step_control chooses them
+    total = len(combinations) * len(experiment.integrators) * len(steps)
     if total > MAX_RUNS:
         raise ConfigError(f"sweep: {total} runs exceed the limit of {MAX_RUNS}; shorten the sweep")
     base = experiment.model_dump(exclude={"sweep", "output", "name", "fit"}, mode="python")
@@ -58,7 +61,11 @@ def expand_runs(experiment: Experiment) -> list[Run]:
                 continue
             seen.add(identity)
             _check_method_fits(resolved, integrator, systems)
-            for dt in experiment.sweep["dt"]:
+            if resolved.step_control is not None:
+                reason = estimate_refusal(resolved.step_control, integrator)
+                if reason is not None:
+                    raise ConfigError(f"step_control.estimate: {reason}")
+            for dt in steps:
                 if dt > resolved.duration:
                     raise ConfigError(f"sweep.dt: {dt:g} is longer than duration {resolved.duration:g}; a step must fit in the run")
                 index = len(runs)
@@ -67,6 +74,7 @@ def expand_runs(experiment: Experiment) -> list[Run]:
                     run_id=_run_id(index, labels[number], dt, used), index=index, system=resolved.system,
                     integrator=integrator, solver=resolved.solver, dt=float(dt), duration=resolved.duration,
                     record=resolved.record, divergence=resolved.divergence, swept=used, label=labels[number],
+                    step_control=resolved.step_control,
                 ))
     return runs
 
@@ -230,7 +238,7 @@ def _resolve(base: dict, assignment: dict[str, Any], swept_solvers: tuple = ()) 
             allowed = ", ".join(k for k in Experiment.model_fields if k not in ("sweep", "name", "output", "integrators"))
             raise ConfigError(f"sweep.{key}: cannot sweep {parts[0]!r}; sweepable sections: dt, {allowed}")
         set_path(raw, parts, value, f"sweep.{key}")
-    raw.update(name="run", sweep={"dt": [1.0]})
+    raw.update(name="run", sweep={"dt": [1.0]} if raw.get("step_control") is None else {})
     try:
         return Experiment.model_validate(raw)
     except ValidationError as error:
@@ -245,6 +253,6 @@ def _product(lists: list[list]) -> list[tuple]:
 
 
 def _run_id(index: int, label: str, dt: float, assignment: dict[str, Any]) -> str:
-    parts = [f"{index:04d}", label, f"dt={dt:.6g}"]
+    parts = [f"{index:04d}", label] + ([] if math.isnan(dt) else [f"dt={dt:.6g}"])
     parts += [f"{key}={value:.6g}" if isinstance(value, float) else f"{key}={value}" for key, value in assignment.items()]
     return "-".join(parts).replace("/", "_")

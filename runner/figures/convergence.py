@@ -166,7 +166,8 @@ def work_precision(data: FigureData):
     handles = layout.series_handles(data, [series for panel in panels for series in panel.series], lw=1.2)
     handles.append(Line2D([], [], ls="none", label="lower left is better"))
     layout.figure_legend(figure, handles, data.legend_title)
-    layout.suptitle(figure, data, "work-precision (points: the time steps)")
+    points = "the tolerances" if any("step_control.tolerance" in run.stored.params for run in data.runs) else "the time steps"
+    layout.suptitle(figure, data, f"work-precision (points: {points})")
     layout.add_notes(figure, notes + [_left_out_note(data, runs)])
     return figure
 

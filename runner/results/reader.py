@@ -33,6 +33,8 @@ from simrun.format.summary import (SUMMARY_COLUMNS, SUMMARY_DTYPE, Status, as_te
 from simrun.results.fits import read_fits
 from simrun.results.lanes import lane_runs
 
+# the params that set a run's steps: its fixed dt, or the tolerance its step control chooses them by (issue 28)
+STEP_KEYS = ("dt", "step_control.tolerance")
 
 # -- one run ----------------------------------------------------------------------------------------
 class StoredRun:
@@ -102,8 +104,10 @@ class StoredRun:
 
     @functools.cached_property
     def swept(self) -> dict:
-        """The swept parameters other than dt and the integrator's own (what tells groups of runs apart)."""
-        return {key: value for key, value in self.params.items() if key != "dt" and not key.startswith("integrator.")}
+        """The swept parameters other than the step (dt, or step_control.tolerance, which chooses the steps) and the
+        integrator's own (what tells groups of runs apart)."""
+        return {key: value for key, value in self.params.items()
+                if key not in STEP_KEYS and not key.startswith("integrator.")}
 
     @property
     def system(self) -> str:
