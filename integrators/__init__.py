@@ -20,6 +20,7 @@ from .multistep import BDF, BDF2, BDF2MidpointMix
 from .radau import RadauIIA
 from .rosenbrock import Rosenbrock
 from .xpbd import XPBD
+from .peers import SolveIVP
 
 # config name -> class: the one place where a new method is made known
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -51,5 +52,9 @@ INTEGRATORS: dict[str, type[Integrator]] = {
     )
 }
 
-__all__ = ["INTEGRATORS", "Integrator", "IncrementalPotential", "SegmentPotential", "State",
+# peers: other codes' solvers run beside simrun's methods on the same system and tolerances (runner/execution/peers.py);
+# not methods simrun steps, so the analyses of the methods (amplification, damping, stability) leave them out
+PEERS: dict[str, type[Integrator]] = {SolveIVP.name: SolveIVP}
+
+__all__ = ["INTEGRATORS", "PEERS", "Integrator", "IncrementalPotential", "SegmentPotential", "State",
            "ButcherTableau", "ExplicitRungeKutta"]

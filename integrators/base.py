@@ -131,6 +131,11 @@ class Integrator(BaseModel):
         """The order with these parameter values; ``order`` is the order at the defaults (Newmark: 1 unless gamma = 1/2)."""
         return self.order
 
+    # what kind of method it is, for work-precision by family (issue 28): lecture (the lectures' methods), explicit,
+    # dirk, radau, bdf, rosenbrock, imex; peers: scipy
+    family: ClassVar[str] = "lecture"
+    # a peer's run is taken whole by another code (integrators/peers.py), not step by step
+    whole_run: ClassVar[bool] = False
     # a multistep method's State.aux holds its history at its own past steps: a step from the same state at another
     # size (Richardson's two half steps) is not the method's step, so no Richardson estimate is taken of it
     carries_history: ClassVar[bool] = False

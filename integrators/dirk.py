@@ -155,6 +155,7 @@ class DiagonallyImplicitRungeKutta(Integrator):
 
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "incremental_potential"
+    family: ClassVar[str] = "dirk"
     tableau_name: ClassVar[str]
 
     @property

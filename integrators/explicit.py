@@ -64,6 +64,7 @@ class ExplicitRungeKutta(Integrator):
     method's stability polynomial (sum_k z^k / k! up to the order, for s = p <= 4 stages).
     """
 
+    family: ClassVar[str] = "explicit"
     tableau: ClassVar[ButcherTableau]
 
     @property

@@ -138,6 +138,7 @@ class BDF(Integrator):
 
     name: ClassVar[str] = "bdf"
     explicit: ClassVar[bool] = False
+    family: ClassVar[str] = "bdf"
     problem_kind: ClassVar[str | None] = "incremental_potential"
     summary: ClassVar[str] = "k-step BDF (order: 1..5), started by sdirk3; A-stable to k = 2, BDF3-5 grow at small h w"
     carries_history: ClassVar[bool] = True

@@ -61,6 +61,7 @@ class RadauIIA(Integrator):
 
     name: ClassVar[str] = "radau_iia"
     order: ClassVar[int] = 5
+    family: ClassVar[str] = "radau"
     explicit: ClassVar[bool] = False
     summary: ClassVar[str] = "Radau IIA (stages 2: order 3, 3: order 5), simplified Newton in A's eigenblocks; L-stable"
     stages: Literal[2, 3] = Field(3, description="2 (order 3) | 3 (order 5)")

@@ -106,6 +106,7 @@ class Rosenbrock(Integrator):
 
     name: ClassVar[str] = "rosenbrock"
     order: ClassVar[int] = 3
+    family: ClassVar[str] = "rosenbrock"
     # no nonlinear solve, as the exponential Rosenbrock-Euler method: the solver is never called (and IPC, whose
     # steps a line search must cut, is refused)
     explicit: ClassVar[bool] = True

@@ -141,7 +141,7 @@ def test_sweeping_another_key_and_set_overrides(tmp_path):
     ("name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\nsweep: {dt: [0.1, -0.01]}\n", "sweep: dt must be finite numbers > 0, got -0.01"),
     ("name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\nsweep: {dt: [0]}\n", "sweep: dt must be finite numbers > 0"),
     ("name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\nsweep: {dt: []}\n", "sweep.dt: an empty sweep runs nothing"),
-    ("name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\n", "sweep: Field required"),
+    ("name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\n", "sweep: needs 'dt': a list of time steps (s), or a step_control block"),
     ("name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\nduration: 1\nsweep: {dt: [2.0]}\n", "sweep.dt: 2 is longer than duration 1"),
     ("name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\nsweep: {dt: [0.1]}\nsolver: {tolerance: -1}\n", "solver.tolerance: Input should be greater than 0"),
     ("name: x\nsystem: {type: spring_mass}\nintegrators: [forward_euler]\nsweep: {dt: [0.1], system.stiffnes: [1, 2]}\n", "sweep: system.stiffnes: unknown key (did you mean 'stiffness'?)"),

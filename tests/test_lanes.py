@@ -36,7 +36,8 @@ from simrun.cli import main
 from simrun.errors import ConfigError
 from simrun.execution.executors import execute
 from simrun.execution.lanes import LANE_INTEGRATORS, MIN_LANES, lane_chunks, lane_key, simulate_lanes
-from simrun.execution.simulate import DECAY_FLOOR, decay_per_period, simulate
+from simrun.execution.measures import DECAY_FLOOR, decay_per_period
+from simrun.execution.simulate import simulate
 from simrun.experiment.config import validate_experiment
 from simrun.experiment.sweep import expand_runs
 from simrun.figures import render_figures

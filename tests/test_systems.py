@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 
 from conftest import make_runs
-from simrun.execution.simulate import _moving_dofs, _on_paths, simulate
+from simrun.execution.measures import moving_dofs, on_paths
+from simrun.execution.simulate import simulate
 from simrun.integrators import State
 from simrun.systems import SYSTEMS, Capabilities, System, SystemParams, plugins
 from simrun.systems.contract import CHECKS, ROUND_OFF, check_params, generic_state, held_dofs, max_abs, stable_dt
@@ -186,11 +187,11 @@ def replay(system: System, run) -> list[State]:
     solver = run.solver.build()
     state = run.integrator.start(system, State(0.0, system.x0.copy(), system.v0.copy()))
     states = [state]
-    moving = _moving_dofs(system)
+    moving = moving_dofs(system)
     for step in range(1, run.step_count + 1):
         state, _ = run.integrator.step(system, state, run.dt, solver)
         if moving.size:  # as the runner does: the vertices on prescribed paths put on their paths after each step
-            state = _on_paths(system.constraints, moving, state, step * run.dt)
+            state = on_paths(system.constraints, moving, state, step * run.dt)
         states.append(state)
     return states
 

@@ -20,7 +20,7 @@ import scipy.interpolate
 import scipy.optimize
 
 from simrun.calibration.keys import system_at
-from simrun.execution.simulate import RELEASE_SLACK, _moving_dofs, _on_paths, _release
+from simrun.execution.measures import RELEASE_SLACK, moving_dofs, on_paths, release
 from simrun.integrators import Integrator, State
 from simrun.integrators.sensitivity import ForwardSensitivity, exact_refusal
 
@@ -105,7 +105,7 @@ def step_run(system, integrator: Integrator, solver, dt: float, steps: int, dofs
     with_contact = system.has_contact
     if with_contact:
         system.begin_run(dt, state.x)
-    moving = _moving_dofs(system)
+    moving = moving_dofs(system)
     release_times = list(system.constraints.release_times) if system.constraints is not None else []
     state = integrator.start(system, state)
     tangent = None
@@ -124,9 +124,9 @@ def step_run(system, integrator: Integrator, solver, dt: float, steps: int, dofs
             else:
                 state, tangent, _ = sensitivity.step(state, tangent, dt, solver)
             if moving.size:
-                state = _on_paths(system.constraints, moving, state, dt * (n + 1))
+                state = on_paths(system.constraints, moving, state, dt * (n + 1))
             if release_times and dt * (n + 1) >= release_times[0] - RELEASE_SLACK * dt:  # as simulate releases them
-                system, moving = _release(system, release_times, dt * (n + 1), dt)
+                system, moving = release(system, release_times, dt * (n + 1), dt)
                 if sensitivity is not None:
                     sensitivity = sensitivity.released(system)
             # one float: inf or NaN in any entry (or entries past 1e154, as good as diverged) makes it non-finite

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from simrun.execution.simulate import DECAY_FLOOR, decay_per_period
+from simrun.execution.measures import DECAY_FLOOR, decay_per_period
 
 PER_STEP_KEYS = ("newton_iterations", "linear_iterations", "line_search_steps", "residual", "solver_index", "safeguards")
 PER_STEP_TYPES = (np.int32, np.int32, np.int32, np.float64, np.int8, np.uint8)
@@ -125,7 +125,7 @@ class LaneSummary:
         self.safeguard_steps = np.zeros(lanes, dtype=np.int64)
         self.last_t = np.zeros(lanes)
         self.last_positions = np.zeros((lanes, dofs))
-        self.decay_energy = np.full(lanes, math.nan)  # the last sample usable for the decay (simulate._measured_decay)
+        self.decay_energy = np.full(lanes, math.nan)  # the last sample usable for the decay (measures.measured_decay)
         self.decay_t = np.zeros(lanes)
 
     def sample(self, observed: dict, t, dissipated, x, v, running: np.ndarray | None) -> None:
@@ -141,7 +141,7 @@ class LaneSummary:
 
     def _add(self, recorded: np.ndarray, energy: np.ndarray, modal: np.ndarray, t, x) -> None:
         """A sample of the ``recorded`` lanes: its drift counts where the energy is finite (results.energy_drift), its t
-        and x are the lane's last sample whatever they are (simulate._final_error)."""
+        and x are the lane's last sample whatever they are (measures.final_error)."""
         drift = (energy - self.first_energy) / self.scale
         size = np.abs(drift)
         finite = recorded & np.isfinite(energy)
@@ -184,7 +184,7 @@ def _write(into: dict, row: int, observed: dict, t, dissipated, x, v) -> None:
 
 
 def lane_final_error(system, t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """simulate._final_error per lane: max |x - x_exact| at the last sample (NaN without an exact solution)."""
+    """measures.final_error per lane: max |x - x_exact| at the last sample (NaN without an exact solution)."""
     exact = getattr(system, "exact_states", None)
     if exact is None:
         return np.full(t.shape, math.nan)
@@ -193,7 +193,7 @@ def lane_final_error(system, t: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def lane_errors(system, t: np.ndarray, x: np.ndarray, v: np.ndarray, frequency: np.ndarray) -> np.ndarray:
-    """simulate._error_at per lane: the phase-space distance sqrt(|x - x_e|^2 + |v - v_e|^2 / w^2) where the lane is
+    """measures.error_at per lane: the phase-space distance sqrt(|x - x_e|^2 + |v - v_e|^2 / w^2) where the lane is
     the test equation, else max |x - x_e|; NaN where the lane has no error time or no exact solution."""
     exact = getattr(system, "exact_states", None)
     if exact is None:
@@ -208,7 +208,7 @@ def lane_errors(system, t: np.ndarray, x: np.ndarray, v: np.ndarray, frequency: 
 
 
 def lane_decays(decay_energies, frequencies: np.ndarray) -> list[float]:
-    """simulate._measured_decay per lane, from (V(0), V at the last usable sample, its t), V the modal energy: NaN where
+    """measures.measured_decay per lane, from (V(0), V at the last usable sample, its t), V the modal energy: NaN where
     V(0) is not positive or no sample after t = 0 is usable."""
     first, energy, t = (values.tolist() for values in decay_energies)
     return [decay_per_period(e0, e, time, w) if e0 > 0.0 and time > 0.0 else math.nan

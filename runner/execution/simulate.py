@@ -8,7 +8,6 @@ import time
 import numpy as np
 
 from simrun.experiment.config import Run
-from simrun.format.layout import VERTEX_KINDS
 from simrun.format.run_result import RunResult
 from simrun.format.summary import Status, series_summary as _series_summary
 from simrun.integrators import State
@@ -16,11 +15,11 @@ from simrun.solvers import EXPLICIT_STEP
 from simrun.solvers.linear import attach_factorisation_log
 
 from .evaluations import EvaluationCounts
+from .measures import (RELEASE_SLACK, error_at, final_error, measured_decay, moving_dofs, on_paths, path_power, release,
+                       vertex_constraint_kinds)
 from .step_control import StepController, StepTooSmall
 
 
-# a path's ``until`` within this fraction of a step below a step's end is reached there (t = n dt rounds)
-RELEASE_SLACK = 1e-9
 # a step-controlled run's per-step rows at first (doubled when full)
 STEP_ROWS = 1024
 # the per-step solver counts, in the order simulate binds them
@@ -41,7 +40,7 @@ class Recorder:
         self.write_observables = system.write_observables
         self.with_state = system.records_state_per_sample
         columns = list(system.observable_layout) + [("t", ()), ("dissipated_energy", ())]
-        self.with_work = _moving_dofs(system).size > 0
+        self.with_work = moving_dofs(system).size > 0
         if self.with_work:
             columns.append(("prescribed_work", ()))
         self.with_friction = getattr(system, "has_friction", False)
@@ -152,7 +151,12 @@ def _controlled_step(controller: StepController, system, state: State, solver, p
 
 
 def simulate(run: Run) -> RunResult:
-    """Run the integrator for run.step_count steps of run.dt on run.system; never raises for a bad run."""
+    """Run the integrator for run.step_count steps of run.dt on run.system (or, with step_control, steps it chooses
+    to the duration); never raises for a bad run. A peer's run is taken by its own code (peers.py)."""
+    if run.integrator.whole_run:
+        from .peers import simulate_peer
+
+        return simulate_peer(run)
     system = run.system.build()
     integrator = run.integrator
     solver = run.solver.build()
@@ -207,7 +211,7 @@ def simulate(run: Run) -> RunResult:
     dissipated = 0.0  # work of the physical damping forces so far (J), for the energy budget
     work = 0.0  # work done on the system by the vertices on prescribed paths so far (J), for the energy budget
     friction = 0.0  # energy friction took out so far (J), for the energy budget
-    moving = _moving_dofs(system)
+    moving = moving_dofs(system)
     # paths that end (``until``): released at the end of the first step that reaches the time
     release_times = list(system.constraints.release_times) if system.constraints is not None else []
     constraint_kinds = vertex_constraint_kinds(system)  # as the run starts: the paths' vertices before any release
@@ -234,7 +238,7 @@ def simulate(run: Run) -> RunResult:
     record_sample(0.0, state.x, state.v, dissipated, work, friction)
     if with_frames:
         record_frame(0.0, state.x)
-    path_power = _path_power(system, moving, state.x, state.v, 0.0) if moving.size else 0.0
+    path_power = path_power(system, moving, state.x, state.v, 0.0) if moving.size else 0.0
     status, message, t_diverged, not_converged_steps = Status.OK, "", None, 0
     first_not_converged = diverged_step = 0  # 1-based step numbers; 0: none
     steps = 0
@@ -273,20 +277,20 @@ def simulate(run: Run) -> RunResult:
                     per_step["friction_work"][steps - 1] = lost
                     friction += lost
                 if moving.size:  # the prescribed vertices where their paths are at t, and the work they did
-                    state = _on_paths(system.constraints, moving, state, t)
-                    power = _path_power(system, moving, state.x, state.v, t)
+                    state = on_paths(system.constraints, moving, state, t)
+                    power = path_power(system, moving, state.x, state.v, t)
                     work += 0.5 * dt * (path_power + power)  # the trapezoidal rule: second order
                     path_power = power
                 if release_times and t >= release_times[0] - RELEASE_SLACK * dt:
                     # the vertices of the paths that end here go free, at their paths' positions and velocities; the
                     # method goes on with what it carries (a multistep history of every dof stays valid: x and v
                     # are continuous at the release, only the acceleration jumps)
-                    system, moving = _release(system, release_times, t, dt)
+                    system, moving = release(system, release_times, t, dt)
                     total_energy = system.total_energy
                     evaluations.instrument(system)
                     if controller is not None:
                         controller.changed(system)
-                    path_power = _path_power(system, moving, state.x, state.v, t) if moving.size else 0.0
+                    path_power = path_power(system, moving, state.x, state.v, t) if moving.size else 0.0
                 if damped:
                     # h v_bar^T D(x_bar) v_bar with the step's mean velocity and D at its mean position: the
                     # exact discrete balance of implicit midpoint for quadratic energies, a second-order
@@ -358,7 +362,7 @@ def simulate(run: Run) -> RunResult:
             limits = "max_iterations" + (" or time_budget" if getattr(run.solver, "time_budget", None) else "")
             message = f"{not_converged_steps} of {steps} steps did not converge within {limits}"
     samples = recorder.result()
-    attrs = {"final_error": _final_error(system, samples), "not_converged_steps": not_converged_steps,
+    attrs = {"final_error": final_error(system, samples), "not_converged_steps": not_converged_steps,
              "first_not_converged_step": first_not_converged, "diverged_step": diverged_step,
              "safeguard_steps": int(np.count_nonzero(safeguards[:steps])),
              **(_contact_attrs(per_step, steps) if with_contact else {}),
@@ -372,10 +376,10 @@ def simulate(run: Run) -> RunResult:
     oscillator = system.capabilities.oscillator
     if oscillator is not None:  # the amplitude's decay per period, which the damping map compares with its prediction
         with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN (or a growth, inf)
-            attrs["decay_per_period"] = _measured_decay(system, samples, oscillator[0])
+            attrs["decay_per_period"] = measured_decay(system, samples, oscillator[0])
     if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
         attrs["error_time"], samples["error_positions"], _ = error_state
-        attrs["error"] = _error_at(system, *error_state)
+        attrs["error"] = error_at(system, *error_state)
     model = {}
     if system.frame_edges is not None and with_frames:
         model["model_edges"] = system.frame_edges
@@ -407,123 +411,3 @@ def _contact_attrs(per_step: dict[str, np.ndarray], steps: int) -> dict[str, flo
     return {"min_contact_distance": float(np.min(distances)) if steps else float("inf"),
             "max_active_contacts": int(np.max(per_step["active_contacts"][:steps])) if steps else 0,
             "friction_work": float(np.sum(per_step["friction_work"][:steps]))}
-
-
-def vertex_constraint_kinds(system) -> np.ndarray | None:
-    """(vertices,) int8 (``simrun.format.layout.VERTEX_KINDS``): each vertex of a system with frames free (0), pinned
-    (1), on a prescribed path (2) or sliding (3: some of its directions held, a rail or a plane); None where every
-    vertex is free. From the system's fixed dofs and its VertexConstraints, so that the figures name each kind."""
-    dim = int(getattr(system, "vertex_dim", 0) or 0)
-    fixed = np.asarray(getattr(system, "fixed_dofs", ()), dtype=np.intp)
-    if dim <= 0 or system.dof_count % dim:
-        return None
-    count = system.dof_count // dim
-    held = np.bincount(fixed // dim, minlength=count)[:count] if fixed.size else np.zeros(count, dtype=np.intp)
-    kinds = np.where(held == dim, VERTEX_KINDS["pinned"], np.where(held > 0, VERTEX_KINDS["sliding"], 0)).astype(np.int8)
-    constraints = getattr(system, "constraints", None)
-    if constraints is not None:
-        if getattr(constraints, "sliding", None) is not None:
-            kinds[constraints.sliding.vertices] = VERTEX_KINDS["sliding"]
-        kinds[constraints.moving_vertices] = VERTEX_KINDS["prescribed"]
-    return kinds if kinds.any() else None
-
-
-def _release(system, release_times: list[float], t: float, dt: float):
-    """(the system released from the paths that end by t, its remaining moving dofs); pops those times."""
-    while release_times and t >= release_times[0] - RELEASE_SLACK * dt:
-        system = system.released(release_times.pop(0))
-    return system, _moving_dofs(system)
-
-
-def _moving_dofs(system) -> np.ndarray:
-    """The dofs of vertices on prescribed paths (empty for systems without them)."""
-    constraints = system.constraints
-    return constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
-
-
-def _on_paths(constraints, moving: np.ndarray, state: State, t: float) -> State:
-    """The state with the prescribed vertices exactly on their paths at t (new arrays; the step's own
-    values there are the method's approximation of the path, exact for a constant velocity)."""
-    positions, velocities = constraints.path(t)
-    x, v = state.x.copy(), state.v.copy()
-    x[moving], v[moving] = positions, velocities
-    return State(state.t, x, v, state.aux)
-
-
-def _path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: float) -> float:
-    """The power (W) that the drivers of the prescribed vertices put into the system: sum over their dofs
-    of v (m a - f), with f = -dP/dx - D v the forces of the system on them (unfiltered) and a the paths'
-    accelerations: what holds the vertices on their paths against the springs, gravity and damping.
-    Systems that can give f on those dofs alone (``driven_force``: the springs that touch them) do so."""
-    driven_force = getattr(system, "driven_force", None)
-    if driven_force is not None:
-        force = driven_force(x, v)
-    else:
-        force = -system.gradient(x)
-        if system.is_damped:
-            force -= system.damping_matrix(x) @ v
-        force = force[moving]
-    accelerations = system.constraints.path_accelerations(t)
-    if system.mass_correction is None:
-        inertia = system.mass[moving] * accelerations
-    else:  # M a on the paths' dofs couples them to the free ones' accelerations
-        everywhere = system.acceleration(x, v)
-        everywhere[moving] = accelerations
-        inertia = system.mass_times(everywhere)[moving]
-    return float(v[moving] @ (inertia - force))
-
-
-# energies below this fraction of E(0) are in (or near) the subnormal range, where their digits go: not measured
-DECAY_FLOOR = 1e-250
-MAX_EXPONENT = math.log(np.finfo(float).max)
-
-
-def decay_per_period(energy0: float, energy: float, t: float, frequency: float) -> float:
-    """The amplitude's decay per period 2 pi / w of a linear oscillator, from its modal energy V(t) at one time t > 0:
-    the amplitude goes as sqrt(V), so the factor per period is (V(t)/V(0))^(pi / (w t)); > 1 where it grows."""
-    exponent = math.log(energy / energy0) * math.pi / (frequency * t)
-    return math.inf if exponent > MAX_EXPONENT else math.exp(exponent)  # (math.exp raises beyond it)
-
-
-def _measured_decay(system, samples: dict[str, np.ndarray], frequency: float) -> float:
-    """decay_per_period at the last sample whose modal energy (``System.modal_energy``: the spring's
-    E + d x v / 2, which the exact damped motion loses at the steady rate 2 zeta w) is finite and above DECAY_FLOOR V(0)
-    (NaN when none is, after t = 0): measured over the whole run, so a method's own damping adds to the model's."""
-    energy, t = samples.get("energy"), samples.get("t")
-    if energy is None or energy.size < 2 or "positions" not in samples:
-        return math.nan
-    modal = system.modal_energy(energy, samples["positions"], samples["velocities"])
-    if not modal[0] > 0.0:
-        return math.nan
-    usable = np.flatnonzero(np.isfinite(modal) & (modal > DECAY_FLOOR * modal[0]))
-    last = int(usable[-1]) if usable.size else 0
-    if last == 0:
-        return math.nan
-    return decay_per_period(float(modal[0]), float(modal[last]), float(t[last]), frequency)
-
-
-def _error_at(system, t: float, x: np.ndarray, v: np.ndarray) -> float:
-    """The distance (m) of (x, v) at time t from the exact solution, NaN where none is known.
-
-    On the test equation (a declared test frequency w) it is the phase-space distance
-    sqrt(|x - x_exact|^2 + |v - v_exact|^2 / w^2): a method's error there is a vector that turns with
-    the motion, whose length this measures at any phase (|x - x_exact| alone vanishes twice a period).
-    Otherwise max |x - x_exact| over the degrees of freedom."""
-    exact = system.exact_solution(np.array([t]))
-    if exact is None:
-        return math.nan
-    x_exact, v_exact = exact[0][0], exact[1][0]
-    frequency = system.capabilities.test_frequency
-    if frequency is None:
-        return float(np.max(np.abs(x - x_exact)))
-    return math.sqrt(float(np.sum((x - x_exact) ** 2)) + float(np.sum((v - v_exact) ** 2)) / frequency ** 2)
-
-
-def _final_error(system, samples: dict[str, np.ndarray]) -> float:
-    """max |x - x_exact| at the last recorded sample (m), NaN where no exact solution is known."""
-    if not samples.get("t", np.empty(0)).size or "positions" not in samples:
-        return float("nan")
-    exact = system.exact_solution(samples["t"][-1:])
-    if exact is None:
-        return float("nan")
-    return float(np.max(np.abs(samples["positions"][-1] - exact[0][0])))

@@ -26,7 +26,7 @@ from pydantic_core import PydanticCustomError, PydanticKnownError
 from simrun.errors import ConfigError
 from simrun.experiment.fit import FitParams
 from simrun.experiment.step_control import StepControlParams
-from simrun.integrators import INTEGRATORS, Integrator
+from simrun.integrators import INTEGRATORS, PEERS, Integrator
 from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
 from simrun.systems import SystemParams, plugins
 from simrun.systems.mass_spring.params import SEARCH_FOLDERS as MODEL_SEARCH_FOLDERS
@@ -53,12 +53,13 @@ def _build_integrator(value: Any) -> Integrator:
     name = params.pop("type", None)
     if name is None:
         raise ValueError("a mapping needs 'type': one of " + ", ".join(INTEGRATORS))
-    if name not in INTEGRATORS:
-        raise ValueError(f"unknown integrator {name!r}{_did_you_mean(name, INTEGRATORS)}; valid: " + ", ".join(INTEGRATORS))
+    known = INTEGRATORS | PEERS
+    if name not in known:
+        raise ValueError(f"unknown integrator {name!r}{_did_you_mean(name, known)}; valid: " + ", ".join(known))
     try:
-        return INTEGRATORS[name].model_validate(params)
+        return known[name].model_validate(params)
     except ValidationError as error:
-        raise ValueError(f"{name}: " + _describe(error.errors()[0], INTEGRATORS[name].model_fields)) from None
+        raise ValueError(f"{name}: " + _describe(error.errors()[0], known[name].model_fields)) from None
 
 
 IntegratorField = Annotated[Integrator, BeforeValidator(_build_integrator)]

@@ -59,6 +59,8 @@ class StepControlParams(BaseModel):
 
 def estimate_refusal(step_control: StepControlParams, integrator) -> str | None:
     """Why ``integrator`` cannot take ``step_control``'s adaptive steps (one line), or None."""
+    if integrator.whole_run:  # a peer: its own code controls its steps, at the block's tolerances
+        return None
     if step_control.estimate == "richardson":
         if integrator.carries_history:
             return (f"{integrator.label} carries a history of states at its own past steps: a Richardson estimate "

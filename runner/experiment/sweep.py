@@ -61,6 +61,10 @@ def expand_runs(experiment: Experiment) -> list[Run]:
                 continue
             seen.add(identity)
             _check_method_fits(resolved, integrator, systems)
+            if resolved.step_control is None and integrator.whole_run:
+                raise ConfigError(f"integrators: {integrator.label} chooses its own steps by a tolerance: give a "
+                                  "step_control block (its tolerance and bounds are the peer's rtol, atol, first_step "
+                                  "and max_step)")
             if resolved.step_control is not None:
                 reason = estimate_refusal(resolved.step_control, integrator)
                 if reason is not None:

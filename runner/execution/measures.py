@@ -1,0 +1,135 @@
+"""What a run measures besides its steps: the kinds of its held vertices, its prescribed paths (where they are, the
+power their drivers put in, their releases), its decay per period and its error against the exact solution. Shared
+by simrun's own stepping (simulate.py), scipy's peers (peers.py) and the calibration's forward runs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from simrun.format.layout import VERTEX_KINDS
+from simrun.integrators import State
+
+# a path's ``until`` within this fraction of a step below a step's end is reached there (t = n dt rounds)
+RELEASE_SLACK = 1e-9
+
+
+def vertex_constraint_kinds(system) -> np.ndarray | None:
+    """(vertices,) int8 (``simrun.format.layout.VERTEX_KINDS``): each vertex of a system with frames free (0), pinned
+    (1), on a prescribed path (2) or sliding (3: some of its directions held, a rail or a plane); None where every
+    vertex is free. From the system's fixed dofs and its VertexConstraints, so that the figures name each kind."""
+    dim = int(getattr(system, "vertex_dim", 0) or 0)
+    fixed = np.asarray(getattr(system, "fixed_dofs", ()), dtype=np.intp)
+    if dim <= 0 or system.dof_count % dim:
+        return None
+    count = system.dof_count // dim
+    held = np.bincount(fixed // dim, minlength=count)[:count] if fixed.size else np.zeros(count, dtype=np.intp)
+    kinds = np.where(held == dim, VERTEX_KINDS["pinned"], np.where(held > 0, VERTEX_KINDS["sliding"], 0)).astype(np.int8)
+    constraints = getattr(system, "constraints", None)
+    if constraints is not None:
+        if getattr(constraints, "sliding", None) is not None:
+            kinds[constraints.sliding.vertices] = VERTEX_KINDS["sliding"]
+        kinds[constraints.moving_vertices] = VERTEX_KINDS["prescribed"]
+    return kinds if kinds.any() else None
+
+
+def release(system, release_times: list[float], t: float, dt: float):
+    """(the system released from the paths that end by t, its remaining moving dofs); pops those times."""
+    while release_times and t >= release_times[0] - RELEASE_SLACK * dt:
+        system = system.released(release_times.pop(0))
+    return system, moving_dofs(system)
+
+
+def moving_dofs(system) -> np.ndarray:
+    """The dofs of vertices on prescribed paths (empty for systems without them)."""
+    constraints = system.constraints
+    return constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+
+
+def on_paths(constraints, moving: np.ndarray, state: State, t: float) -> State:
+    """The state with the prescribed vertices exactly on their paths at t (new arrays; the step's own
+    values there are the method's approximation of the path, exact for a constant velocity)."""
+    positions, velocities = constraints.path(t)
+    x, v = state.x.copy(), state.v.copy()
+    x[moving], v[moving] = positions, velocities
+    return State(state.t, x, v, state.aux)
+
+
+def path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: float) -> float:
+    """The power (W) that the drivers of the prescribed vertices put into the system: sum over their dofs
+    of v (m a - f), with f = -dP/dx - D v the forces of the system on them (unfiltered) and a the paths'
+    accelerations: what holds the vertices on their paths against the springs, gravity and damping.
+    Systems that can give f on those dofs alone (``driven_force``: the springs that touch them) do so."""
+    driven_force = getattr(system, "driven_force", None)
+    if driven_force is not None:
+        force = driven_force(x, v)
+    else:
+        force = -system.gradient(x)
+        if system.is_damped:
+            force -= system.damping_matrix(x) @ v
+        force = force[moving]
+    accelerations = system.constraints.path_accelerations(t)
+    if system.mass_correction is None:
+        inertia = system.mass[moving] * accelerations
+    else:  # M a on the paths' dofs couples them to the free ones' accelerations
+        everywhere = system.acceleration(x, v)
+        everywhere[moving] = accelerations
+        inertia = system.mass_times(everywhere)[moving]
+    return float(v[moving] @ (inertia - force))
+
+
+# energies below this fraction of E(0) are in (or near) the subnormal range, where their digits go: not measured
+DECAY_FLOOR = 1e-250
+MAX_EXPONENT = math.log(np.finfo(float).max)
+
+
+def decay_per_period(energy0: float, energy: float, t: float, frequency: float) -> float:
+    """The amplitude's decay per period 2 pi / w of a linear oscillator, from its modal energy V(t) at one time t > 0:
+    the amplitude goes as sqrt(V), so the factor per period is (V(t)/V(0))^(pi / (w t)); > 1 where it grows."""
+    exponent = math.log(energy / energy0) * math.pi / (frequency * t)
+    return math.inf if exponent > MAX_EXPONENT else math.exp(exponent)  # (math.exp raises beyond it)
+
+
+def measured_decay(system, samples: dict[str, np.ndarray], frequency: float) -> float:
+    """decay_per_period at the last sample whose modal energy (``System.modal_energy``: the spring's
+    E + d x v / 2, which the exact damped motion loses at the steady rate 2 zeta w) is finite and above DECAY_FLOOR V(0)
+    (NaN when none is, after t = 0): measured over the whole run, so a method's own damping adds to the model's."""
+    energy, t = samples.get("energy"), samples.get("t")
+    if energy is None or energy.size < 2 or "positions" not in samples:
+        return math.nan
+    modal = system.modal_energy(energy, samples["positions"], samples["velocities"])
+    if not modal[0] > 0.0:
+        return math.nan
+    usable = np.flatnonzero(np.isfinite(modal) & (modal > DECAY_FLOOR * modal[0]))
+    last = int(usable[-1]) if usable.size else 0
+    if last == 0:
+        return math.nan
+    return decay_per_period(float(modal[0]), float(modal[last]), float(t[last]), frequency)
+
+
+def error_at(system, t: float, x: np.ndarray, v: np.ndarray) -> float:
+    """The distance (m) of (x, v) at time t from the exact solution, NaN where none is known.
+
+    On the test equation (a declared test frequency w) it is the phase-space distance
+    sqrt(|x - x_exact|^2 + |v - v_exact|^2 / w^2): a method's error there is a vector that turns with
+    the motion, whose length this measures at any phase (|x - x_exact| alone vanishes twice a period).
+    Otherwise max |x - x_exact| over the degrees of freedom."""
+    exact = system.exact_solution(np.array([t]))
+    if exact is None:
+        return math.nan
+    x_exact, v_exact = exact[0][0], exact[1][0]
+    frequency = system.capabilities.test_frequency
+    if frequency is None:
+        return float(np.max(np.abs(x - x_exact)))
+    return math.sqrt(float(np.sum((x - x_exact) ** 2)) + float(np.sum((v - v_exact) ** 2)) / frequency ** 2)
+
+
+def final_error(system, samples: dict[str, np.ndarray]) -> float:
+    """max |x - x_exact| at the last recorded sample (m), NaN where no exact solution is known."""
+    if not samples.get("t", np.empty(0)).size or "positions" not in samples:
+        return float("nan")
+    exact = system.exact_solution(samples["t"][-1:])
+    if exact is None:
+        return float("nan")
+    return float(np.max(np.abs(samples["positions"][-1] - exact[0][0])))

@@ -1,0 +1,177 @@
+"""A peer's run: scipy's ``solve_ivp`` method on the system, stepped by scipy itself (integrators/peers.py, issue 28).
+
+The solver object (``scipy.integrate.Radau``, ``BDF``, ``LSODA``, ...) is stepped here rather than through
+``solve_ivp``, so that each accepted step's size is recorded. The samples, the frames and the state at the error
+time come from its dense output at the same even times as a step-controlled run of simrun's. The solve restarts at
+the releases of prescribed paths, where the right-hand side jumps. The counts are scipy's own: ``nfev`` force
+evaluations (those of its finite-difference Jacobians included), ``njev`` Jacobians and ``nlu`` LU factorisations.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import scipy.integrate
+import scipy.sparse
+
+from simrun.experiment.config import Run
+from simrun.format.run_result import RunResult
+from simrun.format.summary import Status
+from simrun.integrators.peers import IMPLICIT_PEERS
+
+from .measures import error_at, final_error, measured_decay, moving_dofs, path_power, vertex_constraint_kinds
+from .simulate import Recorder, SampleCadence
+
+SOLVERS = {"Radau": scipy.integrate.Radau, "BDF": scipy.integrate.BDF, "LSODA": scipy.integrate.LSODA,
+           "RK45": scipy.integrate.RK45, "DOP853": scipy.integrate.DOP853}
+
+
+def first_order_form(system, dense_jacobian: bool = False):
+    """(F, J) of u' = F(u) = (v, M^-1 f(x, v)) for scipy: the prescribed dofs accelerate with their paths, the pinned
+    ones not at all; J = [[0, I], [-M^-1 K, -M^-1 D]] (sparse, or dense for LSODA), with the held dofs' rows zero. With
+    damping D(x) it leaves out dD/dx v, as simrun's own Newton matrices do."""
+    n = system.dof_count
+    constraints = system.constraints
+    moving = moving_dofs(system)
+    held = np.union1d(np.asarray(system.fixed_dofs, dtype=np.intp), moving)
+    keep = np.ones(n)
+    keep[held] = 0.0
+    inverse_mass = keep / system.mass
+
+    def rate(t, u):
+        acceleration = system.acceleration(u[:n], u[n:])
+        if moving.size:
+            acceleration[moving] = constraints.path_accelerations(t)
+        return np.concatenate([u[n:], acceleration])
+
+    def jacobian(t, u):
+        x = u[:n]
+        stiffness = scipy.sparse.csr_array(system.hessian(x))
+        scaled = scipy.sparse.diags_array(-inverse_mass) @ stiffness
+        blocks = [[None, scipy.sparse.identity(n, format="csr")], [scaled, None]]
+        if system.is_damped:
+            blocks[1][1] = scipy.sparse.diags_array(-inverse_mass) @ scipy.sparse.csr_array(system.damping_matrix(x))
+        matrix = scipy.sparse.block_array(blocks, format="csc")
+        return matrix.toarray() if dense_jacobian else matrix
+
+    return rate, jacobian
+
+
+def simulate_peer(run: Run) -> RunResult:
+    """The run by scipy's solver: samples at even times, per-step sizes, its counts; never raises for a bad run."""
+    system = run.system.build()
+    peer, control = run.integrator, run.step_control
+    n = system.dof_count
+    cadence = SampleCadence(run.record, run.duration)
+    recorder = Recorder(system, cadence.sample_rows, cadence.frame_rows)
+    with_frames = not system.records_state_per_sample
+    error_time = run.record.error_at(system.capabilities.test_frequency)
+    error_time = run.duration if error_time is None else min(error_time, run.duration)
+    releases = [t for t in (system.constraints.release_times if system.constraints is not None else ()) if t < run.duration]
+    energy0 = system.total_energy(system.x0, system.v0)
+    energy_bound = run.divergence.energy_factor * system.energy_scale()
+    constraint_kinds = vertex_constraint_kinds(system)
+    sizes: list[float] = []
+    counts = {"function_evaluations": 0, "jacobian_evaluations": 0, "factorisations": 0}
+    state = np.concatenate([system.x0, system.v0])
+    dissipated = work = 0.0
+    recorder.record(0.0, state[:n], state[n:], 0.0, 0.0)
+    if with_frames:
+        recorder.record_frame(0.0, state[:n])
+    status, message, t_diverged, error_state = Status.OK, "", None, None
+    options = {"rtol": control.tolerance, "atol": control.atol}
+    if control.dt_max is not None:
+        options["max_step"] = control.dt_max
+    if control.dt_initial != "auto":
+        options["first_step"] = control.dt_initial
+    start = time.perf_counter()
+    try:
+        for begin, end in zip([0.0, *releases], [*releases, run.duration]):
+            moving = moving_dofs(system)
+            rate, jacobian = first_order_form(system, dense_jacobian=peer.method == "LSODA")
+            if peer.method in IMPLICIT_PEERS and peer.jacobian:
+                options["jac"] = jacobian
+            solver = SOLVERS[peer.method](rate, begin, state, end, **options)
+            power = path_power(system, moving, state[:n], state[n:], begin) if moving.size else 0.0
+            while solver.status == "running":
+                previous_t, previous = solver.t, solver.y
+                message = solver.step()
+                if solver.status == "failed":
+                    break
+                t, state = solver.t, solver.y
+                size = t - previous_t
+                sizes.append(size)
+                if system.is_damped:  # as simulate books it: the step's mean velocity, D at its mean position
+                    mean_v = 0.5 * (previous[n:] + state[n:])
+                    dissipated += size * float(mean_v @ (system.damping_matrix(0.5 * (previous[:n] + state[:n])) @ mean_v))
+                if moving.size:
+                    now = path_power(system, moving, state[:n], state[n:], t)
+                    work += 0.5 * size * (power + now)
+                    power = now
+                dense = solver.dense_output()
+                if previous_t < error_time <= t:
+                    u = dense(error_time)
+                    error_state = (error_time, u[:n].copy(), u[n:].copy())
+                for sample_t in _due(cadence, "sample", previous_t, t, run.duration):
+                    u = state if sample_t == t else dense(sample_t)
+                    energy = recorder.record(sample_t, u[:n], u[n:], dissipated, work)
+                    if not math.isfinite(energy) or abs(energy - work - energy0) > energy_bound:
+                        status, t_diverged = Status.DIVERGED, sample_t
+                        message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {sample_t:.6g} s"
+                if with_frames:
+                    for frame_t in _due(cadence, "frame", previous_t, t, run.duration):
+                        recorder.record_frame(frame_t, (state if frame_t == t else dense(frame_t))[:n])
+                if status is Status.DIVERGED:
+                    break
+                if run.record.max_wall_time is not None and time.perf_counter() - start > run.record.max_wall_time:
+                    status = Status.NOT_CONVERGED
+                    message = (f"stopped at t = {t:.6g} s: {time.perf_counter() - start:.3g} s of wall time, over "
+                               f"record.max_wall_time {run.record.max_wall_time:g} s")
+                    break
+            counts["function_evaluations"] += solver.nfev
+            counts["jacobian_evaluations"] += getattr(solver, "njev", 0)
+            counts["factorisations"] += getattr(solver, "nlu", 0)
+            if solver.status == "failed":
+                status, message = Status.FAILED, f"scipy's {peer.method}: {message}"
+            if status is not Status.OK:
+                break
+            system = system.released(end)
+        else:
+            message = ""
+    except Exception as error:  # a failing run is a result, never the end of the sweep
+        status, message = Status.FAILED, f"{type(error).__name__}: {error}"
+    wall_time = time.perf_counter() - start
+    samples = recorder.result()
+    steps = len(sizes)
+    attrs = {"final_error": final_error(system, samples), "not_converged_steps": 0, "first_not_converged_step": 0,
+             "diverged_step": 0, "safeguard_steps": 0, "accepted_steps": steps, "planned_steps": steps,
+             "dt": sum(sizes) / steps if steps else math.nan, **counts, **system.capabilities.as_attrs()}
+    oscillator = system.capabilities.oscillator
+    if oscillator is not None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            attrs["decay_per_period"] = measured_decay(system, samples, oscillator[0])
+    if error_state is not None:
+        attrs["error_time"], samples["error_positions"], _ = error_state
+        attrs["error"] = error_at(system, *error_state)
+    model = {}
+    if system.frame_edges is not None and with_frames:
+        model["model_edges"] = system.frame_edges
+        if system.frame_triangles is not None:
+            model["model_triangles"] = system.frame_triangles
+        if constraint_kinds is not None:
+            model["model_constraints"] = constraint_kinds
+    return RunResult(run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
+                     per_step={"dt": np.array(sizes)}, t_diverged=t_diverged, message=message, attrs=attrs, model=model)
+
+
+def _due(cadence: SampleCadence, kind: str, after: float, until: float, duration: float) -> list[float]:
+    """The even times of ``kind`` (samples or frames) in (after, until] (the end of the run always), for a peer's step:
+    its dense output gives the state there."""
+    spacing = cadence.sample_spacing if kind == "sample" else cadence.frame_spacing
+    first = math.floor(after / spacing + 1e-9) + 1
+    times = [k * spacing for k in range(first, math.floor(until / spacing + 1e-9) + 1) if k * spacing <= until]
+    if until >= duration and (not times or times[-1] < duration):
+        times.append(until)
+    return times
