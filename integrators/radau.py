@@ -21,6 +21,7 @@ filtered and each block solve is (S B S + I - S) y = S r, the filtered dynamics'
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import ClassVar, Literal
 
@@ -44,6 +45,15 @@ def radau_tableau(stages: int) -> tuple[np.ndarray, np.ndarray]:
                   [(296.0 + 169.0 * r) / 1800.0, (88.0 + 7.0 * r) / 360.0, (-2.0 - 3.0 * r) / 225.0],
                   [(16.0 - r) / 36.0, (16.0 + r) / 36.0, 1.0 / 9.0]])
     return A, np.array([(4.0 - r) / 10.0, (4.0 + r) / 10.0, 1.0])
+
+
+@functools.cache
+def _transformation(stages: int):
+    """(c, W = A^-1, W^2, W's eigenvalues, T, T^-1, W 1) of the s-stage method: the same for every step."""
+    A, c = radau_tableau(stages)
+    W = np.linalg.inv(A)
+    values, T = np.linalg.eig(W)
+    return c, W, W @ W, values, T, np.linalg.inv(T), W.sum(axis=1)
 
 
 def stability_function(stages: int, z: complex) -> complex:
@@ -116,11 +126,7 @@ class RadauIIA(Integrator):
         """(the new state, its statistics, what the error estimate reuses: the stage displacements X, the stage
         velocities, the real eigenvalue's factorised block and the eigenvalue (None for 2 stages), the free dofs, K)."""
         s, h, n = self.stages, dt, system.dof_count
-        A, c = radau_tableau(s)
-        W = np.linalg.inv(A)
-        values, T = np.linalg.eig(W)
-        T_inverse = np.linalg.inv(T)
-        row_sums = W.sum(axis=1)
+        c, W, WW, values, T, T_inverse, row_sums = _transformation(s)
         x, v = state.x, state.v
         stiffness = system.hessian(x)
         damping = system.damping_matrix(x) if system.is_damped else None
@@ -152,7 +158,6 @@ class RadauIIA(Integrator):
         for iterations in range(1, self.max_iterations + 1):
             velocities = (W @ X) / h
             residual_rows = np.empty((s, n))
-            WW = W @ W
             for i in range(s):
                 residual_rows[i] = (system.mass_times(WW[i] @ X) - h * row_sums[i] * momentum
                                     - h * h * system.force(x + X[i], velocities[i]))

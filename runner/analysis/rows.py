@@ -41,7 +41,7 @@ class SummaryRow:
     integrator: str  # the label
     group: str
     solver: str  # the solver type of an implicit method, "+" its fallbacks ("" for explicit methods: they solve nothing)
-    dt: float  # s
+    dt: float  # s (a step-controlled run: its mean step)
     hw: float  # dt w on the test equation, else NaN
     status: str
     steps: int
@@ -72,6 +72,7 @@ class SummaryRow:
     max_active_contacts: int = 0  # the most contacts acting in one step
     friction_work: float = math.nan  # J, the energy friction took out over the run (NaN: no contact)
     message: str = ""  # why the run is not ok (the run's attribute)
+    tolerance: float = math.nan  # a step-controlled run's tolerance (NaN: fixed steps of dt)
 
     @property
     def status_detail(self) -> str:
@@ -158,6 +159,7 @@ def summary_rows(data: RunSet) -> list[SummaryRow]:
             min_contact_distance=float(attrs.get("min_contact_distance", math.nan)),
             max_active_contacts=int(attrs.get("max_active_contacts", 0)),
             friction_work=float(attrs.get("friction_work", math.nan)), message=run.stored.message,
+            tolerance=run.tolerance,
         ))
     return rows
 
@@ -262,9 +264,10 @@ def error_runs(data: RunSet) -> list:
 
 
 def order_fits(data: RunSet) -> dict[tuple[str, str], tuple["analysis.OrderFit", list]]:
-    """(group title, label) -> (observed order fit of the errors at the error time, runs sorted by dt)."""
+    """(group title, label) -> (observed order fit of the errors at the error time, runs sorted by dt). Step-controlled
+    runs have none: against their mean step the error falls at the estimate's order, not the method's."""
     fits = {}
-    usable = set(map(id, error_runs(data)))
+    usable = {id(run) for run in error_runs(data) if not math.isfinite(run.tolerance)}
     for title, runs in data.groups:
         for label in data.labels:
             mine = sorted((run for run in runs if run.label == label and id(run) in usable), key=lambda run: run.dt)

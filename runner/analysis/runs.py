@@ -133,6 +133,24 @@ class RunData:
         return self.stored.series("newton_iterations")
 
     @functools.cached_property
+    def nonlinear_iterations(self) -> float:
+        """Newton (nonlinear) iterations of the whole run, rejected tries of a step-controlled run included; NaN for
+        a peer (scipy does not report its own) and a run kept without series."""
+        if self.stored.attrs.get("integrator") == "solve_ivp" or not self.newton_iterations.size:
+            return math.nan if self.steps else 0.0
+        return float(np.sum(self.newton_iterations))
+
+    @property
+    def function_evaluations(self) -> float:
+        """Force evaluations of the whole run (``function_evaluations``); NaN in files from before they were counted."""
+        return float(self.stored.attrs.get("function_evaluations", math.nan))
+
+    @property
+    def tolerance(self) -> float:
+        """The tolerance of a step-controlled run (NaN for a run of fixed steps)."""
+        return float(self.stored.params.get("step_control.tolerance", math.nan))
+
+    @functools.cached_property
     def positions(self) -> np.ndarray:
         """(samples, dof) m, or (0, 0) when the run keeps frames instead."""
         positions = self.stored.series("positions")

@@ -32,6 +32,12 @@ def _usable(run: RunData) -> bool:
     return not run.status.stopped and np.isfinite(run.error)
 
 
+def _fixed_step(run: RunData) -> bool:
+    """A usable run of fixed steps: the convergence figure and the observed orders draw those (a step-controlled run's
+    error falls against its mean step at its estimate's order, not its method's: the work-precision figure draws it)."""
+    return _usable(run) and not np.isfinite(run.tolerance)
+
+
 def error_runs(data: FigureData) -> list[RunData]:
     return [run for run in data.runs if _usable(run)]
 
@@ -41,7 +47,7 @@ def order_fits(data: FigureData) -> dict[tuple[str, Series], tuple["analysis.Ord
     from simrun.analysis import oscillator as analysis  # on first use: importing the figures loads no integrator
 
     fits = {}
-    for panel in layout.summary_panels(data, _usable):
+    for panel in layout.summary_panels(data, _fixed_step):
         for series in panel.series:
             mine = sorted((run for run in panel.runs if data.series_of(run) is series), key=lambda run: run.dt)
             fit = analysis.observed_order([run.dt for run in mine], [run.error for run in mine],
@@ -83,7 +89,7 @@ def convergence(data: FigureData):
     if not fits:
         return None
     capped: list[str] = []
-    panels = layout.summary_panels(data, _usable, capped)
+    panels = layout.summary_panels(data, _fixed_step, capped)
     curves = [[(series, _curve(fits[(panel.title, series)][1])) for series in panel.series] for panel in panels]
     merged, overlaid = layout.twins(curves, merge=data.colour_per_series)
     rows = layout.wrap(panels, columns=3)
@@ -145,31 +151,82 @@ def _left_out_note(data: FigureData, runs: list[RunData]) -> str:
     return f"{len(runs)} of {len(data.runs)} runs drawn ({'; '.join(parts)})" if parts else ""
 
 
+# the work a run's error is set against: (axis label, the run's cost), each a column of the figure where any run has it
+WORK_MEASURES = (("wall time of the run (s)", lambda run: run.wall_time),
+                 ("nonlinear iterations of the run", lambda run: run.nonlinear_iterations),
+                 ("force evaluations of the run", lambda run: run.function_evaluations))
+
+
 def work_precision(data: FigureData):
-    """Error at the error time against the wall time of the run (log-log), one line per series."""
+    """Error at the error time against the work of the run (log-log): wall time, nonlinear iterations and force
+    evaluations, a column each; one line per series, and the Pareto front of every panel (the runs no other run beats
+    in both error and that work)."""
     notes: list[str] = []
     panels = layout.summary_panels(data, lambda run: _usable(run) and run.wall_time > 0, notes)
     if not panels:
         return None
-    rows = layout.wrap(panels, columns=3)
+    measures = [(label, cost) for label, cost in WORK_MEASURES
+                if any(_positive(cost(run)) for panel in panels for run in panel.runs)]
+    rows = [[layout.Panel(panel.title if number == 0 else "", panel.runs, panel.series) for number in range(len(measures))]
+            for panel in panels]
     figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE,
-                                     legend_width=layout.FIGURE_LEGEND_WIDTH, extra_height=NOTE_LINE)
-    errors = []
-    for panel, ax in zip(panels, axes):
-        for number, series in enumerate(panel.series):
-            mine = sorted((run for run in panel.runs if data.series_of(run) is series), key=lambda run: run.dt)
-            values = np.maximum([run.error for run in mine], ERROR_FLOOR)
-            errors.append(values)
-            ax.plot([run.wall_time for run in mine], values, lw=1.2, **layout.series_style(series, number))
-        layout.log_log_panel(ax, panel.title, minor_grid=False)
-    runs = _error_axes(data, axes, rows, errors, "wall time of the run (s)")
+                                     legend_width=layout.FIGURE_LEGEND_WIDTH, extra_height=2 * NOTE_LINE)
+    errors, unpriced = [], set()
+    for row_number, (panel, row) in enumerate(zip(panels, rows)):
+        for column, (label, cost) in enumerate(measures):
+            ax = axes[row_number * len(measures) + column]
+            front = []
+            for number, series in enumerate(panel.series):
+                mine = sorted((run for run in panel.runs if data.series_of(run) is series and _positive(cost(run))),
+                              key=lambda run: run.dt)
+                unpriced.update((label, run.label) for run in panel.runs
+                                if data.series_of(run) is series and not _positive(cost(run)))
+                if not mine:
+                    continue
+                values = np.maximum([run.error for run in mine], ERROR_FLOOR)
+                errors.append(values)
+                costs = [cost(run) for run in mine]
+                front += zip(costs, values)
+                ax.plot(costs, values, lw=1.2, **layout.series_style(series, number))
+            _draw_front(ax, front)
+            layout.log_log_panel(ax, row[column].title, minor_grid=False)
+    runs = _error_axes(data, axes, rows, errors, "")
+    for row_number in range(len(rows)):  # each column its own work (label_outer gives every column one label)
+        for column, (label, _) in enumerate(measures):
+            axes[row_number * len(measures) + column].set_xlabel(label if row_number == len(rows) - 1 else "", fontsize=9)
     handles = layout.series_handles(data, [series for panel in panels for series in panel.series], lw=1.2)
+    handles.append(Line2D([], [], color=FRONT_COLOUR, lw=4.0, alpha=0.5, label="Pareto front"))
     handles.append(Line2D([], [], ls="none", label="lower left is better"))
     layout.figure_legend(figure, handles, data.legend_title)
-    points = "the tolerances" if any("step_control.tolerance" in run.stored.params for run in data.runs) else "the time steps"
+    points = "the tolerances" if any(np.isfinite(run.tolerance) for run in data.runs) else "the time steps"
     layout.suptitle(figure, data, f"work-precision (points: {points})")
+    unpriced_labels = {}
+    for label, method in sorted(unpriced):
+        unpriced_labels.setdefault(label.split(" of the run")[0], []).append(method)
+    notes += [f"not on the {what} axis (none counted): {', '.join(dict.fromkeys(methods))}"
+              for what, methods in unpriced_labels.items()]
     layout.add_notes(figure, notes + [_left_out_note(data, runs)])
     return figure
+
+
+# the Pareto front's colour: behind the lines, wide and light
+FRONT_COLOUR = "0.55"
+
+
+def _positive(value: float) -> bool:
+    return bool(np.isfinite(value) and value > 0)
+
+
+def _draw_front(ax, points: list[tuple[float, float]]) -> None:
+    """The Pareto front of the panel's points (cost, error): the runs that no cheaper run beats in error, joined."""
+    front, best = [], np.inf
+    for cost, error in sorted(points):
+        if error < best:
+            front.append((cost, error))
+            best = error
+    if len(front) > 1:
+        xs, ys = zip(*front)
+        ax.plot(xs, ys, color=FRONT_COLOUR, lw=4.0, alpha=0.5, zorder=0, solid_capstyle="round")
 
 
 def _error_axes(data: FigureData, axes, rows, errors: list[np.ndarray], xlabel: str) -> list[RunData]:

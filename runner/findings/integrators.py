@@ -364,12 +364,13 @@ def accuracy_findings(data, several) -> list[Finding]:
             for number, run in enumerate(ranking):  # ≈: within the noise of a wall time, no rank between them
                 if number:
                     listed += " ≈ " if run.wall_time <= (1 + WALL_TIME_NOISE) * ranking[number - 1].wall_time else ", "
-                listed += f"{run.label} {run.wall_time:.3g} s (dt = {run.dt:g} s)"
+                setting = f"tol = {run.tolerance:g}" if math.isfinite(run.tolerance) else f"dt = {run.dt:g} s"
+                listed += f"{run.label} {run.wall_time:.3g} s ({setting})"
             sentence = (f"Error ≤ {budget:.1g} m ({100 * budget / scale:g} % of the length scale {scale:g} m) against {against} "
                         f"at {when}{f' ({title})' if several and title else ''}, cheapest first (measured wall time of "
                         f"the whole run; ≈: within {100 * WALL_TIME_NOISE:g} %): {listed}")
             if missing:
-                sentence += f"; not reached at any dt run by {_and(missing)}"
+                sentence += f"; not reached at any {'tolerance' if any(math.isfinite(run.tolerance) for run in mine) else 'dt'} run by {_and(missing)}"
             result.append(Finding(sentence + ".", "#figure-work_precision",
                                   {"group": title, "budget": budget, "budget_fraction": budget / scale, "against": against,
                                    "ranking": [(run.label, run.wall_time, run.dt, errors[id(run)][0]) for run in ranking],

@@ -248,16 +248,23 @@ def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
     """Integrators (rows) x dt (columns): each run's error and wall time, or its status when it stopped."""
     errors = any(np.isfinite(row.error) for row in rows)
     several = len({row.group for row in rows}) > 1
-    dts = sorted({row.dt for row in rows})
+    # a step-controlled file's columns are its tolerances (each run's mean step differs from every other's)
+    controlled = all(np.isfinite(row.tolerance) for row in rows)
+    column_of = (lambda row: row.tolerance) if controlled else (lambda row: row.dt)
+    dts = sorted({column_of(row) for row in rows}, reverse=controlled)
     hw = {}
     for row in rows:
-        if np.isfinite(row.hw):
+        if np.isfinite(row.hw) and not controlled:
             hw.setdefault(row.dt, set()).add(f"{row.hw:.3g}")
     keys = list(dict.fromkeys((row.group, row.integrator) for row in rows))
-    cells = {(row.group, row.integrator, row.dt): row for row in rows}
+    cells = {(row.group, row.integrator, column_of(row)): row for row in rows}
+
+    def heading(dt: float) -> str:
+        return f"tol = {dt:g}" if controlled else f"dt = {_e(dt_names.get(dt, f'{dt:g}'))} s"
+
     head = (("<th class=\"text\">group</th>" if several else "") + "<th class=\"text\">integrator</th>"
-            + "".join(f"<th>dt = {_e(dt_names.get(dt, f'{dt:g}'))} s" + (f"<br><span class=\"sub\">h w = {_e(', '.join(sorted(hw[dt])))}</span>"
-                                                if dt in hw else "") + "</th>" for dt in dts))
+            + "".join(f"<th>{heading(dt)}" + (f"<br><span class=\"sub\">h w = {_e(', '.join(sorted(hw[dt])))}</span>"
+                                              if dt in hw else "") + "</th>" for dt in dts))
     body = []
     for group, label in keys[:MAX_RUN_ROWS]:
         line = (f'<td class="text">{_e(group)}</td>' if several else "") + f'<td class="text">{_e(label)}</td>'
@@ -273,13 +280,16 @@ def _glance(rows: list[SummaryRow], dt_names: dict[float, str]) -> str:
                 flag = "" if row.status == Status.OK else f" {_status(row.status, row.message)}"
                 cost = f"{row.wall_time:.3g} s" + (f" · {real_time_text(row.real_time_factor)}"
                                                    if np.isfinite(row.real_time_factor) else "")
+                if controlled:
+                    cost += f" · {row.steps:,} steps"
                 line += f'<td>{_e(top)}{flag}<br><span class="sub">{_e(cost)}</span></td>'
         body.append(f"<tr>{line}</tr>")
     what = (f"the error at {error_time_text(rows)} (against the "
             + ("reference" if any(row.error_from_reference for row in rows) else "exact") + " solution)"
             if errors else f"the largest energy change max |E − E0| / E_ref ({energy_reference_text(rows)})")
-    note = (f'<h3>Error and cost at each dt</h3><p class="note">Each cell: {_e(what)}; below it the wall time of the '
-            "whole run and its real-time factor (simulated over wall time, > 1x faster than real time). Stopped runs "
+    note = (f'<h3>Error and cost at each {"tolerance" if controlled else "dt"}</h3><p class="note">Each cell: {_e(what)}; '
+            "below it the wall time of the whole run and its real-time factor (simulated over wall time, > 1x faster "
+            f"than real time){' and its accepted steps' if controlled else ''}. Stopped runs "
             "show their status and the step at which they stopped."
             + (f" The first {MAX_RUN_ROWS:,} of {len(keys):,} rows, in sweep order." if len(keys) > MAX_RUN_ROWS else "")
             + "</p>")
