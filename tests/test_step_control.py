@@ -154,6 +154,18 @@ def test_richardson_for_a_method_without_an_estimate():
     assert 6.0 < fine.steps / coarse.steps < 16.0  # 10 = (100)^(1/2)
 
 
+def test_auto_takes_each_methods_own_estimate_else_richardsons():
+    """estimate: auto gives dopri5 its embedded pair (7 force evaluations a try) and backward Euler Richardson's (three
+    steps a try: one whole and two halves)."""
+    embedded, richardson = (simulate(run) for run in controlled_runs(SPRING, ["dopri5", "backward_euler"], [1e-5], 2.0,
+                                                                      estimate="auto"))
+    tries = embedded.attrs["accepted_steps"] + embedded.attrs["rejected_steps"]
+    assert embedded.attrs["function_evaluations"] == 7 * tries + 2
+    assert richardson.status == "ok" and richardson.attrs["error"] < 0.05  # first order: ~2000 tolerances at the end
+    tries = richardson.attrs["accepted_steps"] + richardson.attrs["rejected_steps"]
+    assert np.sum(richardson.per_step["newton_iterations"]) >= 3 * tries
+
+
 def test_the_controller_refines_at_contact():
     """A 3 x 3 cloth falls onto a penalty plane: the steps of TR-BDF2 during the landing (the cloth first touches at
     t = sqrt(2 h / g) = 0.143 s) are at least 5 times smaller than those of the free fall before it."""

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from simrun.experiment.step_control import PI_EXPONENTS
+from simrun.experiment.step_control import PI_EXPONENTS, uses_richardson
 from simrun.integrators import State
 
 MIN_FACTOR, MAX_FACTOR = 0.2, 5.0
@@ -39,7 +39,7 @@ class StepController:
 
     def __init__(self, params, integrator, system, stops: list[float]):
         self.params = params
-        self.richardson = params.estimate == "richardson"
+        self.richardson = uses_richardson(params, integrator)
         self.integrator = integrator
         self.order = integrator.order_of_accuracy  # Richardson's p
         self.exponent = 1.0 / (self.order + 1 if self.richardson else integrator.estimate_order)

@@ -31,9 +31,10 @@ class StepControlParams(BaseModel):
     norm: Literal["rms", "max"] = Field("rms", description="rms (scipy's, Hairer's) or max over the free dofs")
     controller: Literal["pi", "i"] = Field("pi", description="pi (Gustafsson's, which damps the step's oscillation) "
                                                             "or i (the elementary controller)")
-    estimate: Literal["method", "richardson"] = Field(
+    estimate: Literal["method", "richardson", "auto"] = Field(
         "method", description="method: the method's own estimate (embedded pair, TR-BDF2's, Radau's); richardson: "
-                              "two half steps against one whole, for any one-step method")
+                              "two half steps against one whole, for any one-step method; auto: the method's own "
+                              "where it has one, else Richardson's")
     dt_initial: float | Literal["auto"] = Field(
         "auto", description="the first step (s); auto: Hairer's choice from the first derivatives (scipy's)")
     dt_min: float = Field(1e-12, gt=0, allow_inf_nan=False,
@@ -57,16 +58,21 @@ class StepControlParams(BaseModel):
         return self.tolerance if self.absolute_tolerance is None else self.absolute_tolerance
 
 
+def uses_richardson(step_control: StepControlParams, integrator) -> bool:
+    """Whether ``integrator``'s steps are controlled by Richardson's estimate (asked for, or auto without its own)."""
+    return step_control.estimate == "richardson" or (step_control.estimate == "auto" and integrator.error_estimate is None)
+
+
 def estimate_refusal(step_control: StepControlParams, integrator) -> str | None:
     """Why ``integrator`` cannot take ``step_control``'s adaptive steps (one line), or None."""
     if integrator.whole_run:  # a peer: its own code controls its steps, at the block's tolerances
         return None
-    if step_control.estimate == "richardson":
+    if uses_richardson(step_control, integrator):
         if integrator.carries_history:
             return (f"{integrator.label} carries a history of states at its own past steps: a Richardson estimate "
                     "(two half steps from the same state) is not its step")
         return None
     if integrator.error_estimate is None:
         return (f"{integrator.label} has no error estimate of its own; methods that have one: dopri5, trbdf2, "
-                "rosenbrock, radau_iia (3 stages); or set step_control.estimate: richardson")
+                "rosenbrock, radau_iia (3 stages); or set step_control.estimate: richardson (or auto)")
     return None

@@ -162,7 +162,7 @@ def work_precision(data: FigureData):
     evaluations, a column each; one line per series, and the Pareto front of every panel (the runs no other run beats
     in both error and that work)."""
     notes: list[str] = []
-    panels = layout.summary_panels(data, lambda run: _usable(run) and run.wall_time > 0, notes)
+    panels = _section_panels(data, lambda run: _usable(run) and run.wall_time > 0, notes)
     if not panels:
         return None
     measures = [(label, cost) for label, cost in WORK_MEASURES
@@ -205,8 +205,52 @@ def work_precision(data: FigureData):
         unpriced_labels.setdefault(label.split(" of the run")[0], []).append(method)
     notes += [f"not on the {what} axis (none counted): {', '.join(dict.fromkeys(methods))}"
               for what, methods in unpriced_labels.items()]
-    layout.add_notes(figure, notes + [_left_out_note(data, runs)])
+    layout.add_notes(figure, notes + [_left_out_reasons(data, runs)])
     return figure
+
+
+def _section_panels(data: FigureData, keep, notes: list[str]) -> list:
+    """One panel per section with every series of it: the methods compared are the methods on one axes, whatever
+    family of lines they belong to elsewhere (scipy's beside simrun's). At most MAX_SUMMARY_PANELS, with a note."""
+    panels = []
+    for section, runs in data.sections:
+        mine = [run for run in runs if keep(run)]
+        if mine:
+            series = list(dict.fromkeys(data.series_of(run) for run in mine))
+            order = [one for _, members in data.families for one in members]
+            series.sort(key=order.index)
+            panels.append(layout.Panel(section, mine, series))
+    if len(panels) > layout.MAX_SUMMARY_PANELS:
+        notes.append(f"{layout.MAX_SUMMARY_PANELS} of {len(panels)} settings shown: the first ones")
+        panels = panels[:layout.MAX_SUMMARY_PANELS]
+    return panels
+
+
+def _left_out_reasons(data: FigureData, drawn: list[RunData]) -> str:
+    """Which runs are not drawn and why, by method: diverged, over the wall-time budget, not converged, failed, or
+    without a known error."""
+    shown = set(map(id, drawn))
+    reasons: dict[str, list[str]] = {}
+    for run in data.runs:
+        if id(run) in shown:
+            continue
+        if str(run.status) == "diverged":
+            why = "diverged"
+        elif "max_wall_time" in run.stored.message:
+            why = "over record.max_wall_time"
+        elif str(run.status) in ("not_converged", "failed"):
+            why = str(run.status).replace("_", " ")
+        else:
+            why = "no known error"
+        setting = f"tol {run.tolerance:g}" if np.isfinite(run.tolerance) else f"dt {run.dt:g} s"
+        reasons.setdefault(why, []).append(f"{run.label} ({setting})")
+    if not reasons:
+        return ""
+    parts = []
+    for why, runs in reasons.items():
+        listed = ", ".join(list(dict.fromkeys(runs))[:8]) + (f" and {len(runs) - 8} more" if len(runs) > 8 else "")
+        parts.append(f"{why}: {listed}")
+    return f"{len(drawn)} of {len(data.runs)} runs drawn; left out, " + "; ".join(parts)
 
 
 # the Pareto front's colour: behind the lines, wide and light
