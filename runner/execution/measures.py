@@ -133,3 +133,25 @@ def final_error(system, samples: dict[str, np.ndarray]) -> float:
     if exact is None:
         return float("nan")
     return float(np.max(np.abs(samples["positions"][-1] - exact[0][0])))
+
+
+def add_outcome(system, samples: dict, attrs: dict, error_state, with_frames: bool, constraint_kinds) -> dict:
+    """What every run stores of its outcome, added to ``attrs`` and ``samples``: the oscillator's decay per period (which
+    the damping map compares with its prediction) and, where the run reached its error time (``error_state``: (t, x,
+    v) there), the error and the state there. Returns the drawn topology (model_edges, model_triangles,
+    model_constraints) of a run with frames."""
+    oscillator = system.capabilities.oscillator
+    if oscillator is not None:
+        with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN (or a growth, inf)
+            attrs["decay_per_period"] = measured_decay(system, samples, oscillator[0])
+    if error_state is not None:
+        attrs["error_time"], samples["error_positions"], _ = error_state
+        attrs["error"] = error_at(system, *error_state)
+    model = {}
+    if system.frame_edges is not None and with_frames:
+        model["model_edges"] = system.frame_edges
+        if system.frame_triangles is not None:
+            model["model_triangles"] = system.frame_triangles
+        if constraint_kinds is not None:
+            model["model_constraints"] = constraint_kinds
+    return model

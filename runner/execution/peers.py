@@ -21,7 +21,7 @@ from simrun.format.run_result import RunResult
 from simrun.format.summary import Status
 from simrun.integrators.peers import IMPLICIT_PEERS
 
-from .measures import error_at, final_error, measured_decay, moving_dofs, path_power, vertex_constraint_kinds
+from .measures import add_outcome, final_error, moving_dofs, path_power, vertex_constraint_kinds
 from .simulate import Recorder, SampleCadence
 
 SOLVERS = {"Radau": scipy.integrate.Radau, "BDF": scipy.integrate.BDF, "LSODA": scipy.integrate.LSODA,
@@ -148,19 +148,6 @@ def simulate_peer(run: Run) -> RunResult:
     attrs = {"final_error": final_error(system, samples), "not_converged_steps": 0, "first_not_converged_step": 0,
              "diverged_step": 0, "safeguard_steps": 0, "accepted_steps": steps, "planned_steps": steps,
              "dt": sum(sizes) / steps if steps else math.nan, **counts, **system.capabilities.as_attrs()}
-    oscillator = system.capabilities.oscillator
-    if oscillator is not None:
-        with np.errstate(over="ignore", invalid="ignore"):
-            attrs["decay_per_period"] = measured_decay(system, samples, oscillator[0])
-    if error_state is not None:
-        attrs["error_time"], samples["error_positions"], _ = error_state
-        attrs["error"] = error_at(system, *error_state)
-    model = {}
-    if system.frame_edges is not None and with_frames:
-        model["model_edges"] = system.frame_edges
-        if system.frame_triangles is not None:
-            model["model_triangles"] = system.frame_triangles
-        if constraint_kinds is not None:
-            model["model_constraints"] = constraint_kinds
+    model = add_outcome(system, samples, attrs, error_state, with_frames, constraint_kinds)
     return RunResult(run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
                      per_step={"dt": np.array(sizes)}, t_diverged=t_diverged, message=message, attrs=attrs, model=model)

@@ -15,7 +15,7 @@ from simrun.solvers import EXPLICIT_STEP
 from simrun.solvers.linear import attach_factorisation_log
 
 from .evaluations import EvaluationCounts
-from .measures import (RELEASE_SLACK, error_at, final_error, measured_decay, moving_dofs, on_paths, path_power, release,
+from .measures import (RELEASE_SLACK, add_outcome, final_error, moving_dofs, on_paths, path_power, release,
                        vertex_constraint_kinds)
 from .step_control import StepController, StepTooSmall
 
@@ -121,19 +121,19 @@ class SampleCadence:
         self.frame_rows = STEP_ROWS if self.frames_every is not None else record.max_frames + 2
 
     def sample_due(self, steps: int, t: float) -> bool:
-        if self.every is not None:
-            return steps % self.every == 0
-        if t < self.next_sample * (1.0 - 1e-12):
-            return False
-        self.next_sample = (math.floor(t / self.sample_spacing + 1e-9) + 1) * self.sample_spacing
-        return True
+        return self._due(steps, t, self.every, "sample")
 
     def frame_due(self, steps: int, t: float) -> bool:
-        if self.frames_every is not None:
-            return steps % self.frames_every == 0
-        if t < self.next_frame * (1.0 - 1e-12):
+        return self._due(steps, t, self.frames_every, "frame")
+
+    def _due(self, steps: int, t: float, every: int | None, kind: str) -> bool:
+        """Every k-th accepted step, else the first step at or past the next even time of ``kind`` (then the one after)."""
+        if every is not None:
+            return steps % every == 0
+        spacing = self.sample_spacing if kind == "sample" else self.frame_spacing
+        if t < getattr(self, f"next_{kind}") * (1.0 - 1e-12):
             return False
-        self.next_frame = (math.floor(t / self.frame_spacing + 1e-9) + 1) * self.frame_spacing
+        setattr(self, f"next_{kind}", (math.floor(t / spacing + 1e-9) + 1) * spacing)
         return True
 
 
@@ -238,14 +238,18 @@ def simulate(run: Run) -> RunResult:
     record_sample(0.0, state.x, state.v, dissipated, work, friction)
     if with_frames:
         record_frame(0.0, state.x)
-    path_power = path_power(system, moving, state.x, state.v, 0.0) if moving.size else 0.0
+    # W: the drivers' power at the start of each step (the trapezoidal rule's first point)
+    step_start_power = path_power(system, moving, state.x, state.v, 0.0) if moving.size else 0.0
     status, message, t_diverged, not_converged_steps = Status.OK, "", None, 0
     first_not_converged = diverged_step = 0  # 1-based step numbers; 0: none
     steps = 0
     max_wall_time = run.record.max_wall_time
     over_budget = False  # stopped at record.max_wall_time
-    evaluations = EvaluationCounts()  # what the stepping evaluates (as wall_time, the set-up left out)
-    evaluations.instrument(system)
+    # a step-controlled run's evaluations (as wall_time, the set-up left out): fixed-step runs count none, so that a
+    # run stepped alone stores what it stores stepped as a lane, where every lane's forces are one call
+    evaluations = EvaluationCounts() if controller is not None else None
+    if evaluations is not None:
+        evaluations.instrument(system)
     start = time.perf_counter()
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -279,18 +283,18 @@ def simulate(run: Run) -> RunResult:
                 if moving.size:  # the prescribed vertices where their paths are at t, and the work they did
                     state = on_paths(system.constraints, moving, state, t)
                     power = path_power(system, moving, state.x, state.v, t)
-                    work += 0.5 * dt * (path_power + power)  # the trapezoidal rule: second order
-                    path_power = power
+                    work += 0.5 * dt * (step_start_power + power)  # the trapezoidal rule: second order
+                    step_start_power = power
                 if release_times and t >= release_times[0] - RELEASE_SLACK * dt:
                     # the vertices of the paths that end here go free, at their paths' positions and velocities; the
                     # method goes on with what it carries (a multistep history of every dof stays valid: x and v
                     # are continuous at the release, only the acceleration jumps)
                     system, moving = release(system, release_times, t, dt)
                     total_energy = system.total_energy
-                    evaluations.instrument(system)
                     if controller is not None:
+                        evaluations.instrument(system)
                         controller.changed(system)
-                    path_power = path_power(system, moving, state.x, state.v, t) if moving.size else 0.0
+                    step_start_power = path_power(system, moving, state.x, state.v, t) if moving.size else 0.0
                 if damped:
                     # h v_bar^T D(x_bar) v_bar with the step's mean velocity and D at its mean position: the
                     # exact discrete balance of implicit midpoint for quadratic energies, a second-order
@@ -368,25 +372,12 @@ def simulate(run: Run) -> RunResult:
              **(_contact_attrs(per_step, steps) if with_contact else {}),
              **({f"factorisations_{path}": count for path, count in factorisations.as_dict().items()}
                 if factorisations is not None else {}),
-             **evaluations.as_attrs(), **system.capabilities.as_attrs()}
+             **(evaluations.as_attrs() if evaluations is not None else {}), **system.capabilities.as_attrs()}
     if controller is not None:  # the stored dt is the mean accepted step; the counts of the controller
         attrs.update(dt=t_reached / steps if (t_reached := controller.t) > 0 and steps else math.nan,
                      planned_steps=steps, accepted_steps=controller.accepted_steps, rejected_steps=controller.rejected_steps,
                      not_converged_attempts=controller.failed_solves)
-    oscillator = system.capabilities.oscillator
-    if oscillator is not None:  # the amplitude's decay per period, which the damping map compares with its prediction
-        with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN (or a growth, inf)
-            attrs["decay_per_period"] = measured_decay(system, samples, oscillator[0])
-    if error_state is not None:  # the run reached its error time: the state there, for exact or reference errors
-        attrs["error_time"], samples["error_positions"], _ = error_state
-        attrs["error"] = error_at(system, *error_state)
-    model = {}
-    if system.frame_edges is not None and with_frames:
-        model["model_edges"] = system.frame_edges
-        if system.frame_triangles is not None:
-            model["model_triangles"] = system.frame_triangles
-        if constraint_kinds is not None:
-            model["model_constraints"] = constraint_kinds
+    model = add_outcome(system, samples, attrs, error_state, with_frames, constraint_kinds)
     result = RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
         per_step={key: value[:steps] for key, value in per_step.items()},
