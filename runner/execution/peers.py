@@ -22,7 +22,7 @@ from simrun.format.summary import Status
 from simrun.integrators.peers import IMPLICIT_PEERS
 
 from .measures import add_outcome, final_error, moving_dofs, path_power, vertex_constraint_kinds
-from .simulate import Recorder, SampleCadence
+from .recording import Recorder, SampleCadence
 
 SOLVERS = {"Radau": scipy.integrate.Radau, "BDF": scipy.integrate.BDF, "LSODA": scipy.integrate.LSODA,
            "RK45": scipy.integrate.RK45, "DOP853": scipy.integrate.DOP853}
