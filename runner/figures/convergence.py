@@ -175,7 +175,7 @@ def work_precision(data: FigureData):
     for row_number, (panel, row) in enumerate(zip(panels, rows)):
         for column, (label, cost) in enumerate(measures):
             ax = axes[row_number * len(measures) + column]
-            front = []
+            front, drawn = [], []  # drawn: the panel's curves so far, so that a twin is drawn dashed over its pair
             for number, series in enumerate(panel.series):
                 mine = sorted((run for run in panel.runs if data.series_of(run) is series and _positive(cost(run))),
                               key=lambda run: run.dt)
@@ -187,7 +187,12 @@ def work_precision(data: FigureData):
                 errors.append(values)
                 costs = [cost(run) for run in mine]
                 front += zip(costs, values)
-                ax.plot(costs, values, lw=1.2, **layout.series_style(series, number))
+                style = layout.series_style(series, number)
+                if any(len(costs) == len(other[0]) and np.allclose(costs, other[0]) and np.allclose(values, other[1])
+                       for other in drawn):
+                    style["ls"] = "--"  # the same work and error as a method drawn already (backward Euler's twins)
+                drawn.append((costs, values))
+                ax.plot(costs, values, lw=1.2, **style)
             _draw_front(ax, front)
             layout.log_log_panel(ax, row[column].title, minor_grid=False)
     runs = _error_axes(data, axes, rows, errors, "")
