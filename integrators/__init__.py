@@ -20,6 +20,7 @@ from .multistep import BDF, BDF2, BDF2MidpointMix
 from .radau import RadauIIA
 from .rosenbrock import Rosenbrock
 from .xpbd import XPBD
+from .imex import IMEX
 from .peers import SolveIVP
 
 # config name -> class: the one place where a new method is made known
@@ -49,6 +50,7 @@ INTEGRATORS: dict[str, type[Integrator]] = {
         Rosenbrock,
         RadauIIA,
         Dopri5,
+        IMEX,
     )
 }
 

@@ -158,7 +158,9 @@ class Integrator(BaseModel):
     def label(self) -> str:
         """The name, with every parameter that differs from its default: ``generalized_alpha[rho_inf=0]``."""
         changed = [
-            f"{key}={value:g}" if isinstance(value, float) else f"{key}={value}"
+            f"{key}={value:g}" if isinstance(value, float) else
+            f"{key}={'+'.join(map(str, value)) or 'none'}" if isinstance(value, (tuple, list)) and
+            all(isinstance(item, str) for item in value) else f"{key}={value}"
             for key, value in self.model_dump().items()
             if value != type(self).model_fields[key].default
         ]

@@ -160,6 +160,18 @@ class System(ABC):
         released._prepare_paths()
         return released
 
+    # -- named parts of the energy, for IMEX splits (integrators/imex.py) -------------------------
+    @property
+    def energy_terms(self) -> tuple[str, ...]:
+        """The names of the parts of P (and of the damping) that a split may put on one side. A system without parts
+        of its own has one, ``potential``: all of P and f_d."""
+        return ("potential",)
+
+    def with_terms(self, names: tuple[str, ...], complement: bool = False) -> "System | None":
+        """This system with only the named terms of ``energy_terms`` (``complement``: with every other term), for
+        the parts of an IMEX split; None where that leaves no force at all. Here: all of it, or nothing."""
+        return self if ("potential" in names) != complement else None
+
     def _prepare_paths(self) -> None:
         """What a system precomputes for its vertices on prescribed paths (the springs that drive them), after
         ``released`` changed them; nothing by default."""

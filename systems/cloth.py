@@ -149,7 +149,7 @@ class Cloth(MassSpring):
             constraints=VertexConstraints(3, model.vertex_count, pinned, [], []),
             contact=build_contact(params.contact, dim=3, rest=rest, x0=rest, masses=masses, triangles=model.triangles,
                                   edges=model.springs, find_file=find_file),
-            triangles=model.triangles, grid_shape=model.grid_shape)
+            triangles=model.triangles, grid_shape=model.grid_shape, spring_kinds=model.kinds[kept], kind_names=model.kind_names)
 
     energy_reference_name = "max(M |g| L, |KE0| + |PE0|)"
 

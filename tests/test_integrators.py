@@ -43,6 +43,7 @@ VARIANTS = {
     "bdf": [{"order": 1}, {"order": 3}, {"order": 5}],
     "rosenbrock": [{"scheme": "ros2"}, {"scheme": "rodas3"}],
     "radau_iia": [{"stages": 2}],
+    "imex": [{"scheme": "ars222"}, {"implicit": []}, {"scheme": "ars222", "implicit": []}],
 }
 MORE_VARIANTS = {"generalized_alpha": [{"rho_inf": 0.3}, {"rho_inf": 0.8}], "bdf2_midpoint_mix": [{"theta": 0.25}],
                  "xpbd": [{"substeps": 1}, {"substeps": 3, "iterations": 2}]}
@@ -330,6 +331,29 @@ def bdf_radius(integrator, x):
     return np.array([radius(value) for value in np.atleast_1d(x)]).reshape(np.shape(x))
 
 
+def imex_radius(integrator, x):
+    """rho of an additive Runge-Kutta pair's stability matrix on the spring at h = 1, w = x (Ascher, Ruuth & Spiteri
+    1997, sec. 2): u' = J_I u + J_E u, R = I + (b^T kron J_I + b^^T kron J_E) (I - A kron J_I - A^ kron J_E)^-1 (1 kron
+    I). The kinematics x' = v are implicit; the spring's force is implicit (its one term, `potential`, named) or
+    explicit (implicit: [])."""
+    from simrun.integrators.imex import SCHEMES as IMEX_SCHEMES
+
+    tableau = IMEX_SCHEMES[integrator.scheme]
+    A, A_hat = np.array(tableau.A), np.array(tableau.A_hat)
+    b, b_hat = np.array(tableau.b)[None, :], np.array(tableau.b_hat)[None, :]
+    ones = np.ones((tableau.stage_count, 1))
+
+    def radius(value):
+        force = np.array([[0.0, 0.0], [-value * value, 0.0]])
+        kinematics = np.array([[0.0, 1.0], [0.0, 0.0]])
+        implicit, explicit = (kinematics + force, 0 * force) if integrator.implicit is None else (kinematics, force)
+        stages = np.eye(2 * tableau.stage_count) - np.kron(A, implicit) - np.kron(A_hat, explicit)
+        matrix = np.eye(2) + (np.kron(b, implicit) + np.kron(b_hat, explicit)) @ np.linalg.solve(stages, np.kron(ones, np.eye(2)))
+        return spectral_radius(matrix)
+
+    return np.array([radius(value) for value in np.atleast_1d(x)]).reshape(np.shape(x))
+
+
 CLOSED_FORMS = {
     # R(z) = 1 + z: |R(i x)| (lecture 1: energy factor 1 + x^2 per step)
     "forward_euler": lambda integrator, x: np.sqrt(1.0 + x * x),
@@ -371,11 +395,15 @@ CLOSED_FORMS = {
     # linear spring's stages exactly)
     "radau_iia": lambda integrator, x: np.array([abs(radau_stability(integrator.stages, 1j * value))
                                                  for value in np.atleast_1d(x)]).reshape(np.shape(x)),
+    # IMEX: the additive pair's stability matrix (the spring's force implicit by default, explicit with implicit: [])
+    "imex": imex_radius,
 }
 
 # expm_multiply's own round-off grows with ||h J|| ~ x (about 1e-13 at x = 100, 1e-11 at x = 1e3):
 # beyond this x the exponential method's amplification matrix cannot be probed to 1e-12.
-X_MAX = {"exponential_rosenbrock_euler": 1e2}
+# The explicit IMEX pair (implicit: []) grows as x^4 beyond its limit x ~ 2, and its stages' round-off reaches 1e-12 of
+# rho from x ~ 1e2 on.
+X_MAX = {"exponential_rosenbrock_euler": 1e2, "imex[scheme=ars222,implicit=none]": 1e2}
 X_GRID = np.logspace(-3, 3, 25)
 
 
@@ -393,7 +421,7 @@ def test_spectral_radius_matches_its_closed_form(integrator):
     for x = h w log-spaced over [1e-3, 1e3]."""
     closed_form = CLOSED_FORMS[integrator.name]
     mismatches = []
-    for x in X_GRID[X_GRID <= X_MAX.get(integrator.name, np.inf)]:
+    for x in X_GRID[X_GRID <= X_MAX.get(integrator.label, X_MAX.get(integrator.name, np.inf))]:
         measured, expected = spectral_radius(amplification_matrix(integrator, x)), closed_form(integrator, x)
         if abs(measured - expected) > 1e-12 * max(1.0, expected):
             mismatches.append((x, measured, expected))
@@ -569,7 +597,8 @@ def test_the_mix_is_midpoint_at_theta_zero_and_bdf2_at_theta_one(system_name):
 
 
 # the methods that hand the solver a problem (Radau IIA iterates on its coupled stages itself)
-SOLVED = [case for case in CASES if case.problem_kind is not None]
+# (IMEX with no implicit term takes explicit steps only: nothing is handed to the solver)
+SOLVED = [case for case in CASES if case.problem_kind is not None and getattr(case, "implicit", None) != ()]
 
 
 @pytest.mark.parametrize("integrator", SOLVED, ids=[case.label for case in SOLVED])

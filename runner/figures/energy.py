@@ -201,16 +201,19 @@ def energy_budget(data: FigureData):
     budget is the integrator's numerical loss (or gain)."""
     if not data.runs:
         return None
-    dt = _budget_dt(data.runs)
+    setting = _budget_setting(data.runs)
     candidates = [(title, run) for title, runs in data.sections
-                  for run in layout.in_label_order([run for run in runs if run.dt == dt], data)]
+                  for run in layout.in_label_order([run for run in runs if _step_setting(run) == setting], data)]
     chosen = [(title, run) for title, run in candidates if run.t.size >= 2]
     if not chosen:
         return None
     notes = []
-    if len({run.dt for run in data.runs}) > 1:
-        notes.append(f"at one time step, dt = {data.dt_names[dt]} s: the one nearest the geometric middle of the swept "
-                     "time steps where every run reached its end (every time step: energy over time)")
+    controlled = np.isfinite(data.runs[0].tolerance)
+    setting_text = f"tol = {setting:g}" if controlled else f"dt = {data.dt_names[setting]} s"
+    if len({_step_setting(run) for run in data.runs}) > 1:
+        swept = "tolerances" if controlled else "time steps"
+        notes.append(f"at one {'tolerance' if controlled else 'time step'}, {setting_text}: the one nearest the geometric "
+                     f"middle of the swept {swept} where every run reached its end (every {swept[:-1]}: energy over time)")
     short = [run for _, run in candidates if run.t.size < 2]
     if short:
         notes.append("no budget (fewer than two samples): " + ", ".join(data.series_of(run).name for run in short))
@@ -281,7 +284,7 @@ def energy_budget(data: FigureData):
                           if driven else "initial energy (the budget)"))
     layout.figure_legend(figure, handles)
     who = f"{data.labels[0]}, " if len(data.labels) == 1 else ""
-    layout.suptitle(figure, data, f"where the energy goes ({who}dt = {data.dt_names[dt]} s)")
+    layout.suptitle(figure, data, f"where the energy goes ({who}{setting_text})")
     layout.add_notes(figure, notes)
     return figure
 
@@ -302,12 +305,19 @@ def _same_budget(a, b) -> bool:
     return all(layout.same_curve((ta, terms_a[key]), (tb, terms_b[key]), unit=unit) for key in terms_a)
 
 
-def _budget_dt(runs: list[RunData]) -> float:
-    """The dt shown: nearest the geometric middle of the swept dts among those where every run reached the end."""
-    dts = sorted({run.dt for run in runs})
-    complete = [dt for dt in dts if all(not run.status.stopped for run in runs if run.dt == dt)] or dts
-    middle = math.sqrt(dts[0] * dts[-1])
-    return min(complete, key=lambda dt: abs(math.log(dt / middle)))
+def _step_setting(run: RunData) -> float:
+    """What sets a run's steps: its tolerance under step control, else its dt."""
+    return run.tolerance if np.isfinite(run.tolerance) else run.dt
+
+
+def _budget_setting(runs: list[RunData]) -> float:
+    """The dt (or tolerance) shown: nearest the geometric middle of the swept ones among those where every run
+    reached the end."""
+    settings = sorted({_step_setting(run) for run in runs})
+    complete = [value for value in settings
+                if all(not run.status.stopped for run in runs if _step_setting(run) == value)] or settings
+    middle = math.sqrt(settings[0] * settings[-1])
+    return min(complete, key=lambda value: abs(math.log(value / middle)))
 
 
 # the potential terms that can be negative (gravity: relative to where z = 0 happens to be)

@@ -67,7 +67,18 @@ def _predicted_and_measured(data: FigureData, draw, title: str):
     predictions = predictions_for(data, runs) if runs else {}
     if not predictions:
         return None
-    return draw(predictions, data.colours, data.markers, f"{data.name}: {title}", runs)
+    # the curves are of the fixed-step form; a step-controlled run has no one h w to mark
+    fixed = [run for run in runs if not np.isfinite(run.tolerance)]
+    figure = draw(predictions, data.colours, data.markers, f"{data.name}: {title}", fixed)
+    notes = []
+    unpredicted = [label for label in data.labels if label not in predictions]
+    if unpredicted:
+        notes.append("no curve (not simrun's fixed-step form: no amplification matrix to probe): " + ", ".join(unpredicted))
+    if len(fixed) < len(runs):
+        notes.append(f"{len(fixed)} of {len(runs)} runs on the test equation marked: under step control a run's h "
+                     "changes from step to step, so it has no one h w")
+    layout.add_notes(figure, notes)
+    return figure
 
 
 def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict, markers: dict, title: str,

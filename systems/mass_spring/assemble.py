@@ -43,7 +43,8 @@ def resolve(params) -> dict[str, Any]:
     constraints = _constraints(params, model, rest, x0)
     return dict(rest=rest, x0=x0, v0=v0, springs=model.springs[kept], stiffness=stiffness[kept], rest_length=rest_length[kept],
                 masses=_masses(params, model), gravity=gravity, law=params.spring_law, damping=damping,
-                constraints=constraints, contact=_contact(params, model, x0), triangles=model.triangles, grid_shape=model.grid_shape)
+                constraints=constraints, contact=_contact(params, model, x0), triangles=model.triangles, grid_shape=model.grid_shape,
+                spring_kinds=model.kinds[kept], kind_names=model.kind_names)
 
 
 def _vector(values: list[float], dim: int, field: str) -> np.ndarray:

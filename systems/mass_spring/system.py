@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse
 
 from ..base import System, vertex_energy_reference
-from . import derivatives
+from . import derivatives, split
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
@@ -36,7 +36,8 @@ class MassSpring(ContactHooks, System):
     rest: (n, d) rest shape (m); x0, v0: (n, d) initial state; springs: (m, 2); stiffness: (m,) N/m;
     rest_length: (m,) m; masses: (n,) kg; gravity: (d,) m/s^2; law: a SPRING_LAWS name; damping: Damping
     terms; constraints: VertexConstraints; contact: a ContactModel or None; triangles: (t, 3) or None; grid_shape:
-    (ny, nx) or None.
+    (ny, nx) or None; spring_kinds: (m,) indices into kind_names (stretch, shear, bend, ...), the terms an IMEX split
+    names (default: one kind, "spring").
     """
 
     records_state_per_sample = False  # positions go to `frames`, at their own cadence
@@ -44,7 +45,8 @@ class MassSpring(ContactHooks, System):
     def __init__(self, *, rest: np.ndarray, x0: np.ndarray, v0: np.ndarray, springs: np.ndarray, stiffness: np.ndarray,
                  rest_length: np.ndarray, masses: np.ndarray, gravity: np.ndarray, law: str = "hookean",
                  damping: tuple[Damping, ...] = (), constraints: VertexConstraints | None = None,
-                 contact: ContactModel | None = None, triangles: np.ndarray | None = None, grid_shape: tuple[int, int] | None = None):
+                 contact: ContactModel | None = None, triangles: np.ndarray | None = None, grid_shape: tuple[int, int] | None = None,
+                 spring_kinds: np.ndarray | None = None, kind_names: tuple[str, ...] = ("spring",)):
         dim = rest.shape[1]
         self.dim = self.vertex_dim = dim
         self.vertex_count = rest.shape[0]
@@ -62,6 +64,9 @@ class MassSpring(ContactHooks, System):
         self.rest_length = rest_length
         self.rest_length_squared = np.square(rest_length)
         self.spring_count = self.first.size
+        # each spring's kind (an index into kind_names): what an IMEX split names (split.py)
+        self.spring_kinds = np.zeros(self.spring_count, dtype=np.intp) if spring_kinds is None else np.asarray(spring_kinds, dtype=np.intp)
+        self.kind_names = tuple(kind_names)
         self.identity = np.eye(dim)
         self.damping_terms = tuple(damping)
         self.contact = contact
@@ -335,6 +340,13 @@ class MassSpring(ContactHooks, System):
 
     def parameter_derivative(self, changed, change):
         return derivatives.parameter_derivative(self, changed, change)
+
+    @property
+    def energy_terms(self) -> tuple[str, ...]:
+        return split.energy_terms(self)
+
+    def with_terms(self, names, complement=False):
+        return split.with_terms(self, names, complement)
 
     def damping_derivative(self, x, dx, w):
         return derivatives.spring_damping_derivative(self, x, dx, w)
