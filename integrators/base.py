@@ -131,6 +131,17 @@ class Integrator(BaseModel):
         """The order with these parameter values; ``order`` is the order at the defaults (Newmark: 1 unless gamma = 1/2)."""
         return self.order
 
+    def limiting_stiffness(self, system: System, x: np.ndarray):
+        """The stiffness K whose stiffest frequency w (K v = w^2 M v) bounds this method's stable step on ``system``
+        about x, at (h w)* of ``explicit_form`` on the test equation: the Hessian for an explicit method; None for an
+        implicit one (no bound) and where no such bound is known (an IMEX pair's own rule: integrators/imex.py)."""
+        return system.hessian(x) if self.explicit else None
+
+    def explicit_form(self) -> "Integrator":
+        """The method whose test-equation stability limit (h w)* goes with ``limiting_stiffness``: the method itself;
+        an IMEX method with nothing implicit."""
+        return self
+
     # what kind of method it is, for work-precision by family (issue 28): lecture (the lectures' methods), explicit,
     # dirk, radau, bdf, rosenbrock, imex; peers: scipy
     family: ClassVar[str] = "lecture"
@@ -157,14 +168,18 @@ class Integrator(BaseModel):
     @property
     def label(self) -> str:
         """The name, with every parameter that differs from its default: ``generalized_alpha[rho_inf=0]``."""
-        changed = [
-            f"{key}={value:g}" if isinstance(value, float) else
-            f"{key}={'+'.join(map(str, value)) or 'none'}" if isinstance(value, (tuple, list)) and
-            all(isinstance(item, str) for item in value) else f"{key}={value}"
-            for key, value in self.model_dump().items()
-            if value != type(self).model_fields[key].default
-        ]
+        changed = [parameter_text(key, value) for key, value in self.model_dump().items()
+                   if value != type(self).model_fields[key].default]
         return f"{self.name}[{','.join(changed)}]" if changed else self.name
+
+
+def parameter_text(key: str, value) -> str:
+    """``key=value`` as a label shows it: a float by %g, a list of names joined by + (``none`` when empty)."""
+    if isinstance(value, float):
+        return f"{key}={value:g}"
+    if isinstance(value, (tuple, list)) and all(isinstance(item, str) for item in value):
+        return f"{key}={'+'.join(value) or 'none'}"
+    return f"{key}={value}"
 
 
 def solve_step(solver, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:

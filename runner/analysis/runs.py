@@ -84,6 +84,11 @@ class RunData:
         """w (rad/s) when the run is the undamped test equation, else None (the system's declaration)."""
         return self.stored.test_frequency
 
+    @property
+    def explicit_frequency(self) -> float | None:
+        """rad/s: the frequency that bounds the run's stable step, off the test equation (0: no bound)."""
+        return self.stored.explicit_frequency
+
     @functools.cached_property
     def length_scale(self) -> float:
         return self.stored.length_scale
@@ -282,6 +287,14 @@ def predictions_for(data: RunSet, runs: list[RunData] | None = None) -> dict[str
         if run.label not in methods and run.method is not None:
             methods[run.label] = run.method
     return {label: oscillator.predict(method, low, high) for label, method in methods.items()}
+
+
+def explicit_prediction(method) -> "oscillator.Prediction":
+    """The test-equation prediction of ``method``'s explicit form (the method itself, or an IMEX method with nothing
+    implicit), whose stability limit over the run's ``explicit_frequency`` bounds its step."""
+    from simrun.analysis import oscillator
+
+    return oscillator.predict(method.explicit_form())
 
 
 # What a solver's iterations are called in the tables: the solver's own name for its iteration.

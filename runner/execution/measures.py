@@ -7,9 +7,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
 
 from simrun.format.layout import VERTEX_KINDS
 from simrun.integrators import State
+
+# up to this many free dofs the explicit part's stiffest frequency is found by a dense eigensolve, beyond by Lanczos
+DENSE_EIGEN_DOFS = 600
+# relative size of an eigenvalue of K v = lambda M v that is a zero mode's round-off (no bound on the step)
+ZERO_MODE = 1e-9
 
 # a path's ``until`` within this fraction of a step below a step's end is reached there (t = n dt rounds)
 RELEASE_SLACK = 1e-9
@@ -133,6 +141,33 @@ def final_error(system, samples: dict[str, np.ndarray]) -> float:
     if exact is None:
         return float("nan")
     return float(np.max(np.abs(samples["positions"][-1] - exact[0][0])))
+
+
+def explicit_frequency(system, integrator) -> float:
+    """rad/s: the frequency that bounds ``integrator``'s stable step on ``system`` at (h w)*/w: the stiffest of its
+    ``limiting_stiffness`` at the start shape (sqrt of the largest eigenvalue of K v = lambda M v over the free dofs;
+    0 when none is positive: no bound); NaN for an implicit method, on the test equation (whose own frequency is
+    that) and where no bound is known."""
+    if system.capabilities.test_frequency is not None:
+        return math.nan
+    stiffness = integrator.limiting_stiffness(system, system.x0)
+    free = np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
+    if stiffness is None or not free.size:
+        return math.nan
+    # an eigenvalue this small against K's largest diagonal entry over M's is a zero mode's round-off
+    scale = float(np.max(np.abs(stiffness.diagonal()[free]) / system.mass[free]))
+    mass = scipy.sparse.diags(system.mass)
+    if system.mass_correction is not None:
+        mass = mass + system.mass_correction
+    if scipy.sparse.issparse(stiffness) and free.size > DENSE_EIGEN_DOFS:
+        stiffness, mass = scipy.sparse.csr_matrix(stiffness), scipy.sparse.csr_matrix(mass)
+        largest = scipy.sparse.linalg.eigsh(stiffness[free][:, free], k=1, M=mass[free][:, free], which="LA",
+                                            return_eigenvectors=False)[0]
+    else:
+        stiffness = stiffness.toarray() if scipy.sparse.issparse(stiffness) else np.asarray(stiffness)
+        mass = mass.toarray()
+        largest = scipy.linalg.eigh(stiffness[np.ix_(free, free)], mass[np.ix_(free, free)], eigvals_only=True)[-1]
+    return math.sqrt(largest) if largest > ZERO_MODE * scale else 0.0
 
 
 def add_outcome(system, samples: dict, attrs: dict, error_state, with_frames: bool, constraint_kinds) -> dict:

@@ -17,8 +17,8 @@ from simrun.solvers.linear import attach_factorisation_log
 from .evaluations import EvaluationCounts
 from .peers import simulate_peer
 from .recording import STEP_ROWS, Recorder, SampleCadence
-from .measures import (RELEASE_SLACK, add_outcome, final_error, moving_dofs, on_paths, path_power, release,
-                       vertex_constraint_kinds)
+from .measures import (RELEASE_SLACK, add_outcome, explicit_frequency, final_error, moving_dofs, on_paths, path_power,
+                       release, vertex_constraint_kinds)
 from .step_control import StepController, StepTooSmall
 
 
@@ -266,6 +266,7 @@ def simulate(run: Run) -> RunResult:
                      planned_steps=steps, accepted_steps=controller.accepted_steps, rejected_steps=controller.rejected_steps,
                      not_converged_attempts=controller.failed_solves)
     model = add_outcome(system, samples, attrs, error_state, with_frames, constraint_kinds)
+    attrs["explicit_frequency"] = explicit_frequency(system, integrator)
     result = RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
         per_step={key: value[:steps] for key, value in per_step.items()},

@@ -21,6 +21,7 @@ from simrun.errors import ConfigError
 from simrun.experiment.config import Experiment, Run, describe_error, set_path
 from simrun.experiment.step_control import estimate_refusal
 from simrun.integrators import Integrator
+from simrun.integrators.base import parameter_text
 from simrun.solvers import SOLVERS, SOLVER_PARAMS, NonlinearSolver, SolverParams
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
@@ -152,7 +153,7 @@ def family_labels(integrators: list[Integrator]) -> list[str]:
         if not any(len(values) > 1 for values in varied.values()):
             labels.append(integrator.label)  # no family: the label as everywhere else
             continue
-        parts = [f"{key}={value:g}" if isinstance(value, float) else f"{key}={value}" for key, value in named]
+        parts = [parameter_text(key, value) for key, value in named]
         labels.append(f"{integrator.name}[{','.join(parts)}]" if parts else integrator.name)
     return labels
 

@@ -75,7 +75,9 @@ FIGURES: dict[str, Figure] = {figure.name: figure for figure in (
            "runs with recorded energy", from_series=True, against_dt=True),
     Figure("stability_map", stability_map,
            "Integrators × dt (and swept settings), every run a cell, coloured by the largest energy change in decades "
-           "on a scale symmetric about 0 (blue: lost, red: gained).",
+           "on a scale symmetric about 0 (blue: lost, red: gained). On other systems a black bar marks the stability "
+           "limit predicted at the start shape where a method has one: an explicit method's from the system's "
+           "stiffest frequency, IMEX Euler's from the stiffest frequency of its explicit minus its implicit terms.",
            "runs with recorded energy",
            test_equation_caption="A black bar in a row marks the predicted stability limit dt = (h w)*/w from the "
                                  "amplification matrix: cells right of it should be red or diverged (✕), cells left of it not.", from_series=True),

@@ -12,6 +12,7 @@ over the earlier, so that neither hides the other.
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -280,7 +281,10 @@ def add_notes(figure, notes: list[str]) -> None:
     """A line under the panels for each note: what the figure leaves out and why, footnotes."""
     notes = list(dict.fromkeys(note for note in notes if note))
     if notes:
-        figure.supxlabel("\n".join(notes), fontsize=NOTE_SIZE, color="0.25", ha="center")
+        # a note wider than the figure is wrapped (a character of the note's font is about half its size wide)
+        width = max(40, int(figure.get_figwidth() * 72.0 / (0.5 * NOTE_SIZE)) - 4)
+        lines = [line for note in notes for line in textwrap.wrap(note, width, break_on_hyphens=False) or [""]]
+        figure.supxlabel("\n".join(lines), fontsize=NOTE_SIZE, color="0.25", ha="center")
 
 
 def suptitle(figure, data: FigureData, what: str) -> None:

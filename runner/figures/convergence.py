@@ -231,6 +231,17 @@ def _section_panels(data: FigureData, keep, notes: list[str]) -> list:
     return panels
 
 
+def _settings_text(runs: list[RunData]) -> str:
+    """The tolerances (or time steps) of one method's left-out runs: one value, or the count and the range."""
+    controlled = np.isfinite(runs[0].tolerance)
+    values = sorted({run.tolerance if controlled else run.dt for run in runs})
+    what, unit = ("tol", "") if controlled else ("dt", " s")
+    counted = f"{len(runs)} runs, " if len(runs) > 1 else ""
+    if len(values) == 1:
+        return f"{counted}{what} {values[0]:g}{unit}"
+    return f"{counted}{what} {values[0]:g} to {values[-1]:g}{unit}"
+
+
 def _left_out_reasons(data: FigureData, drawn: list[RunData]) -> str:
     """Which runs are not drawn and why, by method: diverged, over the wall-time budget, not converged, failed, or
     without a known error."""
@@ -247,14 +258,14 @@ def _left_out_reasons(data: FigureData, drawn: list[RunData]) -> str:
             why = str(run.status).replace("_", " ")
         else:
             why = "no known error"
-        setting = f"tol {run.tolerance:g}" if np.isfinite(run.tolerance) else f"dt {run.dt:g} s"
-        reasons.setdefault(why, []).append(f"{run.label} ({setting})")
+        reasons.setdefault(why, {}).setdefault(run.label, []).append(run)
     if not reasons:
         return ""
     parts = []
-    for why, runs in reasons.items():
-        listed = ", ".join(list(dict.fromkeys(runs))[:8]) + (f" and {len(runs) - 8} more" if len(runs) > 8 else "")
-        parts.append(f"{why}: {listed}")
+    for why, by_label in reasons.items():
+        listed = [f"{label} ({_settings_text(runs)})" for label, runs in by_label.items()]
+        more = f" and {len(listed) - 8} more methods" if len(listed) > 8 else ""
+        parts.append(f"{why}: {', '.join(listed[:8])}{more}")
     return f"{len(drawn)} of {len(data.runs)} runs drawn; left out, " + "; ".join(parts)
 
 

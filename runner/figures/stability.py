@@ -9,7 +9,7 @@ import numpy as np
 from matplotlib.colors import Normalize
 from matplotlib.ticker import MaxNLocator
 
-from simrun.analysis.runs import RunData, predictions_for, test_equation_runs
+from simrun.analysis.runs import RunData, explicit_prediction, predictions_for, test_equation_runs
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData
 from simrun.format.summary import Status
@@ -65,7 +65,7 @@ def stability_map(data: FigureData):
             ax.set_visible(False)
     first_column = {id(cells[number, 0]) for number in range(len(grid))}
     image, names = None, data.dt_names
-    predictions = predictions_for(data) if test_equation_runs(data) else {}
+    predictions = predictions_for(data) if test_equation_runs(data) else {}  # off it: each method's explicit form
     limits_drawn = False
     for (title, runs), (rows, dts, growth, statuses), ax in zip(panels, tables, axes):
         image = ax.imshow(np.ma.masked_invalid(growth), cmap=cmap, norm=norm, aspect="auto", interpolation="nearest")
@@ -108,20 +108,16 @@ def stability_map(data: FigureData):
 def _draw_predicted_limits(ax, labels: list[str], dts: list[float], runs: list[RunData], predictions: dict) -> bool:
     """A thick bar in each row at the predicted stability limit dt = (h w)* / w, between the columns it falls between.
 
-    A limit below the smallest dt (forward Euler: unstable at every h) sits on the left edge; no
-    bar when the limit lies beyond the largest dt. Only for runs on the undamped test equation.
+    On the undamped test equation w is its frequency and (h w)* the method's limit. Elsewhere w is the frequency
+    that bounds the method's step at the start shape (an explicit method's stiffest; IMEX Euler's of K_E - K_I:
+    integrators/imex.py), and (h w)* the limit of the method's explicit form. A limit below the smallest
+    dt (forward Euler: unstable at every h) sits on the left edge; no bar when the limit lies beyond the largest dt.
     """
-    frequency = next((run.frequency for run in runs if run.frequency is not None), None)
-    if frequency is None:
-        return False
     drawn = False
     log_dts = np.log(dts)
     for row, label in enumerate(labels):
-        prediction = predictions.get(label)
-        if prediction is None or not np.isfinite(prediction.stability_limit):
-            continue
-        limit_dt = prediction.stability_limit / frequency
-        if limit_dt > dts[-1]:
+        limit_dt = _limit_dt(label, runs, predictions)
+        if limit_dt is None or limit_dt > dts[-1]:
             continue
         if limit_dt <= dts[0]:
             position = -0.5
@@ -130,6 +126,23 @@ def _draw_predicted_limits(ax, labels: list[str], dts: list[float], runs: list[R
         ax.plot([position, position], [row - 0.5, row + 0.5], color="black", lw=3.0, solid_capstyle="butt", zorder=6)
         drawn = True
     return drawn
+
+
+def _limit_dt(label: str, runs: list[RunData], predictions: dict) -> float | None:
+    """s: the predicted stability limit of the runs of ``label`` (see _draw_predicted_limits), or None."""
+    members = [run for run in runs if run.label == label]
+    test_run = next((run for run in members if run.frequency is not None), None)
+    if test_run is not None:
+        prediction = predictions.get(label)
+        frequency = test_run.frequency
+    else:
+        explicit_run = next((run for run in members if run.explicit_frequency and run.method is not None), None)
+        if explicit_run is None:
+            return None
+        prediction, frequency = explicit_prediction(explicit_run.method), explicit_run.explicit_frequency
+    if prediction is None or not np.isfinite(prediction.stability_limit):
+        return None
+    return prediction.stability_limit / frequency
 
 
 def _growth_table(runs: list[RunData], data: FigureData, signed: bool):

@@ -12,7 +12,7 @@ import numpy as np
 from simrun.analysis import oscillator as analysis
 from simrun.analysis.rows import (DAMPING_TOLERANCE, ORDER_TOLERANCE, OrderRow, SummaryRow, energy_reference_text,
                                   error_runs)
-from simrun.analysis.runs import test_equation_runs
+from simrun.analysis.runs import explicit_prediction, test_equation_runs
 from simrun.findings.base import (MAX_NAMED, WALL_TIME_NOISE, Finding, _and, _dts, _per_period_list, _who,
                                   across_settings, drift_text, energy_lost_per_period)
 from simrun.format.summary import Status
@@ -52,6 +52,10 @@ def stability_findings(data, rows, predictions, several) -> list[Finding]:
             failed = [run.dt for run in mine if run.status is Status.FAILED]
             frequency = next((run.frequency for run in mine if run.frequency), None)
             prediction = predictions.get(label) if frequency else None
+            explicit_run = None if frequency else next((run for run in mine if run.explicit_frequency is not None
+                                                        and run.method is not None), None)
+            if explicit_run is not None:  # off the test equation: the limit of the forces taken explicitly
+                frequency, prediction = explicit_run.explicit_frequency, explicit_prediction(explicit_run.method)
             evidence = {"integrator": label, "group": title, "bounded_dts": reached, "diverged_dts": diverged,
                         "failed_dts": failed, "largest_bounded_dt": max(reached, default=math.nan),
                         "smallest_diverged_dt": min(diverged, default=math.nan)}
@@ -61,8 +65,12 @@ def stability_findings(data, rows, predictions, several) -> list[Finding]:
             parts = [_measured_stability(reached, diverged, failed)]
             if prediction is not None:
                 limit = prediction.stability_limit
-                evidence.update(predicted_limit_hw=limit, predicted_limit_dt=limit / frequency, frequency=frequency)
-                parts.append(_predicted_stability(limit, frequency if len(frequencies) == 1 else None, prediction))
+                evidence.update(predicted_limit_hw=limit, predicted_limit_dt=limit / frequency if frequency else math.inf,
+                                frequency=frequency)
+                if explicit_run is not None:
+                    parts.append(_explicit_stability(limit, frequency, explicit_run))
+                else:
+                    parts.append(_predicted_stability(limit, frequency if len(frequencies) == 1 else None, prediction))
                 beyond = [run for run in mine if not run.status.stopped and run.dt * frequency > limit * (1 + 1e-9)]
                 if beyond:
                     growth = max(drift[run.run_id] for run in beyond)
@@ -72,7 +80,7 @@ def stability_findings(data, rows, predictions, several) -> list[Finding]:
                 below = [dt for dt in diverged if dt * frequency < limit * (1 - 1e-9)]
                 if below:
                     parts.append(f"diverged below the predicted limit at dt = {_dts(below)}")
-            anchor = "#stability" if prediction is not None else "#figure-stability_map"
+            anchor = "#stability" if prediction is not None and explicit_run is None else "#figure-stability_map"
             per_label.append((_who(title, label, several), "; ".join(parts), anchor, evidence))
     if settings:  # more settings than a sentence names: say it across them
         return _said_across(per_label, settings) + _all_bounded(all_bounded, per_label, several, settings)
@@ -162,6 +170,22 @@ def _predicted_stability(limit: float, frequency: float | None, prediction) -> s
         return f"predicted: stable at every h w (ρ ≤ 1 up to h w = {prediction.hw[-1]:g})"
     in_dt = f" (dt = {limit / frequency:.4g} s at w = {frequency:.4g} rad/s)" if frequency else ""
     return f"predicted: stable up to h w = {limit:.4g}{in_dt}"
+
+
+def _explicit_stability(limit: float, frequency: float, run) -> str:
+    """The predicted limit of a method off the test equation: its explicit form's (h w)* over the frequency that
+    bounds its step (the system's stiffest; IMEX Euler's of K_E − K_I), at the start shape."""
+    imex = run.method.family == "imex"
+    what = "of K_E − K_I (explicit minus implicit terms)" if imex else "of the system"
+    if frequency == 0.0:
+        return ("predicted: stable at every step (K_E − K_I has no positive eigenvalue: on every mode the implicit terms "
+                "are the stiffer)")
+    if limit == 0:
+        return f"predicted: unstable at every step (its explicit form grows at every h w; stiffest w = {frequency:.4g} rad/s)"
+    if math.isinf(limit):
+        return "predicted: stable at every step"
+    return (f"predicted: stable up to dt = {limit / frequency:.4g} s (h w = {limit:.4g} at the stiffest frequency {what}, "
+            f"w = {frequency:.4g} rad/s, at the start shape)")
 
 
 def largest_dt_findings(data, several) -> list[Finding]:

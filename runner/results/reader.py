@@ -190,6 +190,14 @@ class StoredRun:
         return value if math.isfinite(value) else None
 
     @property
+    def explicit_frequency(self) -> float | None:
+        """rad/s: the frequency that bounds the run's stable step at (h w)*/w, at the start shape (an explicit
+        method's stiffest, IMEX Euler's of K_E - K_I; 0: no bound); None for an implicit method, on the test
+        equation, and in files written before it was stored."""
+        value = float(self.attrs.get("explicit_frequency", math.nan))
+        return value if math.isfinite(value) else None
+
+    @property
     def length_scale(self) -> float:
         """m: max |x0| (1 when x0 = 0), the scale of position errors."""
         if "length_scale" in self.attrs:

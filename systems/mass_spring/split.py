@@ -1,12 +1,12 @@
 """A mass-spring system's energy in named parts, for IMEX splits (integrators/imex.py).
 
 The terms are the spring kinds (``stretch_x``, ``bend``, ...; a prefix names every kind it starts: ``stretch`` is
-``stretch_x`` and ``stretch_y``), ``gravity`` and ``contact``. ``with_terms(system, names)`` is the same system with
+``stretch_x`` and ``stretch_y``), ``drag`` (the per-vertex damping: drag and Rayleigh's alpha M), ``gravity`` and
+``contact``. ``with_terms(system, names)`` is the same system with
 only those terms: the same vertices, masses, constraints and state, the springs of the named kinds alone, gravity and
-contact only if named; ``with_terms(system, names, complement=True)`` has every other term, so that the two parts'
-forces sum to the whole's. Damping follows what it acts on: the spring and relative models and Rayleigh's beta K act
-along their springs, so each part keeps them on its own springs; the per-vertex terms (drag, Rayleigh's alpha M) go
-to the named part (an IMEX split's implicit one).
+drag and contact only if named; ``with_terms(system, names, complement=True)`` has every other term, so that the
+two parts' forces sum to the whole's. The damping along springs (the spring and relative models, Rayleigh's beta K)
+follows its springs: each part keeps it on its own.
 """
 
 from __future__ import annotations
@@ -28,6 +28,8 @@ def energy_terms(system) -> tuple[str, ...]:
     present = [system.kind_names[kind] for kind in np.unique(system.spring_kinds)]
     prefixes = [kind.split("_")[0] for kind in present if "_" in kind]
     names = list(dict.fromkeys(prefixes + present))
+    if any(term.model == "drag" or (term.model == "rayleigh" and term.alpha) for term in system.damping_terms):
+        names.append("drag")
     if np.any(system.gravity != 0.0):
         names.append("gravity")
     if system.contact is not None:
@@ -37,7 +39,7 @@ def energy_terms(system) -> tuple[str, ...]:
 
 def with_terms(system, names, complement: bool = False):
     """``system`` with only the terms ``names``, or with every other (see the module docstring): a new system,
-    ``system`` unchanged."""
+    ``system`` unchanged; None if that leaves no force."""
     names = tuple(names)
     kinds = sorted({kind for name in names for kind in kind_matches(name, system.kind_names)})
     kept = np.flatnonzero(np.isin(system.spring_kinds, kinds) != complement)
@@ -57,8 +59,12 @@ def with_terms(system, names, complement: bool = False):
         part._gravity_force = np.zeros_like(system._gravity_force)
     if ("contact" in names) == complement:
         part.contact = None
-    part.damping_terms = tuple(term for term in (_damping_part(term, not complement) for term in system.damping_terms)
+    vertex_damping = ("drag" in names) != complement
+    part.damping_terms = tuple(term for term in (_damping_part(term, vertex_damping) for term in system.damping_terms)
                                if term is not None)
+    if not (kept.size or np.any(part.gravity != 0.0) or part.contact is not None
+            or any(term.model == "drag" or (term.model == "rayleigh" and term.alpha) for term in part.damping_terms)):
+        return None  # no force at all: an IMEX split steps without it (no solve for an empty implicit part)
     part._geometry = None
     part._build_pattern()
     part._constant_damping = part._assemble_constant_damping()
@@ -70,6 +76,6 @@ def _damping_part(term, vertex_damping: bool):
     """The part of one damping term that a split part keeps (None: nothing)."""
     if term.model == "drag":
         return term if vertex_damping else None
-    if term.model == "rayleigh" and not vertex_damping:
-        return dataclasses.replace(term, alpha=0.0)
+    if term.model == "rayleigh":
+        return dataclasses.replace(term, alpha=term.alpha if vertex_damping else 0.0)
     return term
