@@ -161,6 +161,17 @@ class Integrator(BaseModel):
         """q in: the local error estimate is O(h^q); the step controller's exponent is 1/q."""
         return self.order_of_accuracy + 1
 
+    def estimate_order_from(self, state: State) -> int:
+        """q of the estimate of the step from ``state``: ``estimate_order``, or lower while a variable-order start
+        (the variable-step BDF's) has too short a history for its full order."""
+        return self.estimate_order
+
+    # a multistep method's controller changes the step less often and less at a time than a one-step method's: a
+    # proposed growth below ``step_hold`` keeps the step, and a step grows at most ``step_growth`` times (the
+    # history is interpolated to the new step, each change an error of its own: Shampine & Reichelt 1997, ode15s)
+    step_hold: ClassVar[float] = 1.0
+    step_growth: ClassVar[float] = 5.0
+
     def step_with_error(self, system: System, state: State, dt: float, solver) -> tuple[State, SolveStats, np.ndarray]:
         """``step``, and the step's local error estimate as (2, dof_count) rows: positions (m), velocities (m/s)."""
         raise TypeError(f"{self.name} has no error estimate of its own")

@@ -2,11 +2,13 @@
 
 BDF2 and the mix carry the previous state (x_{n-1}, v_{n-1}) in ``State.aux``; it is empty at the start, and the
 first step is then taken with backward Euler (BDF1). The k-step BDF carries k - 1 previous states and starts with a
-one-step method of order k - 1 or more. A run keeps dt fixed, as the formulas assume.
+one-step method of order k - 1 or more; under step control it takes variable steps in its fixed-leading-coefficient
+form (``BDF.step_with_error``). BDF2 and the mix keep dt fixed, as their formulas assume.
 """
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import numpy as np
@@ -167,6 +169,61 @@ class BDF(Integrator):
         pairs = known[:k - 1] + [(missing, missing)] * (k - 1 - len(known[:k - 1]))
         return State(start.t, start.x, start.v, tuple(part for pair in pairs for part in pair)), stats
 
+    @property
+    def error_estimate(self) -> str | None:
+        return "the corrector's difference from the predictor"
+
+    step_hold: ClassVar[float] = 1.2
+    step_growth: ClassVar[float] = 2.0
+
+    def estimate_order_from(self, state):
+        if len(_timed_history(state, self.order)[0]) < self.order:  # the start: TR-BDF2's estimate
+            return 3
+        return self.order + 1
+
+    def step_with_error(self, system, state, dt, solver):
+        """A step of the variable-step BDF in its fixed-leading-coefficient form, and its local error estimate.
+
+        The history is the states at their own past times: ``State.aux`` holds (times, x_{n-1}, v_{n-1}, ...,
+        x_{n-k}, v_{n-k}), NaN times where the run is younger. The first k steps are TR-BDF2's, with its own
+        estimate (order 2, an error O(h^3): steps of tol^(1/3), where backward Euler's start would need steps of
+        tol^(1/2), whose velocities (x - x^)/(beta h) lose the digits a tight tolerance asks for to round-off).
+        After them the predictor phi is the polynomial through the k + 1 newest states, and the step is the
+        constant-step BDF_k with phi's values at t_{n+1} - j h, j = 1..k, as its history (Jackson & Sacks-Davis
+        1980; DASSL's form): at constant steps it is the fixed-step BDF_k. The estimate is the difference u_{n+1} -
+        phi(t_{n+1}) times the ratio of the local error to it, both to leading order (``_estimate_factor``)."""
+        k = self.order
+        times, past = _timed_history(state, k)
+        if len(past) < k:  # the start
+            from .dirk import TRBDF2
+
+            new, stats, error = TRBDF2().step_with_error(system, state, dt, solver)
+        else:
+            nodes = np.array([state.t] + times)
+            points = [(state.x, state.v)] + past
+            targets = np.concatenate([state.t + dt - dt * np.arange(1, k + 1), [state.t + dt]])
+            weights = lagrange_weights(nodes, targets)
+            values = [(sum(w * x for w, (x, _) in zip(row, points)), sum(w * v for w, (_, v) in zip(row, points)))
+                      for row in weights]
+            grid, predicted = values[:k], values[k]
+            grid[0] = points[0]  # t_{n+1} - h = t_n: the state itself, not its round-off
+            alpha, beta = bdf_coefficients(k)
+            x_hat = -sum(alpha[j + 1] * x for j, (x, _) in enumerate(grid))
+            v_hat = -sum(alpha[j + 1] * v for j, (_, v) in enumerate(grid))
+            divisor = beta * dt
+            predictor = x_hat + divisor * v_hat
+            plan = StepPlan(predictor, divisor * divisor, x_hat, divisor, predictor)
+            problem = plan.problem(system, state, dt)
+            y, stats = solve_step(solver, problem, problem.start_point(state.x))
+            new = State(state.t + dt, y, (y - x_hat) / divisor)
+            error = _estimate_factor(k, nodes, targets, dt) * np.stack([new.x - predicted[0], new.v - predicted[1]])
+        kept = ([(state.x, state.v)] + past)[:k]
+        missing = np.full_like(state.x, np.nan)
+        kept += [(missing, missing)] * (k - len(kept))
+        new_times = np.full(k, np.nan)
+        new_times[:min(k, len(times) + 1)] = ([state.t] + times)[:k]
+        return State(new.t, new.x, new.v, (new_times, *(part for pair in kept for part in pair))), stats, error
+
     def _start_step(self, system, state, dt, solver):
         from .dirk import SDIRK3, _add
 
@@ -194,6 +251,42 @@ class BDF(Integrator):
         v = (y - x_hat) / divisor
         history = tuple(part for pair in past[:k - 1] for part in pair)
         return State(state.t + dt, y, v, history), stats
+
+
+def _estimate_factor(p: int, nodes: np.ndarray, targets: np.ndarray, dt: float) -> float:
+    """The ratio of the step's local error to u_{n+1} - phi(t_{n+1}), both to leading order in u^{(p+1)}.
+
+    With e(t) = prod_i (t - t_{n-i}) / (p + 1)! (phi's interpolation error over u^{(p+1)}), the local error is
+    beta/(p + 1) h^{p+1} (the constant-step BDF_p's) + sum_j alpha_j e(t_{n+1} - j h) (what the interpolated history
+    adds; 0 at constant steps, where those times are the nodes), and u_{n+1} - phi(t_{n+1}) is that + e(t_{n+1})."""
+    alpha, beta = bdf_coefficients(p)
+
+    def spread(t):
+        return float(np.prod(t - nodes)) / math.factorial(p + 1)
+
+    local = beta / (p + 1) * dt ** (p + 1) + sum(alpha[j + 1] * spread(t) for j, t in enumerate(targets[:p]))
+    return local / (local + spread(targets[p]))
+
+
+def _timed_history(state: State, k: int) -> tuple[list[float], list[tuple[np.ndarray, np.ndarray]]]:
+    """The past times and states a variable-step BDF step carries (``BDF.step_with_error``), newest first."""
+    if not state.aux:
+        return [], []
+    times = state.aux[0]
+    known = int(np.count_nonzero(np.isfinite(times)))
+    return ([float(t) for t in times[:known]],
+            [(state.aux[1 + 2 * j], state.aux[2 + 2 * j]) for j in range(known)])
+
+
+def lagrange_weights(nodes: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(targets, nodes) weights of the interpolating polynomial through ``nodes``: row i gives its value at
+    targets[i] as a combination of the nodes' values."""
+    weights = np.ones((targets.size, nodes.size))
+    for j, node in enumerate(nodes):
+        for m, other in enumerate(nodes):
+            if m != j:
+                weights[:, j] *= (targets - other) / (node - other)
+    return weights
 
 
 BDF.order = 2  # the class's order at the default k (the field shadows the ClassVar of Integrator)

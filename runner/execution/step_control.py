@@ -5,7 +5,9 @@ on request, Richardson's: one step of h against two of h/2, e = (u_{h/2,h/2} - u
 kept. The estimate's scaled norm err (runner/experiment/step_control.py: scipy's) accepts the step when err <= 1;
 otherwise, or when the step's solve did not converge, or its numbers are not finite, the step is taken again from
 the same state, smaller. The next size is h min(5, max(0.2, safety err^(-0.7/q) err_previous^(0.4/q))) for the PI
-controller (h (safety / err)^(1/q) for I, and after a rejection), capped at 1 after a rejection and at dt_max. Steps
+controller (h (safety / err)^(1/q) for I, and after a rejection), capped at 1 after a rejection and at dt_max. A
+multistep method grows its step at most 2-fold, and keeps it while the proposal is below 1.2 h (its
+``step_growth`` and ``step_hold``). Steps
 land exactly on the stops: the duration, the error time and the releases of prescribed paths. Hairer, Norsett &
 Wanner, Solving ODEs I (1993), sec. II.4; Hairer & Wanner II (1996), sec. IV.8.
 """
@@ -43,6 +45,7 @@ class StepController:
         self.integrator = integrator
         self.order = integrator.order_of_accuracy  # Richardson's p
         self.exponent = 1.0 / (self.order + 1 if self.richardson else integrator.estimate_order)
+        self.growth = min(MAX_FACTOR, integrator.step_growth)
         self.stops = sorted(stop for stop in set(stops) if stop > 0.0)
         self.t = 0.0
         self.proposed: float | None = None if params.dt_initial == "auto" else float(params.dt_initial)
@@ -99,7 +102,8 @@ class StepController:
         if not math.isfinite(d2):
             return h0
         largest = max(d1, d2)
-        h1 = max(1e-6, 1e-3 * h0) if largest <= 1e-15 else (0.01 / largest) ** self.exponent
+        exponent = self.exponent if self.richardson else 1.0 / self.integrator.estimate_order_from(state)
+        h1 = max(1e-6, 1e-3 * h0) if largest <= 1e-15 else (0.01 / largest) ** exponent
         return min(100.0 * h0, h1)
 
     def step_size(self, system, state: State) -> float:
@@ -123,6 +127,7 @@ class StepController:
         moves the colliders before each (sub)step."""
         integrator = self.integrator
         if not self.richardson:
+            self.exponent = 1.0 / integrator.estimate_order_from(state)  # a variable-order start raises it
             prepare(self.t, size, state.x)
             new, stats, error = integrator.step_with_error(system, state, size, solver)
             return new, stats, self.error_norm(error, state, new)
@@ -161,8 +166,8 @@ class StepController:
                       * max(self.previous_error, SMALLEST_PREVIOUS_ERROR) ** (beta * self.exponent))
         else:
             factor = params.safety * error ** -self.exponent
-        factor = min(MAX_FACTOR, max(MIN_FACTOR, factor))
-        if self.rejected_last:
+        factor = min(self.growth, max(MIN_FACTOR, factor))
+        if self.rejected_last or 1.0 <= factor < self.integrator.step_hold:
             factor = min(factor, 1.0)
         proposal = size * factor
         if self.proposed is not None and size < self.proposed and factor >= 1.0:

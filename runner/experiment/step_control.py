@@ -74,5 +74,5 @@ def estimate_refusal(step_control: StepControlParams, integrator) -> str | None:
         return None
     if integrator.error_estimate is None:
         return (f"{integrator.label} has no error estimate of its own; methods that have one: dopri5, trbdf2, "
-                "rosenbrock, radau_iia (3 stages); or set step_control.estimate: richardson (or auto)")
+                "rosenbrock, radau_iia (3 stages), bdf; or set step_control.estimate: richardson (or auto)")
     return None
