@@ -207,15 +207,8 @@ class BDF(Integrator):
                       for row in weights]
             grid, predicted = values[:k], values[k]
             grid[0] = points[0]  # t_{n+1} - h = t_n: the state itself, not its round-off
-            alpha, beta = bdf_coefficients(k)
-            x_hat = -sum(alpha[j + 1] * x for j, (x, _) in enumerate(grid))
-            v_hat = -sum(alpha[j + 1] * v for j, (_, v) in enumerate(grid))
-            divisor = beta * dt
-            predictor = x_hat + divisor * v_hat
-            plan = StepPlan(predictor, divisor * divisor, x_hat, divisor, predictor)
-            problem = plan.problem(system, state, dt)
-            y, stats = solve_step(solver, problem, problem.start_point(state.x))
-            new = State(state.t + dt, y, (y - x_hat) / divisor)
+            y, v, stats = _bdf_solve(system, state, dt, solver, grid)
+            new = State(state.t + dt, y, v)
             error = _estimate_factor(k, nodes, targets, dt) * np.stack([new.x - predicted[0], new.v - predicted[1]])
         kept = ([(state.x, state.v)] + past)[:k]
         missing = np.full_like(state.x, np.nan)
@@ -239,18 +232,25 @@ class BDF(Integrator):
 
     def _bdf_step(self, system, state, dt, solver):
         k = self.order
-        alpha, beta = bdf_coefficients(k)
         past = [(state.x, state.v)] + [(state.aux[2 * j], state.aux[2 * j + 1]) for j in range(k - 1)]
-        x_hat = -sum(alpha[j + 1] * x for j, (x, _) in enumerate(past))
-        v_hat = -sum(alpha[j + 1] * v for j, (_, v) in enumerate(past))
-        divisor = beta * dt
-        predictor = x_hat + divisor * v_hat
-        plan = StepPlan(predictor, divisor * divisor, x_hat, divisor, predictor)
-        problem = plan.problem(system, state, dt)
-        y, stats = solve_step(solver, problem, problem.start_point(state.x))
-        v = (y - x_hat) / divisor
+        y, v, stats = _bdf_solve(system, state, dt, solver, past)
         history = tuple(part for pair in past[:k - 1] for part in pair)
         return State(state.t + dt, y, v, history), stats
+
+
+def _bdf_solve(system, state: State, dt: float, solver, history: list[tuple[np.ndarray, np.ndarray]]):
+    """(x_{n+1}, v_{n+1}, the solve's statistics) of the constant-step BDF of order len(history) from ``history``,
+    (x, v) at t_n, t_n - h, ..., newest first: the incremental potential with x^ = -sum_j alpha_j x_{n+1-j}, v^
+    likewise, divisor beta h."""
+    alpha, beta = bdf_coefficients(len(history))
+    x_hat = -sum(alpha[j + 1] * x for j, (x, _) in enumerate(history))
+    v_hat = -sum(alpha[j + 1] * v for j, (_, v) in enumerate(history))
+    divisor = beta * dt
+    predictor = x_hat + divisor * v_hat
+    plan = StepPlan(predictor, divisor * divisor, x_hat, divisor, predictor)
+    problem = plan.problem(system, state, dt)
+    y, stats = solve_step(solver, problem, problem.start_point(state.x))
+    return y, (y - x_hat) / divisor, stats
 
 
 def _estimate_factor(p: int, nodes: np.ndarray, targets: np.ndarray, dt: float) -> float:

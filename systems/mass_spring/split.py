@@ -2,10 +2,10 @@
 
 The terms are the spring kinds (``stretch_x``, ``bend``, ...; a prefix names every kind it starts: ``stretch`` is
 ``stretch_x`` and ``stretch_y``), ``drag`` (the per-vertex damping: drag and Rayleigh's alpha M), ``gravity`` and
-``contact``. ``with_terms(system, names)`` is the same system with
-only those terms: the same vertices, masses, constraints and state, the springs of the named kinds alone, gravity and
-drag and contact only if named; ``with_terms(system, names, complement=True)`` has every other term, so that the
-two parts' forces sum to the whole's. The damping along springs (the spring and relative models, Rayleigh's beta K)
+``contact``. ``with_terms(system, names)`` is the same system with only those terms: the same vertices, masses,
+constraints and state, the springs of the named kinds alone, gravity, drag and contact only if named;
+``with_terms(system, names, complement=True)`` has every other term, so that the two parts' forces sum to the
+whole's. The damping along springs (the spring and relative models, Rayleigh's beta K)
 follows its springs: each part keeps it on its own.
 """
 
@@ -24,11 +24,12 @@ def kind_matches(name: str, kind_names: tuple[str, ...]) -> list[int]:
 
 
 def energy_terms(system) -> tuple[str, ...]:
-    """The names a split may use: the spring kinds present, their prefixes, then gravity and contact where they act."""
+    """The names a split may use: the spring kinds present, their prefixes, then drag, gravity and contact where they
+    act."""
     present = [system.kind_names[kind] for kind in np.unique(system.spring_kinds)]
     prefixes = [kind.split("_")[0] for kind in present if "_" in kind]
     names = list(dict.fromkeys(prefixes + present))
-    if any(term.model == "drag" or (term.model == "rayleigh" and term.alpha) for term in system.damping_terms):
+    if _has_vertex_damping(system.damping_terms):
         names.append("drag")
     if np.any(system.gravity != 0.0):
         names.append("gravity")
@@ -63,7 +64,7 @@ def with_terms(system, names, complement: bool = False):
     part.damping_terms = tuple(term for term in (_damping_part(term, vertex_damping) for term in system.damping_terms)
                                if term is not None)
     if not (kept.size or np.any(part.gravity != 0.0) or part.contact is not None
-            or any(term.model == "drag" or (term.model == "rayleigh" and term.alpha) for term in part.damping_terms)):
+            or _has_vertex_damping(part.damping_terms)):
         return None  # no force at all: an IMEX split steps without it (no solve for an empty implicit part)
     part._geometry = None
     part._build_pattern()
@@ -79,3 +80,8 @@ def _damping_part(term, vertex_damping: bool):
     if term.model == "rayleigh":
         return dataclasses.replace(term, alpha=term.alpha if vertex_damping else 0.0)
     return term
+
+
+def _has_vertex_damping(terms) -> bool:
+    """Whether any damping term acts per vertex (drag, or Rayleigh's alpha M)."""
+    return any(term.model == "drag" or (term.model == "rayleigh" and term.alpha) for term in terms)
