@@ -146,9 +146,10 @@ def final_error(system, samples: dict[str, np.ndarray]) -> float:
 def explicit_frequency(system, integrator) -> float:
     """rad/s: the frequency that bounds ``integrator``'s stable step on ``system`` at (h w)*/w: the stiffest of its
     ``limiting_stiffness`` at the start shape (sqrt of the largest eigenvalue of K v = lambda M v over the free dofs;
-    0 when none is positive: no bound); NaN for an implicit method, on the test equation (whose own frequency is
-    that) and where no bound is known."""
-    if system.capabilities.test_frequency is not None:
+    0 when none is positive: no bound); NaN for an implicit method, on the test equation and a linear oscillator
+    (whose own frequency is that) and where no bound is known."""
+    capabilities = system.capabilities
+    if capabilities.test_frequency is not None or capabilities.oscillator is not None:  # declares its own frequency
         return math.nan
     stiffness = integrator.limiting_stiffness(system, system.x0)
     free = np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
