@@ -30,6 +30,7 @@ from simrun.solvers.base import FLOAT64, INITIAL_GUESSES, SMALL_VECTOR, max_norm
 from simrun.systems import System
 from simrun.systems.patterns import add_keeping_pattern, diagonal_blocks
 
+from .labels import parameter_text
 from .lanes import LaneIncrementalPotential
 
 
@@ -162,8 +163,8 @@ class Integrator(BaseModel):
         return self.order_of_accuracy + 1
 
     def estimate_order_from(self, state: State) -> int:
-        """q of the estimate of the step from ``state``: ``estimate_order``, or lower while a variable-order start
-        (the variable-step BDF's) has too short a history for its full order."""
+        """q of the estimate of the step from ``state``: ``estimate_order``, or its starter's while a multistep
+        method's history is too short (the variable-step BDF starts with TR-BDF2)."""
         return self.estimate_order
 
     # a multistep method's controller changes the step less often and less at a time than a one-step method's: a
@@ -182,15 +183,6 @@ class Integrator(BaseModel):
         changed = [parameter_text(key, value) for key, value in self.model_dump().items()
                    if value != type(self).model_fields[key].default]
         return f"{self.name}[{','.join(changed)}]" if changed else self.name
-
-
-def parameter_text(key: str, value) -> str:
-    """``key=value`` as a label shows it: a float by %g, a list of names joined by + (``none`` when empty)."""
-    if isinstance(value, float):
-        return f"{key}={value:g}"
-    if isinstance(value, (tuple, list)) and all(isinstance(item, str) for item in value):
-        return f"{key}={'+'.join(value) or 'none'}"
-    return f"{key}={value}"
 
 
 def solve_step(solver, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:

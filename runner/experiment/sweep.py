@@ -21,7 +21,7 @@ from simrun.errors import ConfigError
 from simrun.experiment.config import Experiment, Run, describe_error, set_path
 from simrun.experiment.step_control import estimate_refusal
 from simrun.integrators import Integrator
-from simrun.integrators.base import parameter_text
+from simrun.integrators.labels import parameter_text
 from simrun.solvers import SOLVERS, SOLVER_PARAMS, NonlinearSolver, SolverParams
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
