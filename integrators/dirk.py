@@ -188,7 +188,7 @@ class DiagonallyImplicitRungeKutta(Integrator):
         new, stats, _, _ = self._stages(system, state, dt, solver)
         return new, stats
 
-    def step_with_error(self, system, state, dt, solver):
+    def step_with_error(self, system, state, dt, solver, error_tolerance=None):
         """The step and h sum_i (b_i - b_hat_i) F(U_i), its difference from the embedded solution, as (x, v) rows."""
         new, stats, velocities, accelerations = self._stages(system, state, dt, solver)
         tableau = self.dirk_tableau

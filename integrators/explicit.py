@@ -81,7 +81,7 @@ class ExplicitRungeKutta(Integrator):
         new, _, _ = self._stages(system, state, dt)
         return new, EXPLICIT_STEP
 
-    def step_with_error(self, system, state, dt, solver):
+    def step_with_error(self, system, state, dt, solver, error_tolerance=None):
         """The step and h sum_i (b_i - b_hat_i) F(U_i), its difference from the embedded solution, as (x, v) rows."""
         new, slopes_x, slopes_v = self._stages(system, state, dt)
         weights = [dt * (b - b_hat) for b, b_hat in zip(self.tableau.b, self.tableau.b_hat)]

@@ -181,7 +181,7 @@ class BDF(Integrator):
             return 3
         return self.order + 1
 
-    def step_with_error(self, system, state, dt, solver):
+    def step_with_error(self, system, state, dt, solver, error_tolerance=None):
         """A step of the variable-step BDF in its fixed-leading-coefficient form, and its local error estimate.
 
         The history is the states at their own past times: ``State.aux`` holds (times, x_{n-1}, v_{n-1}, ...,

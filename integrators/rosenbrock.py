@@ -39,7 +39,7 @@ import scipy.sparse.linalg
 from pydantic import Field
 
 from simrun.solvers import SolveStats
-from simrun.solvers.linear import sparse_lu
+from simrun.solvers.linear import record_dense_factorisation, sparse_lu
 
 from .base import Integrator, State, add_mass
 
@@ -130,7 +130,7 @@ class Rosenbrock(Integrator):
         new, stats, _, _ = self._stages(system, state, dt)
         return new, stats
 
-    def step_with_error(self, system, state, dt, solver):
+    def step_with_error(self, system, state, dt, solver, error_tolerance=None):
         """The step and sum_i (m_i - m_hat_i) U_i, its difference from the embedded solution, as (x, v) rows."""
         new, stats, positions, velocities = self._stages(system, state, dt)
         scheme = SCHEMES[self.scheme]
@@ -231,5 +231,6 @@ def factorised(matrix, free: np.ndarray, complex_valued: bool = False):
         factor, _ = sparse_lu(reduced, spd=False)
         return lambda right: factor.solve(cast(right), trans="T")
     dense = np.asarray(matrix, dtype=dtype)[np.ix_(free, free)]
+    record_dense_factorisation()
     factor = scipy.linalg.lu_factor(dense)
     return lambda right: scipy.linalg.lu_solve(factor, cast(right))

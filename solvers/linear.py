@@ -14,6 +14,7 @@ raises ``numpy.linalg.LinAlgError``, which ends the nonlinear solve as not conve
 
 from __future__ import annotations
 
+import contextvars
 import functools
 import importlib
 import math
@@ -56,15 +57,23 @@ INDEFINITE_RESIDUAL = 1e-8
 
 class FactorisationLog:
     """How a run's sparse factorisations went: a count per path of FACTORISATION_PATHS (``counts``), and the last
-    path taken since ``take_step`` was asked (1 + its index; 0: no sparse factorisation)."""
+    path taken since ``take_step`` was asked (1 + its index; 0: no sparse factorisation); and the dense ones."""
 
     def __init__(self):
         self.counts = [0] * len(FACTORISATION_PATHS)
+        self.dense = 0
         self._step = 0
 
     def record(self, path: int) -> None:
         self.counts[path] += 1
         self._step = max(self._step, path + 1)
+
+    def record_dense(self) -> None:
+        self.dense += 1
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts) + self.dense
 
     def take_step(self) -> int:
         """The furthest path any factorisation took since the last call (0: none), for factorisation_path."""
@@ -73,6 +82,20 @@ class FactorisationLog:
 
     def as_dict(self) -> dict[str, int]:
         return dict(zip(FACTORISATION_PATHS, self.counts))
+
+
+# the log of the run being stepped, if it counts every factorisation (a step-controlled run's ``factorisations``):
+# what factorisations outside a logging linear solver record into, the integrators' own (Radau IIA's blocks, a
+# Rosenbrock step's matrix) and the dense ones. A context variable: each thread's runs count their own.
+RUN_FACTORISATIONS: contextvars.ContextVar[FactorisationLog | None] = contextvars.ContextVar("run_factorisations",
+                                                                                           default=None)
+
+
+def record_dense_factorisation() -> None:
+    """Count a dense factorisation in the run's log, if it keeps one."""
+    log = RUN_FACTORISATIONS.get()
+    if log is not None:
+        log.record_dense()
 
 
 def attach_factorisation_log(solver) -> FactorisationLog | None:
@@ -96,6 +119,8 @@ def sparse_lu(transposed, spd: bool, rhs: np.ndarray | None = None, log: Factori
     INDEFINITE_RESIDUAL, COLAMD's partial pivoting whatever it leaves. Returns (factor: solve with trans="T", the
     solution of ``rhs`` or None); RuntimeError when every path meets an exactly singular matrix."""
     matrix = transposed.T  # A itself, as CSR: no copy
+    if log is None:
+        log = RUN_FACTORISATIONS.get()
     probe = rhs if rhs is not None else matrix @ np.ones(matrix.shape[0])
     last = len(SPLU_PATHS) - 1
     for path, options in enumerate(SPLU_PATHS):
@@ -350,6 +375,7 @@ CHOLMOD_MISSING = ("cholesky needs CHOLMOD through scikit-sparse, which is not i
 
 def _dense_direct_solve(matrix, rhs: np.ndarray, spd: bool) -> np.ndarray:
     """A dense solve: LAPACK Cholesky for SPD matrices (LU when that fails), LU otherwise."""
+    record_dense_factorisation()
     if matrix.shape[0] == 1:
         return rhs / matrix[0, 0]
     if matrix.dtype is FLOAT64 and rhs.dtype is FLOAT64 and rhs.ndim == 1:

@@ -124,3 +124,66 @@ def test_ipc_is_refused_in_one_line():
         "integrators": ["radau_iia"], "sweep": {"dt": [0.01]}}
     with pytest.raises(ConfigError, match="radau_iia: solves its stages together"):
         expand_runs(load_experiment(config)[0])
+
+
+def test_the_collocation_polynomial_extrapolates_a_cubic_exactly():
+    """The next step's starting stages come from the last step's collocation polynomial (degree s = 3 through X(0) =
+    0 and the stages): for stage displacements on a cubic p(tau) it predicts p(1 + c_i h'/h) - p(1) exactly, and for
+    a retry from the same start p(c_i h'/h)."""
+    from simrun.integrators.radau import _Reusable, _transformation
+
+    c = _transformation(3)[0]
+    coefficients = np.array([[0.3, -1.2], [0.7, 0.4], [-0.5, 2.0]])  # tau, tau^2, tau^3 of two dofs
+
+    def p(tau):
+        return np.stack([tau ** (k + 1) for k in range(3)], axis=-1) @ coefficients
+
+    h, t0 = 0.02, 1.5
+    kept = _Reusable(system=None, free=np.arange(2), stiffness=None, damping=None, h=h, blocks=[], real_index=None,
+                     real_value=None, t0=t0, X=p(c), velocities=np.zeros((3, 2)), contraction=1.0, refresh=False)
+    for start, fraction in ((t0 + h, 1.0), (t0, 0.0)):
+        for h_new in (0.5 * h, h, 1.7 * h):
+            expected = p(fraction + c * h_new / h) - p(np.array([fraction]))
+            np.testing.assert_allclose(kept.extrapolated(start, h_new, c), expected, atol=1e-14)
+
+
+def test_a_step_controlled_step_reuses_the_last_ones_jacobian_and_factors():
+    """RADAU5's economy: a step from a state that carries the last step's K and blocks (same h) evaluates no Hessian
+    and factorises nothing, and lands where a step from scratch (K at x_n, fresh blocks, X = 0) lands, within the
+    iteration's bound (a small fraction of the tolerance's scale)."""
+    from simrun.solvers.linear import RUN_FACTORISATIONS, FactorisationLog
+
+    system = DampedChain(sparse=True)
+    method = INTEGRATORS["radau_iia"]()
+    tolerance = (1e-6, 1e-6)
+    state = State(0.0, system.x0.copy(), system.v0.copy())
+    first, _, _ = method.step_with_error(system, state, 0.05, None, tolerance)
+    assert first.reusable is not None
+    hessians = []
+    original = system.hessian
+    system.hessian = lambda x, project_spd=False: hessians.append(1) or original(x, project_spd)
+    log = FactorisationLog()
+    token = RUN_FACTORISATIONS.set(log)
+    try:
+        reused, stats, _ = method.step_with_error(system, first, 0.05, None, tolerance)
+        assert stats.converged and not hessians and log.total == 0
+        again, _, _ = method.step_with_error(system, State(first.t, first.x, first.v), 0.05, None, tolerance)
+        assert len(hessians) == 1 and log.total == 2  # K at x_n; the real and the complex block
+    finally:
+        RUN_FACTORISATIONS.reset(token)
+    scale = 1e-6 + 1e-6 * np.abs(again.x)
+    assert np.max(np.abs(reused.x - again.x) / scale) < 0.05
+
+
+def test_a_step_controlled_run_counts_its_factorisations():
+    """The run's ``factorisations``: two per set of blocks (the real and the complex), sets made only where K was
+    evaluated anew or h changed, so fewer than twice the tries; and no more Jacobians than factorisations."""
+    config = {"name": "count", "system": {"type": "spring_mass", "stiffness": 100.0, "mass": 1.0, "x0": 1.0},
+              "integrators": ["radau_iia"], "duration": 2.0, "step_control": {"tolerance": 1e-8}}
+    from simrun.execution.simulate import simulate
+
+    result = simulate(expand_runs(load_experiment(config)[0])[0])
+    attrs = result.attrs
+    tries = attrs["accepted_steps"] + attrs["rejected_steps"]
+    assert attrs["factorisations"] % 2 == 0 and 2 <= attrs["factorisations"] < 2 * tries
+    assert attrs["jacobian_evaluations"] <= attrs["factorisations"] // 2

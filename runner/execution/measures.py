@@ -61,7 +61,7 @@ def on_paths(constraints, moving: np.ndarray, state: State, t: float) -> State:
     positions, velocities = constraints.path(t)
     x, v = state.x.copy(), state.v.copy()
     x[moving], v[moving] = positions, velocities
-    return State(state.t, x, v, state.aux)
+    return State(state.t, x, v, state.aux, state.reusable)
 
 
 def path_power(system, moving: np.ndarray, x: np.ndarray, v: np.ndarray, t: float) -> float:

@@ -12,7 +12,7 @@ from simrun.format.run_result import RunResult
 from simrun.format.summary import Status, series_summary as _series_summary
 from simrun.integrators import State
 from simrun.solvers import EXPLICIT_STEP
-from simrun.solvers.linear import attach_factorisation_log
+from simrun.solvers.linear import RUN_FACTORISATIONS, FactorisationLog, attach_factorisation_log
 
 from .evaluations import EvaluationCounts
 from .peers import simulate_peer
@@ -80,6 +80,9 @@ def simulate(run: Run) -> RunResult:
     factorisations = attach_factorisation_log(solver) if system.hessian_pattern is not None else None
     if factorisations is not None:
         per_step["factorisation_path"] = np.zeros(step_count, dtype=np.int8)
+    # a step-controlled run counts every factorisation, sparse or dense, its solver's or its method's own (Radau
+    # IIA's blocks), as work-precision's currency beside the evaluations (a peer's is scipy's nlu)
+    every_factorisation = (factorisations or FactorisationLog()) if controller is not None else None
     with_contact = system.has_contact
     if with_contact:  # per step: the smallest signed contact distance (m), active contacts, friction's loss (J)
         per_step.update(contact_distance=np.zeros(step_count), active_contacts=np.zeros(step_count, dtype=np.int32),
@@ -139,6 +142,7 @@ def simulate(run: Run) -> RunResult:
     if evaluations is not None:
         evaluations.instrument(system)
     start = time.perf_counter()
+    counting = RUN_FACTORISATIONS.set(every_factorisation)
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             state = integrator.start(system, state)
@@ -245,6 +249,8 @@ def simulate(run: Run) -> RunResult:
         status, message = Status.FAILED, str(error)
     except Exception as error:  # a failing run is a result, never the end of the sweep
         status, message = Status.FAILED, f"{type(error).__name__}: {error}"
+    finally:
+        RUN_FACTORISATIONS.reset(counting)
     wall_time = time.perf_counter() - start
     if status is Status.OK and over_budget:
         status = Status.NOT_CONVERGED
@@ -264,7 +270,7 @@ def simulate(run: Run) -> RunResult:
     if controller is not None:  # the stored dt is the mean accepted step; the counts of the controller
         attrs.update(dt=t_reached / steps if (t_reached := controller.t) > 0 and steps else math.nan,
                      planned_steps=steps, accepted_steps=controller.accepted_steps, rejected_steps=controller.rejected_steps,
-                     not_converged_attempts=controller.failed_solves)
+                     not_converged_attempts=controller.failed_solves, factorisations=every_factorisation.total)
     model = add_outcome(system, samples, attrs, error_state, with_frames, constraint_kinds)
     bound = explicit_frequency(system, integrator)
     if math.isfinite(bound):  # stored where there is one: off the test equation, for the methods with a bound

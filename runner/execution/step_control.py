@@ -52,6 +52,7 @@ class StepController:
         self.previous_error = 1.0
         self.rejected_last = False
         self.accepted_steps = self.rejected_steps = self.failed_solves = 0
+        self.error_tolerance = (params.tolerance, params.atol)
         self.changed(system)
 
     def changed(self, system) -> None:
@@ -129,7 +130,7 @@ class StepController:
         if not self.richardson:
             self.exponent = 1.0 / integrator.estimate_order_from(state)  # a variable-order start raises it
             prepare(self.t, size, state.x)
-            new, stats, error = integrator.step_with_error(system, state, size, solver)
+            new, stats, error = integrator.step_with_error(system, state, size, solver, self.error_tolerance)
             return new, stats, self.error_norm(error, state, new)
         prepare(self.t, size, state.x)
         whole, stats = integrator.step(system, state, size, solver)
@@ -167,8 +168,11 @@ class StepController:
         else:
             factor = params.safety * error ** -self.exponent
         factor = min(self.growth, max(MIN_FACTOR, factor))
-        if self.rejected_last or 1.0 <= factor < self.integrator.step_hold:
+        low, high = self.integrator.step_hold_band
+        if self.rejected_last:
             factor = min(factor, 1.0)
+        elif low <= factor < high:
+            factor = 1.0
         proposal = size * factor
         if self.proposed is not None and size < self.proposed and factor >= 1.0:
             proposal = max(proposal, self.proposed)  # a step cut short to land on a stop: the proposal it was cut from
