@@ -56,6 +56,11 @@ class ButcherTableau:
     def stage_count(self) -> int:
         return len(self.b)
 
+    @property
+    def first_same_as_last(self) -> bool:
+        """Whether the last stage is the new point (A's last row is b): its slope is the next step's first."""
+        return tuple(self.A[-1]) == tuple(self.b) and self.c[-1] == 1.0
+
 
 class ExplicitRungeKutta(Integrator):
     """Explicit Runge-Kutta on the first-order system u = (x, v), u' = (v, M^-1 f(x, v)).
@@ -82,13 +87,23 @@ class ExplicitRungeKutta(Integrator):
         return new, EXPLICIT_STEP
 
     def step_with_error(self, system, state, dt, solver, error_tolerance=None):
-        """The step and h sum_i (b_i - b_hat_i) F(U_i), its difference from the embedded solution, as (x, v) rows."""
-        new, slopes_x, slopes_v = self._stages(system, state, dt)
+        """The step and h sum_i (b_i - b_hat_i) F(U_i), its difference from the embedded solution, as (x, v) rows.
+
+        A first-same-as-last pair (dopri5) leaves its last stage's acceleration, F at the new state, in the new
+        state's ``reusable``: the next step (or a retry of it from the same state) takes it as its first stage, six
+        force evaluations a try instead of seven, while the state is the one it was computed at (a vertex put on its
+        prescribed path, or a released system, makes a state or system of its own)."""
+        last = state.reusable
+        first = (last.acceleration if isinstance(last, LastSlope) and last.system is system and last.x is state.x
+                 and last.v is state.v else None)
+        new, slopes_x, slopes_v = self._stages(system, state, dt, first)
         weights = [dt * (b - b_hat) for b, b_hat in zip(self.tableau.b, self.tableau.b_hat)]
+        if self.tableau.first_same_as_last:
+            new.reusable = LastSlope(system, new.x, new.v, slopes_v[-1])
         return new, EXPLICIT_STEP, weighted_error(weights, slopes_x, slopes_v)
 
-    def _stages(self, system, state, dt):
-        """(the new state, the stages' slopes dx/dt and dv/dt)."""
+    def _stages(self, system, state, dt, first: np.ndarray | None = None):
+        """(the new state, the stages' slopes dx/dt and dv/dt); ``first``: the first stage's acceleration, if known."""
         tableau = self.tableau
         slopes_x: list[np.ndarray] = []  # dx/dt at each stage (a velocity)
         slopes_v: list[np.ndarray] = []  # dv/dt at each stage (an acceleration)
@@ -99,8 +114,20 @@ class ExplicitRungeKutta(Integrator):
                     x = x + (dt * weight) * slope_x
                     v = v + (dt * weight) * slope_v
             slopes_x.append(v)
-            slopes_v.append(system.acceleration(x, v))
+            slopes_v.append(first if first is not None and not slopes_v else system.acceleration(x, v))
+        if tableau.first_same_as_last:  # the last stage is the new point itself
+            return State(state.t + dt, x, v), slopes_x, slopes_v
         return weighted_step(state, dt, tableau.b, slopes_x, slopes_v), slopes_x, slopes_v
+
+
+@dataclass(frozen=True)
+class LastSlope:
+    """A first-same-as-last step's acceleration at its new state (x, v) of ``system``: the next step's first stage."""
+
+    system: object
+    x: np.ndarray
+    v: np.ndarray
+    acceleration: np.ndarray
 
 
 def weighted_step(state: State, dt: float, weights, slopes_x, slopes_v) -> State:

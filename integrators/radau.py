@@ -241,8 +241,9 @@ class _Stop:
     step whose prediction needs one update takes one. In a step-controlled run (``error_tolerance`` (rtol, atol))
     |dX| is the rms over the free dofs of the stage positions' and velocities' updates, each divided by
     atol + rtol |u_n|, and the bound is max(10 eps / rtol, min(0.03, rtol^(1/2))) (RADAU5's FNEWT; scipy's Radau): the
-    iteration's error is then a small fraction of what the error estimate accepts. Otherwise |dX| is the largest
-    update of a stage position and the bound ``tolerance`` times the largest stage displacement plus 1e-14 m. A
+    iteration's error is then a small fraction of what the error estimate accepts. A fixed step stops when the largest
+    update of a stage position itself is below ``tolerance`` times the largest stage displacement plus 1e-14 m (the
+    rate's bound, from two updates, stopped it early enough to cap the chain's observed order at 2.3). A
     step-controlled iteration gives up (not converged: the step is taken again, with a new Jacobian or smaller) when
     theta >= 0.99, or when the rate would not reach the bound within the iterations left; a fixed step iterates to
     the last."""
@@ -287,7 +288,7 @@ class _Stop:
                     return False
             elif give_up:
                 return False
-        if self.contraction * size <= bound or size <= 1e-300:
+        if (self.contraction if give_up else 1.0) * size <= bound or size <= 1e-300:
             return True
         self.previous = max(size, 1e-300)
         return None
