@@ -149,7 +149,7 @@ class SpringMassLanes:
         c1, c2 = (p0 - second * q0) / (first - second), (first * q0 - p0) / (first - second)
         grow1, grow2 = np.exp(first * t), np.exp(second * t)
         q = (c1 * grow1 + c2 * grow2).real
-        p = (c1 * first * grow1 + c2 * second * grow2).real
+        p = (c1 * (first * grow1) + c2 * (second * grow2)).real  # SpringMass.exact_solution's order
         for lane in np.flatnonzero(~distinct):
             exact_q, exact_p = self.systems[lane].exact_solution(np.array([t[lane]]))
             q[lane], p[lane] = exact_q[0, 0], exact_p[0, 0]

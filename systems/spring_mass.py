@@ -166,7 +166,9 @@ class SpringMass(System):
             c1, c2 = (p0 - second * q0) / (first - second), (first * q0 - p0) / (first - second)
             grow1, grow2 = np.exp(first * t), np.exp(second * t)
             q = (c1 * grow1 + c2 * grow2).real
-            p = (c1 * first * grow1 + c2 * second * grow2).real
+            # c1 (l1 e^{l1 t}), not (c1 l1) e^{l1 t}: no product of two scalars, whose round-off (numpy's scalar
+            # arithmetic against its array loops) would tell a run's velocity from its lane's (tests/test_lanes.py)
+            p = (c1 * (first * grow1) + c2 * (second * grow2)).real
             return q[:, None], p[:, None]
         generator = np.array([[0.0, 1.0], [-self.stiffness / m, -self.damping / m]])
         propagators = scipy.linalg.expm(t[:, None, None] * generator)  # batched over t

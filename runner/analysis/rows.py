@@ -73,6 +73,12 @@ class SummaryRow:
     friction_work: float = math.nan  # J, the energy friction took out over the run (NaN: no contact)
     message: str = ""  # why the run is not ok (the run's attribute)
     tolerance: float = math.nan  # a step-controlled run's tolerance (NaN: fixed steps of dt)
+    # the other error norms: against the exact solution (NaN without one, and in files before them) ...
+    final_velocity_error: float = math.nan  # m/s, max |v - v_exact| at the last sample
+    max_error: float = math.nan  # m, max |x - x_exact| over the stored samples
+    max_velocity_error: float = math.nan  # m/s, max |v - v_exact| over the stored samples
+    # ... and against a reference: m/s, max |v - v_ref| at error_time (NaN: no reference, or no velocities stored there)
+    velocity_error: float = math.nan
 
     @property
     def status_detail(self) -> str:
@@ -125,6 +131,7 @@ def summary_rows(data: RunSet) -> list[SummaryRow]:
     """One row per run, in sweep order; drift and iterations from the file's summary table."""
     stored = data.results.summary.set_index("run_id").to_dict("index")
     titles = {id(member): title for title, members in data.groups for member in members}
+    velocity_errors = data.reference.velocity_errors if data.reference is not None else {}
     rows = []
     for run in data.runs:
         row = stored[run.run_id]
@@ -159,7 +166,9 @@ def summary_rows(data: RunSet) -> list[SummaryRow]:
             min_contact_distance=float(attrs.get("min_contact_distance", math.nan)),
             max_active_contacts=int(attrs.get("max_active_contacts", 0)),
             friction_work=float(attrs.get("friction_work", math.nan)), message=run.stored.message,
-            tolerance=run.tolerance,
+            tolerance=run.tolerance, final_velocity_error=float(row["final_velocity_error"]),
+            max_error=float(row["max_error"]), max_velocity_error=float(row["max_velocity_error"]),
+            velocity_error=velocity_errors.get(run.run_id, math.nan),
         ))
     return rows
 

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from simrun.analysis.reference import ReferenceErrors
 from simrun.format.summary import Status
 from simrun.results import Results, StoredRun
 
@@ -243,6 +244,9 @@ class RunSet:
     labels: list[str]  # integrator labels in config order
     dt_names: dict[float, str]  # dt (s) -> the shortest text that tells it from the other dts
     results: Results  # the file, for series that only one reader needs
+    # the reference the errors of runs without an exact solution are measured against, with its estimated accuracy
+    # (None: no reference solved, or the errors handed in as a plain dict)
+    reference: ReferenceErrors | None = None
 
     @property
     def path(self) -> Path:
@@ -263,7 +267,8 @@ def run_set(results: Results, reference_errors: dict[str, float] | None = None) 
         grouped.setdefault(run.group, []).append(run)
     groups = [(settings_title(members[0].stored.swept), members) for members in grouped.values()]
     labels = list(dict.fromkeys(run.label for run in runs))
-    return RunSet(results.name, runs, groups, labels, _dt_names(sorted({run.dt for run in runs})), results)
+    reference = reference_errors if isinstance(reference_errors, ReferenceErrors) else None
+    return RunSet(results.name, runs, groups, labels, _dt_names(sorted({run.dt for run in runs})), results, reference)
 
 
 def test_equation_runs(data: RunSet) -> list[RunData]:

@@ -24,8 +24,9 @@ class LaneSeries:
     """Every sample (one array per key, samples first while stepping) and every step's solver counts."""
 
     def __init__(self, layout: dict[str, tuple], sample_rows: int, lanes: int, step_count: int, modal_energy,
-                 energy_scale: np.ndarray):
+                 energy_scale: np.ndarray, exact=None):
         self.modal_energy = modal_energy  # the lane system's: what the decay per period is measured from
+        self.exact = exact  # the lane system's exact_states (None: no exact solution), for the error norms
         self.energy_scale = energy_scale  # E_ref per lane: the energy drift's unit
         self.series = {key: np.full((sample_rows, lanes) + shape, np.nan) for key, shape in layout.items()}
         self.per_step = {key: np.zeros((step_count, lanes), dtype=kind) for key, kind in zip(PER_STEP_KEYS, PER_STEP_TYPES)}
@@ -80,6 +81,7 @@ class LaneSeries:
                 values[lane, steps[lane]:] = 0
         last = self.counts - 1
         every = np.arange(last.size)
+        norms = self._error_norms(samples, last)
         series_summary = self._series_summary(samples["energy"], per_step, steps)
         energy = self.modal_energy(samples["energy"], samples["positions"], samples["velocities"])
         usable = np.isfinite(energy) & (energy > DECAY_FLOOR * energy[:, :1])  # NaN past a lane's count: not usable
@@ -89,7 +91,24 @@ class LaneSeries:
                 "last_t": samples["t"][every, last], "last_positions": samples["positions"][every, last],
                 "safeguard_steps": np.count_nonzero(per_step["safeguards"], axis=1),
                 "decay_energies": (energy[:, 0], energy[every, latest], samples["t"][every, latest]),
-                "series_summary": series_summary}
+                "series_summary": series_summary, "error_norms": norms}
+
+    def _error_norms(self, samples: dict, last: np.ndarray) -> dict[str, np.ndarray]:
+        """measures.error_norms per lane (NaN: not stored), from each lane's own samples (those before its count)."""
+        if self.exact is None:
+            return {}
+        t = samples["t"]
+        position_error = np.full(t.shape, -np.inf)  # max over the dofs, per lane and sample; -inf past a lane's count
+        velocity_error = np.full(t.shape, -np.inf)
+        kept = np.arange(t.shape[1])[None, :] <= last[:, None]
+        for column in range(t.shape[1]):
+            inside = kept[:, column]
+            q, p = self.exact(np.where(inside, t[:, column], 0.0))
+            position_error[inside, column] = np.max(np.abs(samples["positions"][:, column] - q[:, None]), axis=1)[inside]
+            velocity_error[inside, column] = np.max(np.abs(samples["velocities"][:, column] - p[:, None]), axis=1)[inside]
+        every = np.arange(t.shape[0])
+        return {"final_velocity_error": velocity_error[every, last], "max_error": np.max(position_error, axis=1),
+                "max_velocity_error": np.max(velocity_error, axis=1)}
 
     def _series_summary(self, energy: np.ndarray, per_step: dict, steps: np.ndarray) -> dict[str, np.ndarray]:
         """results.series_summary for every lane at once: the largest and the last energy drift over the finite samples,
@@ -112,11 +131,16 @@ class LaneSeries:
 class LaneSummary:
     """record.series: false. The summary's series numbers (results.series_summary) accumulated per lane: the largest
     and the last finite energy drift over the samples, the solver iterations summed over the steps, the safeguarded
-    steps counted; and the last sample's t and x (the final error)."""
+    steps counted; the last sample's t, x and v (the final errors) and the largest errors over the samples
+    (measures.error_norms)."""
 
-    def __init__(self, energy_scale: np.ndarray, lanes: int, dofs: int, modal_energy):
+    def __init__(self, energy_scale: np.ndarray, lanes: int, dofs: int, modal_energy, exact=None):
         self.scale = energy_scale
         self.modal_energy = modal_energy
+        self.exact = exact  # the lane system's exact_states (None: no exact solution)
+        self.max_error = np.full(lanes, -np.inf)  # max |x - x_exact| over the samples so far (NaN propagates, as np.max)
+        self.max_velocity_error = np.full(lanes, -np.inf)
+        self.last_velocities = np.zeros((lanes, dofs))
         self.first_energy: np.ndarray | None = None
         self.max_drift = np.full(lanes, math.nan)
         self.final_drift = np.full(lanes, math.nan)
@@ -134,12 +158,12 @@ class LaneSummary:
         if self.first_energy is None:  # results.energy_drift: relative to the first finite sample, E at t = 0 (finite: x0 is)
             self.first_energy = energy.copy()
             self.first_modal = self.decay_energy = modal
-        self._add(np.ones(energy.shape, dtype=bool) if running is None else running, energy, modal, t, x)
+        self._add(np.ones(energy.shape, dtype=bool) if running is None else running, energy, modal, t, x, v)
 
     def stop_sample(self, stopping: np.ndarray, observed: dict, t, dissipated, x, v) -> None:
-        self._add(stopping, observed["energy"], self.modal_energy(observed["energy"], x, v), t, x)
+        self._add(stopping, observed["energy"], self.modal_energy(observed["energy"], x, v), t, x, v)
 
-    def _add(self, recorded: np.ndarray, energy: np.ndarray, modal: np.ndarray, t, x) -> None:
+    def _add(self, recorded: np.ndarray, energy: np.ndarray, modal: np.ndarray, t, x, v) -> None:
         """A sample of the ``recorded`` lanes: its drift counts where the energy is finite (results.energy_drift), its t
         and x are the lane's last sample whatever they are (measures.final_error)."""
         drift = (energy - self.first_energy) / self.scale
@@ -149,6 +173,14 @@ class LaneSummary:
         self.final_drift = np.where(finite, drift, self.final_drift)
         self.last_t = np.where(recorded, t, self.last_t)
         self.last_positions = np.where(recorded[:, None], x, self.last_positions)
+        self.last_velocities = np.where(recorded[:, None], v, self.last_velocities)
+        if self.exact is not None:
+            q, p = self.exact(np.broadcast_to(t, recorded.shape))
+            position_error = np.max(np.abs(x - q[:, None]), axis=1)
+            velocity_error = np.max(np.abs(v - p[:, None]), axis=1)
+            self.max_error = np.where(recorded, np.maximum(self.max_error, position_error), self.max_error)
+            self.max_velocity_error = np.where(recorded, np.maximum(self.max_velocity_error, velocity_error),
+                                               self.max_velocity_error)
         usable = recorded & np.isfinite(modal) & (modal > DECAY_FLOOR * self.first_modal)
         self.decay_energy = np.where(usable, modal, self.decay_energy)
         self.decay_t = np.where(usable, t, self.decay_t)
@@ -167,8 +199,13 @@ class LaneSummary:
         with np.errstate(invalid="ignore", divide="ignore"):
             newton = np.where(steps > 0, self.newton / np.maximum(steps, 1), 0.0)
             linear = np.where(steps > 0, self.linear / np.maximum(steps, 1), 0.0)
+        norms = {}
+        if self.exact is not None:
+            _, p = self.exact(self.last_t)
+            norms = {"final_velocity_error": np.max(np.abs(self.last_velocities - p[:, None]), axis=1),
+                     "max_error": self.max_error, "max_velocity_error": self.max_velocity_error}
         return {"samples": {}, "sample_count": None, "per_step": {}, "last_t": self.last_t,
-                "last_positions": self.last_positions, "safeguard_steps": self.safeguard_steps,
+                "last_positions": self.last_positions, "safeguard_steps": self.safeguard_steps, "error_norms": norms,
                 "decay_energies": (self.first_modal, self.decay_energy, self.decay_t),
                 "series_summary": {"max_rel_energy_drift": self.max_drift, "final_rel_energy_drift": self.final_drift,
                                    "mean_newton_iterations": newton, "mean_linear_iterations": linear}}

@@ -118,13 +118,14 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
     error_step_set = set(error_steps.tolist())
     stop_on_not_converged = first.solver.on_not_converged == "stop"
     accept_not_converged = first.solver.on_not_converged == "accept"
+    exact = getattr(system, "exact_states", None)  # the error norms' exact solution, where the system has one
     if record.series:  # simulate.Recorder's columns, one array per key
         layout = dict(system.observable_layout)
         layout.update(t=(), dissipated_energy=(), positions=(system.dof_count,), velocities=(system.dof_count,))
         recorder = LaneSeries(layout, step_count // stride + 2, lanes, step_count, system.modal_energy,
-                              capabilities["energy_scale"])
+                              capabilities["energy_scale"], exact)
     else:
-        recorder = LaneSummary(capabilities["energy_scale"], lanes, system.dof_count, system.modal_energy)
+        recorder = LaneSummary(capabilities["energy_scale"], lanes, system.dof_count, system.modal_energy, exact)
 
     state = State(0.0, system.x0.copy(), system.v0.copy())
     energy0 = system.total_energy(state.x, state.v)
@@ -219,6 +220,7 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
                "safeguard_steps": kept["safeguard_steps"]}
     columns = {key: values.tolist() for key, values in columns.items()}
     columns["decay_per_period"] = lane_decays(kept["decay_energies"], capabilities["natural_frequency"])
+    norms = {key: values.tolist() for key, values in kept["error_norms"].items()}  # measures.error_norms per lane
     capability_lists = {key: values.tolist() for key, values in capabilities.items()}
     summary = {key: values.tolist() for key, values in kept["series_summary"].items()} if not record.series else {}
     statuses, attrs = [], []
@@ -233,6 +235,7 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
         lane_attrs = {key: values[lane] for key, values in columns.items()}
         lane_attrs.update(shared)
         lane_attrs.update({key: values[lane] for key, values in capability_lists.items()})
+        lane_attrs.update({key: value for key, values in norms.items() if not math.isnan(value := values[lane])})
         if not math.isnan(error_times[lane]):
             lane_attrs["error_time"] = float(error_times[lane])
             lane_attrs["error"] = float(errors[lane])

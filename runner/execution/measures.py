@@ -143,6 +143,25 @@ def final_error(system, samples: dict[str, np.ndarray]) -> float:
     return float(np.max(np.abs(samples["positions"][-1] - exact[0][0])))
 
 
+def error_norms(system, samples: dict[str, np.ndarray]) -> dict[str, float]:
+    """The run's other error norms against the exact solution, from its stored samples: ``final_velocity_error``, max
+    |v - v_exact| at the last sample (m/s), and over the run ``max_error``, max |x - x_exact| over every sample and
+    dof (m), and ``max_velocity_error`` (m/s). Empty where no exact solution is known or no state was sampled; a
+    NaN norm (a state or an exact solution that overflowed) is left out, as a run without it."""
+    t = samples.get("t", np.empty(0))
+    if not t.size or "positions" not in samples:
+        return {}
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverged run's state, or a pumped spring's e^(w t), overflows
+        exact = system.exact_solution(t)
+        if exact is None:
+            return {}
+        position_error = np.abs(samples["positions"] - exact[0])
+        velocity_error = np.abs(samples["velocities"] - exact[1])
+        norms = {"final_velocity_error": float(np.max(velocity_error[-1])), "max_error": float(np.max(position_error)),
+                 "max_velocity_error": float(np.max(velocity_error))}
+    return {key: value for key, value in norms.items() if not math.isnan(value)}
+
+
 def explicit_frequency(system, integrator) -> float:
     """rad/s: the frequency that bounds ``integrator``'s stable step on ``system`` at (h w)*/w: the stiffest of its
     ``limiting_stiffness`` at the start shape (sqrt of the largest eigenvalue of K v = lambda M v over the free dofs;
@@ -174,15 +193,19 @@ def explicit_frequency(system, integrator) -> float:
 def add_outcome(system, samples: dict, attrs: dict, error_state, with_frames: bool, constraint_kinds) -> dict:
     """What every run stores of its outcome, added to ``attrs`` and ``samples``: the oscillator's decay per period (which
     the damping map compares with its prediction) and, where the run reached its error time (``error_state``: (t, x,
-    v) there), the error and the state there. Returns the drawn topology (model_edges, model_triangles,
+    v) there), the error and the state there (its velocities too where no exact solution is known, for a reference to
+    measure), and the other error norms (``error_norms``). Returns the drawn topology (model_edges, model_triangles,
     model_constraints) of a run with frames."""
     oscillator = system.capabilities.oscillator
     if oscillator is not None:
         with np.errstate(over="ignore", invalid="ignore"):  # a run that overflowed measures NaN (or a growth, inf)
             attrs["decay_per_period"] = measured_decay(system, samples, oscillator[0])
+    attrs.update(error_norms(system, samples))
     if error_state is not None:
-        attrs["error_time"], samples["error_positions"], _ = error_state
+        attrs["error_time"], samples["error_positions"], velocities = error_state
         attrs["error"] = error_at(system, *error_state)
+        if system.exact_solution(np.array([error_state[0]])) is None:
+            samples["error_velocities"] = velocities  # for a reference solution to measure the run's velocity error by
     model = {}
     if system.frame_edges is not None and with_frames:
         model["model_edges"] = system.frame_edges

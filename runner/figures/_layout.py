@@ -281,10 +281,15 @@ def add_notes(figure, notes: list[str]) -> None:
     """A line under the panels for each note: what the figure leaves out and why, footnotes."""
     notes = list(dict.fromkeys(note for note in notes if note))
     if notes:
-        # a note wider than the figure is wrapped (a character of the note's font is about half its size wide)
-        width = max(40, int(figure.get_figwidth() * 72.0 / (0.5 * NOTE_SIZE)) - 4)
-        lines = [line for note in notes for line in textwrap.wrap(note, width, break_on_hyphens=False) or [""]]
+        lines = [line for note in notes for line in note_lines(figure, note)]
         figure.supxlabel("\n".join(lines), fontsize=NOTE_SIZE, color="0.25", ha="center")
+
+
+def note_lines(figure, note: str) -> list[str]:
+    """A note's lines as ``add_notes`` writes them: wrapped where wider than the figure (a character of the note's font
+    is about half its size wide)."""
+    width = max(40, int(figure.get_figwidth() * 72.0 / (0.5 * NOTE_SIZE)) - 4)
+    return textwrap.wrap(note, width, break_on_hyphens=False) or [""]
 
 
 def suptitle(figure, data: FigureData, what: str) -> None:

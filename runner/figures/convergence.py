@@ -172,6 +172,7 @@ def work_precision(data: FigureData):
     figure, axes = layout.panel_grid(rows, sharey=True, panel_size=layout.SUMMARY_PANEL_SIZE,
                                      legend_width=layout.FIGURE_LEGEND_WIDTH, extra_height=2 * NOTE_LINE)
     errors, unpriced = [], set()
+    accuracies = [_reference_accuracy(data, panel.runs) for panel in panels]
     for row_number, (panel, row) in enumerate(zip(panels, rows)):
         for column, (label, cost) in enumerate(measures):
             ax = axes[row_number * len(measures) + column]
@@ -196,11 +197,19 @@ def work_precision(data: FigureData):
             _draw_front(ax, front)
             layout.log_log_panel(ax, row[column].title, minor_grid=False)
     runs = _error_axes(data, axes, rows, errors, "")
+    accuracy_drawn = False
+    for row_number, accuracy in enumerate(accuracies):  # below it the errors are the reference's own
+        if np.isfinite(accuracy) and accuracy >= axes[row_number * len(measures)].get_ylim()[0]:
+            for column in range(len(measures)):
+                axes[row_number * len(measures) + column].axhline(accuracy, color=ACCURACY_COLOUR, ls=":", lw=1.2, zorder=1)
+            accuracy_drawn = True
     for row_number in range(len(rows)):  # each column its own work (label_outer gives every column one label)
         for column, (label, _) in enumerate(measures):
             axes[row_number * len(measures) + column].set_xlabel(label if row_number == len(rows) - 1 else "", fontsize=9)
     handles = layout.series_handles(data, [series for panel in panels for series in panel.series], lw=1.2)
     handles.append(Line2D([], [], color=FRONT_COLOUR, lw=4.0, alpha=0.5, label="Pareto front"))
+    if accuracy_drawn:
+        handles.append(Line2D([], [], color=ACCURACY_COLOUR, ls=":", lw=1.2, label="reference's own accuracy"))
     handles.append(Line2D([], [], ls="none", label="lower left is better"))
     layout.figure_legend(figure, handles, data.legend_title)
     points = "the tolerances" if any(np.isfinite(run.tolerance) for run in data.runs) else "the time steps"
@@ -210,8 +219,47 @@ def work_precision(data: FigureData):
         unpriced_labels.setdefault(label.split(" of the run")[0], []).append(method)
     notes += [f"not on the {what} axis (none counted): {', '.join(dict.fromkeys(methods))}"
               for what, methods in unpriced_labels.items()]
-    layout.add_notes(figure, notes + [_left_out_reasons(data, runs)])
+    notes += [_reference_note(data, [run for panel in panels for run in panel.runs]), _left_out_reasons(data, runs)]
+    layout.add_notes(figure, notes)
+    figure.set_figheight(figure.get_figheight() + NOTE_LINE * _wrapped_lines(figure, notes[-2]))
     return figure
+
+
+# the line of a reference's estimated accuracy (the work-precision figure)
+ACCURACY_COLOUR = "0.3"
+
+
+def _reference_accuracy(data: FigureData, runs: list[RunData]) -> float:
+    """m: the estimated accuracy of the reference these runs' errors are measured against (NaN: none of them is, or
+    its accuracy was not estimated)."""
+    if data.reference is None:
+        return float("nan")
+    return data.reference.accuracy_of(run.run_id for run in runs if run.error_from_reference)
+
+
+def _reference_note(data: FigureData, runs: list[RunData]) -> str:
+    """What the errors of the runs without an exact solution are measured against, how well that is known, and which
+    drawn runs' errors are at or below it (there the figure shows the reference's error, not the run's)."""
+    measured = [run for run in runs if run.error_from_reference]
+    if data.reference is None or not measured:
+        return ""
+    note = f"errors vs reference: against {data.reference.statement()}"
+    if not np.isfinite(data.reference.accuracy_of(run.run_id for run in measured)):
+        return note
+    below = set(data.reference.below_accuracy(run.run_id for run in measured))
+    if not below:
+        return note + "; every drawn run's error is above it"
+    by_label: dict[str, list[RunData]] = {}
+    for run in measured:
+        if run.run_id in below:
+            by_label.setdefault(run.label, []).append(run)
+    listed = [f"{label} ({_settings_text(mine)})" for label, mine in by_label.items()]
+    return note + f"; at or below it, so no measure of the method: {', '.join(listed)}"
+
+
+def _wrapped_lines(figure, note: str) -> int:
+    """How many lines ``layout.add_notes`` writes a note in (the figure grows by that many)."""
+    return len(layout.note_lines(figure, note)) if note else 0
 
 
 def _section_panels(data: FigureData, keep, notes: list[str]) -> list:

@@ -365,6 +365,9 @@ def accuracy_findings(data, several) -> list[Finding]:
         best = sorted(min(errors[id(run)][0] for run in mine if run.label == label)
                       for label in dict.fromkeys(run.label for run in mine))
         smallest = max(best[min(1, len(best) - 1)], analysis.ROUND_OFF_ERROR * scale)
+        floor = data.reference.accuracy_of(run.run_id for run in mine) if data.reference is not None else math.nan
+        if np.isfinite(floor):  # below the reference's own accuracy a budget would rank the reference's error, not the runs'
+            smallest = max(smallest, floor)
         times = [time for _, time, _ in errors.values() if np.isfinite(time)]
         when = (f"t = {min(times):.4g} s" if math.isclose(min(times), max(times), rel_tol=1e-9)
                 else f"t = {min(times):.4g} to {max(times):.4g} s") if times else "the end"

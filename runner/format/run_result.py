@@ -12,6 +12,7 @@ import h5py
 import numpy as np
 
 from simrun.experiment.config import Run
+from simrun.format.layout import ERROR_NORMS
 from simrun.format.summary import SUMMARY_DTYPE, Status, real_time_factor, wall_time_per_frame
 
 
@@ -86,7 +87,7 @@ def lane_summary(runs: list[Run], batch: LaneBatch, series: dict[str, np.ndarray
     rows["steps"] = batch.steps
     for key, values in series.items():
         rows[key] = values
-    for key in ("final_error", "error_time", "error"):
+    for key in ("final_error", "error_time", "error", *ERROR_NORMS):
         rows[key] = [attrs.get(key, math.nan) for attrs in batch.attrs]
     rows["wall_time"] = batch.wall_time
     rows["real_time_factor"] = [real_time_factor(steps, run.dt, wall) for steps, run, wall in

@@ -14,6 +14,8 @@ import math
 import h5py
 import numpy as np
 
+from simrun.format.layout import ERROR_NORMS
+
 
 class Status(str, enum.Enum):
     """How a run ended (the ``status`` attribute); a ``str``, so ``Status.OK == "ok"``."""
@@ -65,6 +67,9 @@ SUMMARY_DTYPE = np.dtype([
     ("final_error", "f8"),
     ("error_time", "f8"),
     ("error", "f8"),
+    ("final_velocity_error", "f8"),
+    ("max_error", "f8"),
+    ("max_velocity_error", "f8"),
     ("mean_newton_iterations", "f8"),
     ("mean_linear_iterations", "f8"),
     ("wall_time", "f8"),
@@ -123,7 +128,7 @@ def summary_row_of(run_id: str, attrs, read) -> tuple:
         run_id, as_text(attrs["integrator_label"]), dt, as_text(attrs["status"]), steps,
         series["max_rel_energy_drift"], series["final_rel_energy_drift"], float(attrs.get("final_error", math.nan)),
         float(attrs.get("error_time", math.nan)), float(attrs.get("error", math.nan)),
-        series["mean_newton_iterations"], series["mean_linear_iterations"], wall_time,
+        *(float(attrs.get(key, math.nan)) for key in ERROR_NORMS), series["mean_newton_iterations"], series["mean_linear_iterations"], wall_time,
         real_time_factor(steps, dt, wall_time), wall_time_per_frame(steps, dt, wall_time),
     )
 

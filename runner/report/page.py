@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simrun.analysis.reference import REFERENCE_RTOL, reference_errors
+from simrun.analysis.reference import reference_errors
 from simrun.analysis.rows import (SummaryRow, determinant_rows, energy_reference_text, error_time_text, order_rows,
                                   stability_rows, summary_rows)
 from simrun.analysis.units import number_text, real_time_text
@@ -101,10 +101,11 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
     reference_note = ""
     if without_exact and reference and str(reference).lower() != "none":
         errors = reference_errors(results, reference, say=say)
-        against = (f"run {reference}" if reference in results.runs
-                   else f"scipy solve_ivp ({str(reference).upper()}, rtol {REFERENCE_RTOL:g})")
-        reference_note = (f"{len(without_exact)} runs have no exact solution: their errors are measured against {against} "
-                          f"on the system rebuilt from its stored parameters ({len(errors)} runs).")
+        below = errors.below_accuracy()
+        reference_note = (f"{len(without_exact)} runs have no exact solution: their errors are measured against "
+                          f"{errors.statement()}, on the system rebuilt from its stored parameters ({len(errors)} runs)."
+                          + (f" {len(below)} of them are at or below that accuracy, so that their errors are not theirs: "
+                             f"{', '.join(below)}." if below else ""))
     elif without_exact:
         reference_note = (f"{len(without_exact)} runs have no exact solution and no reference was asked for "
                           "(--reference none): no convergence for them.")
@@ -122,8 +123,11 @@ def write_report(path: str | Path, output: str | Path, reference: str | None = "
                 plt.close(figure)
         found = findings(data, rows, orders)
     test_equation = any(np.isfinite(row.hw) for row in rows)
+    # where no order is fitted (step-controlled runs: the work-precision figure), the runs' table says what the
+    # errors without an exact solution are measured against
+    runs_note = f'<p class="note">{_e(reference_note)}</p>' if reference_note and not orders else ""
     sections = [("figures", "Figures", _figures_section(figures, test_equation)),
-                ("summary", "Runs", _collapsed(_summary_section(rows), len(rows), "the table of runs"))]
+                ("summary", "Runs", runs_note + _collapsed(_summary_section(rows), len(rows), "the table of runs"))]
     if orders:
         sections.append(("orders", "Observed order of convergence",
                          _collapsed(_orders_section(orders, reference_note, error_time_text(rows)), len(orders),

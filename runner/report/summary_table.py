@@ -188,6 +188,10 @@ CSV_COLUMNS = (  # header (with its unit), value
     ("error_m", lambda row: row.error),
     ("error_from_reference", lambda row: row.error_from_reference),
     ("final_error_m", lambda row: row.final_error),
+    ("final_velocity_error_m_per_s", lambda row: row.final_velocity_error),
+    ("max_error_m", lambda row: row.max_error),  # over the stored samples
+    ("max_velocity_error_m_per_s", lambda row: row.max_velocity_error),
+    ("velocity_error_m_per_s", lambda row: row.velocity_error),  # against a reference, at error_time
     ("solver_iterations_per_step", lambda row: row.mean_newton_iterations),
     ("linear_iterations_per_step", lambda row: row.mean_linear_iterations),
     ("wall_time_s", lambda row: row.wall_time),

@@ -166,6 +166,21 @@ class StoredRun:
         return float(self.attrs.get("final_error", math.nan))
 
     @property
+    def final_velocity_error(self) -> float:
+        """m/s: max |v - v_exact| at the last sample (NaN without an exact solution, and in files before it)."""
+        return float(self.attrs.get("final_velocity_error", math.nan))
+
+    @property
+    def max_error(self) -> float:
+        """m: max |x - x_exact| over every stored sample and dof (NaN without an exact solution, and in files before it)."""
+        return float(self.attrs.get("max_error", math.nan))
+
+    @property
+    def max_velocity_error(self) -> float:
+        """m/s: max |v - v_exact| over every stored sample and dof (NaN without an exact solution, and in files before it)."""
+        return float(self.attrs.get("max_velocity_error", math.nan))
+
+    @property
     def error_time(self) -> float:
         """s: when the run's error was measured (record.error_time, at its nearest step); NaN for a run that
         stopped before it. Format 1 measured at the last sample."""

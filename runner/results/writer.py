@@ -208,7 +208,7 @@ class ResultsWriter:
         runs = self.file["runs"]
         rows = [(int(runs[run_id].attrs["index"]), summary_row(run_id, runs[run_id])) for run_id in runs]
         for chunk in self.file.get(LANES_GROUP, {}).values():
-            rows += zip(chunk[LANE_TABLE]["index"].tolist(), chunk["summary"][()].tolist())
+            rows += zip(chunk[LANE_TABLE]["index"].tolist(), _in_summary_columns(chunk["summary"][()]).tolist())
         rows.sort(key=lambda item: item[0])
         del self.file["summary"]
         self.file.create_dataset("summary", data=np.array([row for _, row in rows], dtype=SUMMARY_DTYPE),
@@ -297,3 +297,12 @@ class ResultsWriter:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _in_summary_columns(stored: np.ndarray) -> np.ndarray:
+    """A lane chunk's summary rows in this simrun's columns (SUMMARY_DTYPE): a column that a chunk written by an older
+    simrun lacks (the error norms over the run) is NaN, as its runs' attributes read."""
+    rows = np.empty(stored.shape, dtype=SUMMARY_DTYPE)
+    for name in SUMMARY_DTYPE.names:
+        rows[name] = stored[name] if name in stored.dtype.names else np.nan
+    return rows
