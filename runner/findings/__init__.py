@@ -13,6 +13,9 @@ sentence against known values rather than its wording. No finding claims more th
   1 - rho^(4 pi / (h w)) = 1 - exp(-2 pi d_method / w); and how the measured damping agrees with it;
 - accuracy and cost: rankings only among runs that reached their end with a known error (exact
   solution, or a reference), by the wall time of the cheapest run within an error budget;
+- equal error (``simrun.findings.peers``): simrun's Radau IIA against scipy's Radau on a sweep of
+  step_control.tolerance, each one's wall time, steps, Jacobians and factorisations interpolated at the errors both
+  reach, and their ratios (runs that did not end ok left out, and named);
 - cost at equal dt (sweeps of solver.type; ``simrun.findings.cost``): every method's wall time per 1/60 s
   frame and real-time factor beside its error (or energy change) and its distance from the fastest
   implicit run whose every step converged, Newton's when there is one (what a real-time method, an
@@ -20,7 +23,7 @@ sentence against known values rather than its wording. No finding claims more th
 - what could not be measured, and why, said once.
 
 One module per topic: ``integrators`` (stability, damping, accuracy, orders, energy, what was not measured),
-``contact``, ``cost``, ``damping_map`` and ``calibration`` (``simrun fit``), each on the wording of ``base``. The
+``contact``, ``cost``, ``peers``, ``damping_map`` and ``calibration`` (``simrun fit``), each on the wording of ``base``. The
 numbers come from ``simrun.analysis.oscillator`` (the rows of ``analysis.rows``, read from the file through
 ``analysis.runs.run_set``); the findings only select, compare and word them.
 """
@@ -38,12 +41,13 @@ from simrun.findings.damping_map import map_findings
 from simrun.findings.integrators import (accuracy_findings, damping_budget_findings, damping_findings, energy_findings,
                                          largest_dt_findings, measured_damping_findings, not_measured_findings,
                                          order_findings, stability_findings)
+from simrun.findings.peers import peer_findings
 
 
 def findings(data: RunSet, rows: list[SummaryRow] | None = None, orders: list[OrderRow] | None = None
              ) -> list[Finding]:
-    """The findings of a file's runs, in reading order (stability, contact, damping, accuracy, cost, energy, not
-    measured)."""
+    """The findings of a file's runs, in reading order (stability, contact, damping, accuracy, equal error, cost,
+    energy, not measured)."""
     rows = summary_rows(data) if rows is None else rows
     orders = order_rows(data) if orders is None else orders
     predictions = predictions_for(data) if test_equation_runs(data) else {}
@@ -58,6 +62,7 @@ def findings(data: RunSet, rows: list[SummaryRow] | None = None, orders: list[Or
     result += damping_budget_findings(data, predictions)
     result += accuracy_findings(data, several)
     result += order_findings(orders, several)
+    result += peer_findings(data)
     result += solver_cost(data, rows)
     if not predictions:
         result += energy_findings(data, rows, several)
