@@ -1,11 +1,11 @@
 """IMEX Runge-Kutta methods: the named energy terms implicit, the rest explicit (Ascher's "decouple fast and slow
 scales"; issue 28).
 
-The force splits as f = f_I + f_E: f_I from the terms named in ``implicit`` (spring kinds, contact, gravity: the
-system's ``energy_terms``), f_E from the others. On u = (x, v) the split is u' = F_I(u) + F_E(u) with F_I = (v,
-M^-1 f_I) and F_E = (0, M^-1 f_E): the kinematics go with the implicit part. An additive Runge-Kutta method with an
-implicit tableau (A, b, c), diagonally implicit, and an explicit one (A^, b^, c), strictly lower triangular, has the
-stages
+The force splits as f = f_I + f_E: f_I from the terms named in ``implicit`` (the system's ``energy_terms``: spring
+kinds or a finite-element system's elements and hinges, drag, gravity, contact), f_E from the others. On u = (x, v)
+the split is u' = F_I(u) + F_E(u) with F_I = (v, M^-1 f_I) and F_E = (0, M^-1 f_E): the kinematics go with the
+implicit part. An additive Runge-Kutta method with an implicit tableau (A, b, c), diagonally implicit, and an
+explicit one (A^, b^, c), strictly lower triangular, has the stages
 
     X_i = x_n + h sum_{j<i} A_ij V_j + h gamma_i V_i,
     V_i = v_n + h sum_{j<i} (A_ij a_j + A^_ij e_j) + h gamma_i a_i,
@@ -113,8 +113,9 @@ class IMEX(Integrator):
                                                                      "Ruuth & Spiteri's (2,2,2), order 2)")
     implicit: tuple[str, ...] | None = Field(
         None, description="the energy terms taken implicitly, of the system's energy_terms (a mass-spring model's spring "
-                          "kinds, drag, gravity, contact); the others are explicit. Default: every term but the bending "
-                          "springs and gravity (a system without named terms: all of it, `potential`)")
+                          "kinds, drag, gravity, contact; a finite-element system's elastic, bending, drag, gravity, "
+                          "contact); the others are explicit. Default: every term but bending and gravity (a system "
+                          "without named terms: all of it, `potential`)")
 
     @property
     def pair(self) -> ImexTableau:

@@ -7,7 +7,7 @@ discrete-shell hinges (bending.py); damping
 f_d = -(alpha M + beta K_rest) v - c v (Rayleigh, K_rest the elastic Hessian at the rest shape, and drag); vertex
 constraints (pins, sliding, prescribed paths) as filters, as for mass_spring. The element loops are compiled
 (kernels.py); the Hessian's CSR pattern and each element block's place in it are built once, so an evaluation
-fills one data array.
+fills one data array. Its energy in named parts for IMEX splits (``energy_terms``, ``with_terms``): split.py.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from ..base import System, vertex_energy_reference
 from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
-from . import bending, kernels, membrane
+from . import bending, kernels, membrane, split
 from .materials import MATERIALS
 from .mesh import SimplexMesh
 
@@ -81,6 +81,9 @@ class Fem(ContactHooks, System):
         self.shape_gradients = shape_gradients(mesh)
         # the elements' weights: rest volumes (a 2-D solid's areas; a shell's areas times its thickness)
         self.volumes = np.abs(mesh.rest_volumes()) * (thickness if self.is_shell else 1.0)
+        # whether the elements' elastic energy is part of P: False only in an IMEX split's part without ``elastic``
+        # (split.py), which keeps the mesh (its volume ratios and step bound) but none of its elements' forces
+        self.includes_elements = True
         self._kernels = membrane if self.is_shell else kernels
         self.hinges = np.zeros((0, 4), dtype=np.intp) if hinges is None else np.ascontiguousarray(hinges, dtype=np.intp)
         self.bending_stiffness = float(bending_stiffness)
@@ -93,6 +96,7 @@ class Fem(ContactHooks, System):
             if constraints.moving_dofs.size:
                 self.v0[constraints.moving_dofs] = constraints.path(0.0)[1]
         self._moving = constraints.moving_dofs if constraints is not None else np.zeros(0, dtype=np.intp)
+        self.consistent_masses = consistent_masses
         self._build_pattern()
         self.mass_correction = None if consistent_masses is None else self._consistent_correction(consistent_masses)
         self._rest_stiffness = self._elastic_hessian_data(self.rest.ravel(), 1)
@@ -100,9 +104,13 @@ class Fem(ContactHooks, System):
 
     # -- setup ----------------------------------------------------------------------------------
     def _build_pattern(self) -> None:
-        """The CSR pattern of all element and hinge blocks, and where each entry of each block goes in its data array."""
+        """The CSR pattern of the element blocks (where the elastic energy or the consistent mass fills them), the hinge
+        blocks and every vertex's own block (contact's, drag's diagonal: a part of an IMEX split may have no elements),
+        and where each entry of each block goes in its data array."""
         d, n = self.dim, self.dof_count
-        groups = [self.elements, self.hinges]
+        with_elements = self.includes_elements or self.consistent_masses is not None
+        vertices = np.arange(self.vertex_count)[:, None]
+        groups = [self.elements if with_elements else self.elements[:0], self.hinges, vertices]
         entries = []
         for group in groups:
             dofs = (d * group[:, :, None] + np.arange(d)).reshape(len(group), group.shape[1] * d)  # (elements, k)
@@ -115,7 +123,7 @@ class Fem(ContactHooks, System):
         pattern.sum_duplicates()
         pattern.sort_indices()
         keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr)) * n + pattern.indices
-        self._positions, self._hinge_positions = (
+        self._positions, self._hinge_positions, _ = (
             np.searchsorted(keys, rows.astype(np.int64) * n + cols).reshape(shape[0], shape[1], shape[1])
             for rows, cols, shape in entries)
         self._nnz = pattern.nnz
@@ -154,9 +162,10 @@ class Fem(ContactHooks, System):
     def _elastic_hessian_data(self, x: np.ndarray, projection: int) -> np.ndarray:
         """The elements' and hinges' Hessian blocks, projected as asked, scattered into the pattern's data."""
         data = np.zeros(self._nnz)
-        self._kernels.element_hessians(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
-                                       self._model, projection, self._blocks)
-        kernels.scatter_blocks(self._blocks, self._positions, data)
+        if self.includes_elements:
+            self._kernels.element_hessians(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
+                                           self._model, projection, self._blocks)
+            kernels.scatter_blocks(self._blocks, self._positions, data)
         if len(self.hinges):
             blocks = np.empty((len(self.hinges), 12, 12))
             bending.hinge_hessians(x, self.hinges, self.hinge_stiffness, self.rest_angles, projection, blocks)
@@ -186,6 +195,8 @@ class Fem(ContactHooks, System):
     # -- energy, gradient, Hessian ---------------------------------------------------------------
     def elastic_energy(self, x: np.ndarray) -> float:
         """sum_e V_e psi(F_e) + bending (J); infinite where a neo-Hookean element is inverted."""
+        if not self.includes_elements:
+            return self.bending_energy(x)
         return (float(self._kernels.element_energies(x, self.elements, self.shape_gradients, self.volumes, self.mu,
                                                      self.lam, self._model).sum()) + self.bending_energy(x))
 
@@ -203,7 +214,8 @@ class Fem(ContactHooks, System):
 
     def _elastic_gradient(self, x: np.ndarray) -> np.ndarray:
         """dP/dx without contact (N), flat (n d,)."""
-        gradient = self._element_gradient(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam)
+        gradient = (self._element_gradient(x, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam)
+                    if self.includes_elements else np.zeros(x.size))
         if len(self.hinges):
             forces = np.empty((len(self.hinges), 4, 3))
             bending.hinge_forces(x, self.hinges, self.hinge_stiffness, self.rest_angles, forces)
@@ -300,6 +312,8 @@ class Fem(ContactHooks, System):
                     + (f"{self.material}" if self.material != "corotated" else "a volume term (poisson_ratio != 0)"))
         if len(self.hinges):
             return "the discrete-shell hinges are not of projective form"
+        if not self.includes_elements:
+            return "a part of an IMEX split without elastic has no element constraints"
         if self.contact is not None:
             return "contact is not an element constraint"
         return None
@@ -321,7 +335,8 @@ class Fem(ContactHooks, System):
         dE_e/dtheta / E_e, and Rayleigh's beta K_rest by beta times K_rest's elements scaled the same way."""
         same = ("elements", "rest", "vertex_masses", "x0", "v0", "gravity", "fixed_dofs", "poisson_ratio", "volumes",
                 "hinge_stiffness")
-        if self.mass_correction is not None:  # the sensitivities' equations take a diagonal M
+        # the sensitivities' equations take a diagonal M, and the whole system's elements
+        if self.mass_correction is not None or not self.includes_elements:
             return None
         if (type(changed) is not type(self) or changed.material != self.material or self.contact is not None
                 or changed.contact is not None or self.sliding is not None
@@ -362,6 +377,14 @@ class Fem(ContactHooks, System):
             elif model == "drag":
                 data[self.diagonal_positions] += coefficient_rate
         return ParameterDerivative(gradient=gradient, damping=lambda x: self.pattern_matrix(data.copy()))
+
+    # -- named parts of the energy, for IMEX splits (integrators/imex.py) ------------------------
+    @property
+    def energy_terms(self) -> tuple[str, ...]:
+        return split.energy_terms(self)
+
+    def with_terms(self, names, complement=False):
+        return split.with_terms(self, names, complement)
 
     # -- vertices on prescribed paths -----------------------------------------------------------
     def acceleration(self, x, v):
@@ -409,6 +432,8 @@ class Fem(ContactHooks, System):
 
     @functools.cached_property
     def _cancelling(self) -> float:
+        if not self.includes_elements:
+            return 0.0
         return float(self.mesh.element_dim * np.sum(self.volumes * (self.mu + np.abs(self.lam))))
 
     def _energy_reference(self) -> tuple[float, str]:

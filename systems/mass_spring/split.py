@@ -11,11 +11,11 @@ follows its springs: each part keeps it on its own.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
-import functools
 
 import numpy as np
+
+from simrun.systems.split_parts import fresh_copy, has_vertex_damping
 
 
 def kind_matches(name: str, kind_names: tuple[str, ...]) -> list[int]:
@@ -29,7 +29,7 @@ def energy_terms(system) -> tuple[str, ...]:
     present = [system.kind_names[kind] for kind in np.unique(system.spring_kinds)]
     prefixes = [kind.split("_")[0] for kind in present if "_" in kind]
     names = list(dict.fromkeys(prefixes + present))
-    if _has_vertex_damping(system.damping_terms):
+    if has_vertex_damping(system.damping_terms):
         names.append("drag")
     if np.any(system.gravity != 0.0):
         names.append("gravity")
@@ -44,11 +44,7 @@ def with_terms(system, names, complement: bool = False):
     names = tuple(names)
     kinds = sorted({kind for name in names for kind in kind_matches(name, system.kind_names)})
     kept = np.flatnonzero(np.isin(system.spring_kinds, kinds) != complement)
-    part = copy.copy(system)
-    for klass in type(system).__mro__:  # what was derived from the whole system is derived again for the part
-        for attribute, value in vars(klass).items():
-            if isinstance(value, functools.cached_property):
-                part.__dict__.pop(attribute, None)
+    part = fresh_copy(system)
     part.first, part.second = system.first[kept], system.second[kept]
     part.stiffness, part.rest_length = system.stiffness[kept], system.rest_length[kept]
     part.rest_length_squared = system.rest_length_squared[kept]
@@ -64,7 +60,7 @@ def with_terms(system, names, complement: bool = False):
     part.damping_terms = tuple(term for term in (_damping_part(term, vertex_damping) for term in system.damping_terms)
                                if term is not None)
     if not (kept.size or np.any(part.gravity != 0.0) or part.contact is not None
-            or _has_vertex_damping(part.damping_terms)):
+            or has_vertex_damping(part.damping_terms)):
         return None  # no force at all: an IMEX split steps without it (no solve for an empty implicit part)
     part._geometry = None
     part._build_pattern()
@@ -80,8 +76,3 @@ def _damping_part(term, vertex_damping: bool):
     if term.model == "rayleigh":
         return dataclasses.replace(term, alpha=term.alpha if vertex_damping else 0.0)
     return term
-
-
-def _has_vertex_damping(terms) -> bool:
-    """Whether any damping term acts per vertex (drag, or Rayleigh's alpha M)."""
-    return any(term.model == "drag" or (term.model == "rayleigh" and term.alpha) for term in terms)
