@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from matplotlib.lines import Line2D
 
+from simrun.analysis.equal_error import left_out_reason
 from simrun.analysis.runs import RunData
 from simrun.figures import _layout as layout
 from simrun.figures._data import FigureData, Series
@@ -291,21 +292,14 @@ def _settings_text(runs: list[RunData]) -> str:
 
 
 def _left_out_reasons(data: FigureData, drawn: list[RunData]) -> str:
-    """Which runs are not drawn and why, by method: diverged, over the wall-time budget, not converged, failed, or
-    without a known error."""
+    """Which runs are not drawn and why, by method (``left_out_reason``): diverged, over the wall-time budget, not
+    converged, failed, or without a known error."""
     shown = set(map(id, drawn))
     reasons: dict[str, list[str]] = {}
     for run in data.runs:
         if id(run) in shown:
             continue
-        if str(run.status) == "diverged":
-            why = "diverged"
-        elif "max_wall_time" in run.stored.message:
-            why = "over record.max_wall_time"
-        elif str(run.status) in ("not_converged", "failed"):
-            why = str(run.status).replace("_", " ")
-        else:
-            why = "no known error"
+        why = left_out_reason(run) or "no known error"
         reasons.setdefault(why, {}).setdefault(run.label, []).append(run)
     if not reasons:
         return ""
