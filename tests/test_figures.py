@@ -170,14 +170,16 @@ def imported_by(module: str) -> set[str]:
 def test_the_reader_and_the_figures_import_no_config_simulation_or_library():
     """Data flows one way: the results reader depends on the file format only, the figures on it and on the derived
     per-run data. Importing them loads no config, simulation, writer, CLI or library package (the theory figures load
-    simrun.analysis.oscillator, and with it the integrators, only when they draw)."""
+    simrun.analysis.oscillator, and with it the integrators, only when they draw; the reference's and equal-error
+    modules of analysis, which the work-precision figure reads, import only numpy and the format)."""
     face = {"simrun", "simrun.errors", "simrun.version"}
     reader = imported_by("simrun.results")
     assert reader - face == {"simrun.format", "simrun.format.layout", "simrun.format.summary", "simrun.results",
                              "simrun.results.fits", "simrun.results.lanes", "simrun.results.reader"}
     figures = imported_by("simrun.figures")
     outside = {module for module in figures - face - reader if not module.startswith("simrun.figures")}
-    assert outside == {"simrun.analysis", "simrun.analysis.runs", "simrun.analysis.damping_map"}
+    assert outside == {"simrun.analysis", "simrun.analysis.runs", "simrun.analysis.damping_map",
+                       "simrun.analysis.reference", "simrun.analysis.equal_error"}
 
 
 def test_a_file_without_runs_gives_no_figures(tmp_path):

@@ -286,3 +286,19 @@ def test_measured_contours_stay_visible_where_the_predicted_ones_lie_on_them(tmp
         close(figures)
     comment = (Path(__file__).resolve().parents[1] / "configs" / "damping_map.yaml").read_text()
     assert "measured contours (white bands) under the predicted ones (black dashes)" in comment
+
+
+def test_step_controlled_runs_get_a_panel_per_tolerance_not_per_mean_step(tmp_path):
+    """A step-controlled run's dt is only its mean accepted step, different for every method at one tolerance: the
+    small multiples (energy over time) had a panel per mean step, six of 28 "time steps", each with one method. Now
+    a column per tolerance, every method of that tolerance in it."""
+    path = run_pipeline(tmp_path, "controlled", {
+        "system": {"type": "spring_mass", "stiffness": 100.0, "mass": 1.0, "x0": 1.0},
+        "integrators": ["dopri5", "radau_iia", "trbdf2"], "duration": 1.0,
+        "step_control": {"tolerance": 1e-4}, "sweep": {"step_control.tolerance": [1e-3, 1e-5]}})
+    data = figure_data(load(path))
+    rows, notes = layout.dt_grid(data)
+    panels = layout.flatten(rows)
+    assert [panel.title for panel in panels] == ["tol = 1e-05", "tol = 0.001"] and not notes
+    for panel, tolerance in zip(panels, (1e-5, 1e-3)):
+        assert len(panel.runs) == 3 and all(run.tolerance == tolerance for run in panel.runs)

@@ -82,6 +82,9 @@ def save_figure(figure, stem: Path, dpi: int = PNG_DPI, formats: tuple[str, ...]
     nothing (the same pixels, a sixth less time)."""
     engine = figure.get_layout_engine()
     if engine is not None:
+        # laid out at the dpi it is drawn at: text measured at the default 100 dpi and drawn at 150 grew past the
+        # left edge (a stability map's longest row label lost its first letter)
+        figure.set_dpi(dpi)
         engine.execute(figure)
         try:
             figure.set_layout_engine(None)  # the axes keep the positions the layout gave them
@@ -127,27 +130,41 @@ def summary_panels(data: FigureData, keep=None, notes: list[str] | None = None) 
     return panels
 
 
-def dt_grid(data: FigureData, keep=None) -> tuple[list[list[Panel]], list[str]]:
-    """Small multiples: a row per section and family of lines, a column per time step; (rows, notes).
+def step_setting(run) -> tuple[str, float]:
+    """What sets a run's steps: ("tol", its step_control.tolerance) for a step-controlled run, else ("dt", its dt)."""
+    return ("tol", run.tolerance) if np.isfinite(run.tolerance) else ("dt", run.dt)
 
-    With one row the time steps wrap onto rows of PANEL_COLUMNS, and so do the settings where each row would hold
-    one panel (one time step). At most MAX_DT_PANELS time steps (fewer with several rows), spread over the range:
-    the notes say how many of how many are shown."""
+
+def step_setting_title(data: FigureData, setting: tuple[str, float]) -> str:
+    kind, value = setting
+    return f"tol = {value:g}" if kind == "tol" else f"dt = {data.dt_names[value]} s"
+
+
+def dt_grid(data: FigureData, keep=None) -> tuple[list[list[Panel]], list[str]]:
+    """Small multiples: a row per section and family of lines, a column per time step, or per tolerance for
+    step-controlled runs (whose dt is only their mean step); (rows, notes).
+
+    With one row the columns wrap onto rows of PANEL_COLUMNS, and so do the settings where each row would hold
+    one panel. At most MAX_DT_PANELS time steps or tolerances (fewer with several rows), spread over the range: the
+    notes say how many of how many are shown."""
     blocks = summary_panels(data, keep)
     notes = []
     if len(blocks) > MAX_PANEL_ROWS:
         notes.append(f"{MAX_PANEL_ROWS} of {len(blocks)} rows (settings × families) shown: the first ones")
         blocks = blocks[:MAX_PANEL_ROWS]
-    dts = sorted({run.dt for block in blocks for run in block.runs})
+    settings = sorted({step_setting(run) for block in blocks for run in block.runs})
     cap = MAX_DT_PANELS if len(blocks) == 1 else MAX_DT_PANELS_PER_ROW if len(blocks) == 2 else MAX_DT_PANELS_MANY_ROWS
-    shown = spread(dts, cap)
-    if len(shown) < len(dts):
-        notes.append(f"{len(shown)} of {len(dts)} time steps shown, spread over the range (every time step: the "
-                     "energy drift figure and the stability map)")
+    shown = spread(settings, cap)
+    if len(shown) < len(settings):
+        tolerances = all(kind == "tol" for kind, _ in settings)
+        what = "tolerances" if tolerances else "time steps"
+        every = "the error and cost table" if tolerances else "the energy drift figure and the stability map"
+        notes.append(f"{len(shown)} of {len(settings)} {what} shown, spread over the range (every one: {every})")
     rows = []
     for block in blocks:
-        row = [Panel(f"dt = {data.dt_names[dt]} s", [run for run in block.runs if run.dt == dt], block.series, block.title)
-               for dt in shown]
+        row = [Panel(step_setting_title(data, setting), [run for run in block.runs if step_setting(run) == setting],
+                     block.series, block.title)
+               for setting in shown]
         row = [panel for panel in row if panel.runs]
         if len(blocks) == 1:
             rows += [row[start:start + PANEL_COLUMNS] for start in range(0, len(row), PANEL_COLUMNS)]

@@ -306,8 +306,8 @@ def _same_budget(a, b) -> bool:
 
 
 def _step_setting(run: RunData) -> float:
-    """What sets a run's steps: its tolerance under step control, else its dt."""
-    return run.tolerance if np.isfinite(run.tolerance) else run.dt
+    """What sets a run's steps: its tolerance under step control, else its dt (``layout.step_setting``'s value)."""
+    return layout.step_setting(run)[1]
 
 
 def _budget_setting(runs: list[RunData]) -> float:
