@@ -303,9 +303,10 @@ def add_notes(figure, notes: list[str]) -> None:
 
 
 def note_lines(figure, note: str) -> list[str]:
-    """A note's lines as ``add_notes`` writes them: wrapped where wider than the figure (a character of the note's font
-    is about half its size wide)."""
-    width = max(40, int(figure.get_figwidth() * 72.0 / (0.5 * NOTE_SIZE)) - 4)
+    """A note's lines as ``add_notes`` writes them: wrapped where wider than the figure (a character of the note's font,
+    DejaVu Sans, is on average 0.6 of its size wide: at half its size a work-precision note of 300 characters ran
+    past both edges)."""
+    width = max(40, int(figure.get_figwidth() * 72.0 / (0.6 * NOTE_SIZE)) - 4)
     return textwrap.wrap(note, width, break_on_hyphens=False) or [""]
 
 
