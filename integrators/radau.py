@@ -149,15 +149,16 @@ class RadauIIA(Integrator):
         c, W, WW, values, T, T_inverse, row_sums = _transformation(s)
         x, v = state.x, state.v
         # the held dofs: pinned (X = 0) and on prescribed paths (X_i on the path at t_n + c_i h)
-        held = system.fixed_dofs
         constraints = system.constraints
         moving = constraints.moving_dofs if constraints is not None else ()
-        if len(moving):
-            held = np.union1d(held, moving)
-        free = np.setdiff1d(np.arange(n), held)
         last = state.reusable if economy else None
-        if not (isinstance(last, _Reusable) and last.system is system and np.array_equal(last.free, free)):
-            last = None  # a first step, a released system: nothing to reuse
+        if not (isinstance(last, _Reusable) and last.system is system):
+            last = None  # a first step, a released system (a system of its own): nothing to reuse
+        if last is not None:  # a system's pinned and prescribed dofs are its own: the same as the last step's
+            held, free = last.held, last.free
+        else:
+            held = np.union1d(system.fixed_dofs, moving) if len(moving) else system.fixed_dofs
+            free = np.setdiff1d(np.arange(n), held)
         X = np.zeros((s, n)) if last is None else last.extrapolated(state.t, h, c)
         X[:, held] = 0.0
         for i in range(s if len(moving) else 0):
@@ -187,7 +188,7 @@ class RadauIIA(Integrator):
             stop = _Stop.for_step(self, state, free, h, error_tolerance, None)
         velocities = (W @ X) / h
         real = [k for k, value in enumerate(values) if abs(value.imag) <= 1e-12]
-        kept = _Reusable(system=system, free=free, stiffness=stiffness, damping=damping, h=h, blocks=blocks,
+        kept = _Reusable(system=system, held=held, free=free, stiffness=stiffness, damping=damping, h=h, blocks=blocks,
                          real_index=real[0] if real else None, real_value=values[real[0]].real if real else None,
                          t0=state.t, X=X, velocities=velocities, contraction=stop.contraction,
                          refresh=taken > 2 and stop.rate > SLOW_CONTRACTION)
@@ -248,9 +249,10 @@ class _Stop:
     theta >= 0.99, or when the rate would not reach the bound within the iterations left; a fixed step iterates to
     the last."""
 
-    scale_x: np.ndarray | None  # atol + rtol |x_n| on the free dofs, or None: the fixed-step form's max norm
-    scale_v: np.ndarray | None
-    free: np.ndarray
+    # 1 / (atol + rtol |x_n|) per dof, 0 on the held ones (their updates are 0), or None: the fixed-step form's max norm
+    inverse_x: np.ndarray | None
+    inverse_v: np.ndarray | None  # 1 / (h (atol + rtol |v_n|)), 0 on the held dofs
+    count: int  # the free dofs
     h: float
     tolerance: float  # the fixed-step form's relative bound; the step-controlled form's FNEWT
     contraction: float
@@ -261,21 +263,24 @@ class _Stop:
     def for_step(cls, method: "RadauIIA", state: State, free: np.ndarray, h: float, error_tolerance, last) -> "_Stop":
         contraction = max(last.contraction if last is not None else 1.0, EPSILON) ** 0.8
         if error_tolerance is None:
-            return cls(None, None, free, h, method.tolerance, contraction)
+            return cls(None, None, free.size, h, method.tolerance, contraction)
         rtol, atol = error_tolerance
         bound = max(10.0 * EPSILON / rtol, min(0.03, math.sqrt(rtol)))
-        return cls(atol + rtol * np.abs(state.x[free]), atol + rtol * np.abs(state.v[free]), free, h, bound, contraction)
+        inverse_x, inverse_v = np.zeros_like(state.x), np.zeros_like(state.v)
+        inverse_x[free] = 1.0 / (atol + rtol * np.abs(state.x[free]))
+        inverse_v[free] = 1.0 / (h * (atol + rtol * np.abs(state.v[free])))
+        return cls(inverse_x, inverse_v, free.size, h, bound, contraction)
 
     def judge(self, change: np.ndarray, X: np.ndarray, iteration: int, max_iterations: int) -> bool | None:
         """After an update: True (converged), False (gave up: no convergence) or None (iterate on)."""
-        if self.scale_x is None:
+        if self.inverse_x is None:
             size, bound, give_up = max_norm(change), self.tolerance * max_norm(X) + 1e-14, False
         else:
             W = _transformation(change.shape[0])[1]
-            positions = change[:, self.free] / self.scale_x
-            velocities = (W @ change[:, self.free]) / (self.h * self.scale_v)
-            size = math.sqrt((np.vdot(positions, positions) + np.vdot(velocities, velocities)) / (2 * positions.size)) \
-                if positions.size else 0.0
+            positions = change * self.inverse_x
+            velocities = (W @ change) * self.inverse_v
+            size = math.sqrt((np.vdot(positions, positions) + np.vdot(velocities, velocities))
+                             / (2 * change.shape[0] * self.count)) if self.count else 0.0
             bound, give_up = self.tolerance, True
         if not math.isfinite(size):  # the step's numbers are gone: the run diverges, or the controller retries
             return False
@@ -303,10 +308,11 @@ SLOW_CONTRACTION = 1e-3
 @dataclass
 class _Reusable:
     """What a Radau IIA step leaves for the next (RADAU5's economy): K and D, the blocks factorised for step h, the
-    free dofs they were reduced to, the system they belong to, and the step's collocation polynomial (from t0 over
-    h: X(0) = 0, X(c_i) = X_i, the stage displacements, with their velocities); ``refresh``: evaluate K anew."""
+    held and free dofs they were reduced to, the system they belong to, and the step's collocation polynomial (from
+    t0 over h: X(0) = 0, X(c_i) = X_i, the stage displacements, with their velocities); ``refresh``: evaluate K anew."""
 
     system: object
+    held: np.ndarray
     free: np.ndarray
     stiffness: object
     damping: object

@@ -139,8 +139,9 @@ def test_the_collocation_polynomial_extrapolates_a_cubic_exactly():
         return np.stack([tau ** (k + 1) for k in range(3)], axis=-1) @ coefficients
 
     h, t0 = 0.02, 1.5
-    kept = _Reusable(system=None, free=np.arange(2), stiffness=None, damping=None, h=h, blocks=[], real_index=None,
-                     real_value=None, t0=t0, X=p(c), velocities=np.zeros((3, 2)), contraction=1.0, refresh=False)
+    kept = _Reusable(system=None, held=np.zeros(0, dtype=int), free=np.arange(2), stiffness=None, damping=None, h=h,
+                     blocks=[], real_index=None, real_value=None, t0=t0, X=p(c), velocities=np.zeros((3, 2)),
+                     contraction=1.0, refresh=False)
     for start, fraction in ((t0 + h, 1.0), (t0, 0.0)):
         for h_new in (0.5 * h, h, 1.7 * h):
             expected = p(fraction + c * h_new / h) - p(np.array([fraction]))
