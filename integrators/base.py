@@ -38,9 +38,8 @@ from .lanes import LaneIncrementalPotential
 class State:
     """The changing state: time t (s), positions x (m), velocities v (m/s), and a method's carried arrays.
 
-    Treated as immutable: a step returns a new State and never writes into the one it was given. ``reusable`` is no
-    part of its value: what the step that reached it leaves for the next step to reuse, if that step can (a
-    step-controlled Radau IIA's Jacobian, factorisations and collocation polynomial); None for most methods."""
+    Treated as immutable: a step returns a new State and never writes into the one it was given. ``reusable``, no
+    part of its value, is what the step that reached it leaves the next (Radau IIA's K and factors, dopri5's slope)."""
 
     t: float
     x: np.ndarray
@@ -170,24 +169,17 @@ class Integrator(BaseModel):
         method's history is too short (the variable-step BDF starts with TR-BDF2)."""
         return self.estimate_order
 
-    # a multistep method's controller changes the step less often and less at a time than a one-step method's: a
-    # proposed growth below ``step_hold`` keeps the step, and a step grows at most ``step_growth`` times (the
-    # history is interpolated to the new step, each change an error of its own: Shampine & Reichelt 1997, ode15s)
+    # a multistep method's controller changes the step less often and less at a time than a one-step method's: an
+    # accepted step's proposed factor in [step_hold_below, step_hold) keeps the step (Radau IIA's, from 0: a step kept
+    # is a factorisation saved), and a step grows at most ``step_growth`` times (the history is interpolated to the
+    # new step, each change an error of its own: Shampine & Reichelt 1997, ode15s)
     step_hold: ClassVar[float] = 1.0
-    # ... and a proposal down to this fraction too (Radau IIA: a step kept is a factorisation saved)
     step_hold_below: ClassVar[float] = 1.0
-
-    @property
-    def step_hold_band(self) -> tuple[float, float]:
-        """[low, high): an accepted step's proposed factor in it keeps the step as it is."""
-        return self.step_hold_below, self.step_hold
     step_growth: ClassVar[float] = 5.0
 
-    def step_with_error(self, system: System, state: State, dt: float, solver,
-                        error_tolerance: tuple[float, float] | None = None) -> tuple[State, SolveStats, np.ndarray]:
+    def step_with_error(self, system: System, state: State, dt: float, solver, error_tolerance=None):
         """``step``, and the step's local error estimate as (2, dof_count) rows: positions (m), velocities (m/s).
-        ``error_tolerance``: the step control's (rtol, atol), which a method with an iteration of its own may stop at a
-        fraction of (Radau IIA); the others ignore it."""
+        ``error_tolerance``: the step control's (rtol, atol), which Radau IIA's own iteration stops at a fraction of."""
         raise TypeError(f"{self.name} has no error estimate of its own")
 
     @property

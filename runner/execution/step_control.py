@@ -6,10 +6,10 @@ kept. The estimate's scaled norm err (runner/experiment/step_control.py: scipy's
 otherwise, or when the step's solve did not converge, or its numbers are not finite, the step is taken again from
 the same state, smaller. The next size is h min(5, max(0.2, safety err^(-0.7/q) err_previous^(0.4/q))) for the PI
 controller (h (safety / err)^(1/q) for I, and after a rejection), capped at 1 after a rejection and at dt_max. A
-multistep method grows its step at most 2-fold, and keeps it while the proposal is below 1.2 h (its
-``step_growth`` and ``step_hold``). Steps
-land exactly on the stops: the duration, the error time and the releases of prescribed paths. Hairer, Norsett &
-Wanner, Solving ODEs I (1993), sec. II.4; Hairer & Wanner II (1996), sec. IV.8.
+multistep method grows its step at most 2-fold, and keeps it while the proposal is in [h, 1.2 h); Radau IIA keeps
+it below 1.2 h (``step_growth``, ``step_hold_below`` and ``step_hold``). Steps land exactly on the stops: the
+duration, the error time and the releases of prescribed paths. Hairer, Norsett & Wanner, Solving ODEs I (1993), sec.
+II.4; Hairer & Wanner II (1996), sec. IV.8.
 """
 
 from __future__ import annotations
@@ -168,7 +168,7 @@ class StepController:
         else:
             factor = params.safety * error ** -self.exponent
         factor = min(self.growth, max(MIN_FACTOR, factor))
-        low, high = self.integrator.step_hold_band
+        low, high = self.integrator.step_hold_below, self.integrator.step_hold  # an accepted step kept in [low, high)
         if self.rejected_last:
             factor = min(factor, 1.0)
         elif low <= factor < high:
