@@ -218,7 +218,8 @@ def _findings_section(found: list[Finding], anchors: set[str], rows: list[Summar
                          f'<ul class="findings">{"".join(item(finding) for finding in found)}</ul></details>')
     if rows:
         keys = len({(row.group, row.integrator) for row in rows})
-        parts.append(_collapsed(_glance(rows, dt_names), keys, "the error and cost of every run at each dt"))
+        each = "tolerance" if all(np.isfinite(row.tolerance) for row in rows) else "dt"  # _glance's columns
+        parts.append(_collapsed(_glance(rows, dt_names), keys, f"the error and cost of every run at each {each}"))
     return "".join(parts)
 
 
