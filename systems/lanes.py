@@ -21,9 +21,11 @@ batched line search is not offered.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-from .base import DISTINCT_ROOTS, ENERGY_ROUND_OFF
+from .base import DISTINCT_ROOTS, ENERGY_ROUND_OFF, near_critical_states
 
 
 class SpringMassLanes:
@@ -140,17 +142,26 @@ class SpringMassLanes:
 
     def exact_states(self, t):
         """(q, v) of every lane's exact solution at its own time t (lanes,): SpringMass.exact_solution's two-exponential
-        form, evaluated for all lanes at once; lanes near critical damping take SpringMass's propagator one by one."""
-        m, k, d, q0, p0 = (array[:, 0] for array in (self.mass, self.stiffness, self.damping, self.x0, self.v0))
-        discriminant = (d * d - 4.0 * m * k).astype(complex)
-        first = (-d - np.copysign(1.0, d) * np.sqrt(discriminant)) / (2.0 * m)
-        second = k / (m * first)
-        distinct = np.abs(first - second) > DISTINCT_ROOTS * np.maximum(np.abs(first), np.abs(second))
-        c1, c2 = (p0 - second * q0) / (first - second), (first * q0 - p0) / (first - second)
+        form, evaluated for all lanes at once; lanes near critical damping SpringMass's closed-form propagator. The
+        roots and coefficients are the lanes' own, computed once (a map's error norms ask at every sample)."""
+        first, second, c1, c2, near, constants = self._exact_constants
         grow1, grow2 = np.exp(first * t), np.exp(second * t)
         q = (c1 * grow1 + c2 * grow2).real
         p = (c1 * (first * grow1) + c2 * (second * grow2)).real  # SpringMass.exact_solution's order
-        for lane in np.flatnonzero(~distinct):
-            exact_q, exact_p = self.systems[lane].exact_solution(np.array([t[lane]]))
-            q[lane], p[lane] = exact_q[0, 0], exact_p[0, 0]
+        if near.size:
+            q[near], p[near] = near_critical_states(*constants, np.asarray(t, dtype=float)[near])
         return q, p
+
+    @functools.cached_property
+    def _exact_constants(self):
+        """exact_states' roots l1, l2 and coefficients c1, c2 per lane, the lanes near critical damping and their
+        (m, k, d, q0, p0)."""
+        m, k, d, q0, p0 = (array[:, 0] for array in (self.mass, self.stiffness, self.damping, self.x0, self.v0))
+        discriminant = (d * d - 4.0 * m * k).astype(complex)
+        first = (-d - np.copysign(1.0, d) * np.sqrt(discriminant)) / (2.0 * m)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a critical lane's are NaN, and not used
+            second = k / (m * first)
+            distinct = np.abs(first - second) > DISTINCT_ROOTS * np.maximum(np.abs(first), np.abs(second))
+            c1, c2 = (p0 - second * q0) / (first - second), (first * q0 - p0) / (first - second)
+        near = np.flatnonzero(~distinct)
+        return first, second, c1, c2, near, (m[near], k[near], d[near], q0[near], p0[near])

@@ -6,10 +6,9 @@ import math
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 from pydantic import ConfigDict, Field, model_validator
 
-from .base import DISTINCT_ROOTS, ParameterDerivative, System, SystemParams
+from .base import DISTINCT_ROOTS, ParameterDerivative, System, SystemParams, near_critical_states
 from .compliant import anchored_springs
 from .lanes import SpringMassLanes
 
@@ -154,7 +153,7 @@ class SpringMass(System):
     def exact_solution(self, t):
         """q(t) = c1 e^{l1 t} + c2 e^{l2 t} with the roots l1, l2 of m l^2 + d l + k = 0 (complex for an
         oscillation); near critical damping, where the two roots nearly coincide and the form loses digits, the
-        propagator exp(t A) itself (scipy's expm, batched over t: exact at any damping, far slower)."""
+        propagator exp(t A) itself in closed form (``near_critical_states``)."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         m = self.mass[0]
         q0, p0 = float(self.x0[0]), float(self.v0[0])
@@ -170,10 +169,10 @@ class SpringMass(System):
             # arithmetic against its array loops) would tell a run's velocity from its lane's (tests/test_lanes.py)
             p = (c1 * (first * grow1) + c2 * (second * grow2)).real
             return q[:, None], p[:, None]
-        generator = np.array([[0.0, 1.0], [-self.stiffness / m, -self.damping / m]])
-        propagators = scipy.linalg.expm(t[:, None, None] * generator)  # batched over t
-        states = propagators @ np.array([q0, p0])
-        return states[:, :1], states[:, 1:]
+        one = np.ones(1)  # the parameters as arrays: the same array arithmetic as the lanes' (systems/lanes.py)
+        q, p = near_critical_states(m * one, self.stiffness * one, self.damping * one, q0 * one, p0 * one, t)
+        return q[:, None], p[:, None]
+
 
 
 SpringMassParams.system_class = SpringMass
