@@ -86,7 +86,8 @@ class RadauIIA(Integrator):
     tolerance: float = Field(1e-10, gt=0, lt=1, allow_inf_nan=False,
                              description="the simplified Newton's stop: the update relative to the stage displacements")
     max_iterations: int = Field(20, ge=1, le=1000, description="simplified Newton iterations per step")
-    # a proposed growth below 1.2 keeps the step, and with it the factorised blocks (RADAU5's QUOT2)
+    # an accepted step's proposal below 1.2 h keeps the step, and with it the factorised blocks (scipy's Radau; RADAU5
+    # keeps it in [h, 1.2 h]: QUOT1, QUOT2)
     step_hold: ClassVar[float] = 1.2
     step_hold_below: ClassVar[float] = 0.0
 
