@@ -124,3 +124,33 @@ def test_a_file_written_before_the_norms_reads_them_as_nan(tmp_path):
     summary = results.summary
     assert list(summary.columns) == list(SUMMARY_DTYPE.names)
     assert summary[list(ERROR_NORMS)].isna().all().all()
+
+
+def test_near_critical_motion_is_the_propagator_and_lanes_store_what_runs_store():
+    """Where the two roots of m l^2 + d l + k nearly coincide, the spring's exact motion is exp(t A) (q0, p0) in closed
+    form (systems/base.py near_critical_states): within 1e-13 of scipy's expm at and either side of critical damping;
+    and lanes at those damping ratios store the error norms their runs store alone, bit for bit."""
+    import scipy.linalg
+
+    from simrun.systems.base import near_critical_states
+
+    m, k, q0, p0 = 1.3, 57.0, 0.7, -0.4
+    t = np.array([0.0, 0.01, 0.3, 2.0, 10.0])
+    for ratio in (1.0, 1.0 - 1e-8, 1.0 + 1e-8, 1.0 - 1e-4):
+        d = ratio * 2.0 * math.sqrt(k * m)
+        q, p = near_critical_states(*(np.array([value]) for value in (m, k, d, q0, p0)), t)
+        generator = np.array([[0.0, 1.0], [-k / m, -d / m]])
+        expected = np.array([scipy.linalg.expm(generator * time) @ [q0, p0] for time in t])
+        np.testing.assert_allclose(q, expected[:, 0], rtol=0, atol=1e-13 * np.abs(expected[:, 0]).max())
+        np.testing.assert_allclose(p, expected[:, 1], rtol=0, atol=1e-13 * np.abs(expected[:, 1]).max())
+    # roots within DISTINCT_ROOTS of each other at |ratio - 1| below about 1e-7: those lanes take the closed form
+    ratios = [0.5, 1.0 - 1e-8, 1.0, 1.0 + 1e-8, 2.0] * (MIN_LANES // 5 + 1)
+    config = {"name": "critical", "system": {"type": "spring_mass", "stiffness": W * W, "x0": 1.0, "v0": 0.5},
+              "integrators": ["backward_euler"], "duration": DURATION, "record": {"every": 3, "series": False},
+              "sweep": {"dt": [DT], "system.damping_ratio": ratios[:MIN_LANES]}}
+    runs = expand_runs(validate_experiment(config))
+    batch = simulate_lanes(runs)
+    for run, lane in zip(runs, batch.results()):
+        alone = simulate(run).attrs
+        for key in ERROR_NORMS:
+            assert lane.attrs[key] == alone[key], (run.run_id, key)
