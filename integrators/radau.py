@@ -17,8 +17,9 @@ A fixed step evaluates K and D at x_n and factorises its blocks. A step-controll
 Wanner II, sec. IV.8): each step starts from the last step's collocation polynomial, extrapolated; K and D are kept
 until an iteration contracts slowly (or fails, when they are evaluated at x_n and the step is solved again); the
 blocks are kept while h is, and the step controller keeps h for any proposal below 1.2 h (scipy's Radau). On the
-16 x 16 cloth at tolerance 1e-6 that took 878 steps with 112 Jacobians and 127 sets of blocks, where a
-factorisation per step took 1,170 steps (docs/performance.md).
+16 x 16 cloth at tolerance 1e-6 that took 887 steps with 7 Jacobians and 34 sets of blocks (``jacobian_refresh``
+0.1; 878 steps, 112 Jacobians and 127 sets at RADAU5's default 1e-3), where a factorisation per step took 1,170
+steps (docs/performance.md).
 
 Pinned dofs keep X = 0; the dofs of prescribed paths take X_i = p(t_n + c_i h) - x_n, their stage positions on the
 path, and are held there by the iteration. Sliding vertices keep X in their filters' range S: the residual is
@@ -86,6 +87,10 @@ class RadauIIA(Integrator):
     tolerance: float = Field(1e-10, gt=0, lt=1, allow_inf_nan=False,
                              description="the simplified Newton's stop: the update relative to the stage displacements")
     max_iterations: int = Field(20, ge=1, le=1000, description="simplified Newton iterations per step")
+    jacobian_refresh: float = Field(
+        0.1, ge=0, lt=1, allow_inf_nan=False,
+        description="step-controlled runs: K and D are evaluated anew at the next step after an iteration of more "
+                    "than two updates contracting by more than this per update (RADAU5's THET)")
     # an accepted step's proposal below 1.2 h keeps the step, and with it the factorised blocks (scipy's Radau; RADAU5
     # keeps it in [h, 1.2 h]: QUOT1, QUOT2)
     step_hold: ClassVar[float] = 1.2
@@ -192,7 +197,7 @@ class RadauIIA(Integrator):
         kept = _Reusable(system=system, held=held, free=free, stiffness=stiffness, damping=damping, h=h, blocks=blocks,
                          real_index=real[0] if real else None, real_value=values[real[0]].real if real else None,
                          t0=state.t, X=X, velocities=velocities, contraction=stop.contraction,
-                         refresh=taken > 2 and stop.rate > SLOW_CONTRACTION)
+                         refresh=taken > 2 and stop.rate > self.jacobian_refresh)
         linear = iterations * len([block for block in blocks if block is not None])
         return (State(state.t + h, x + X[-1], velocities[-1], (), kept if economy else None),
                 SolveStats(iterations=iterations, linear_iterations=linear, residual=residual, converged=converged),
@@ -200,30 +205,37 @@ class RadauIIA(Integrator):
 
     def _iterate(self, system, x, momentum, X, h, free, held, blocks, sliding, stop: "_Stop"):
         """Simplified Newton from X, until ``stop`` says it has converged or cannot: (X, iterations, converged, the
-        last residual)."""
-        s = self.stages
-        c, W, WW, values, T, T_inverse, row_sums = _transformation(s)
-        n = x.size
+        last residual). The stages' forces are evaluated together (``System.forces``); the transformations by T^-1
+        and T are real products with their real and imaginary parts, on the free dofs alone."""
+        c, W, WW, values, T, T_inverse, row_sums = _transformation(self.stages)
+        inverse_real, inverse_imag = np.ascontiguousarray(T_inverse.real), np.ascontiguousarray(T_inverse.imag)
+        # the eigenvalues whose blocks are solved, and each conjugate's partner (its update is the partner's conjugate)
+        solved = [k for k, block in enumerate(blocks) if block is not None]
+        conjugates = [(k, int(np.argmin(np.abs(values - np.conj(values[k]))))) for k, block in enumerate(blocks)
+                      if block is None]
+        drift = (h * row_sums)[:, None] * momentum
+        update_real = np.zeros((self.stages, free.size))
+        update_imag = np.zeros((self.stages, free.size))
         residual = math.inf
-        residual_rows = np.empty((s, n))
-        update = np.zeros((s, n), dtype=complex)
         for iteration in range(1, self.max_iterations + 1):
             velocities = (W @ X) / h
-            for i in range(s):
-                residual_rows[i] = (system.mass_times(WW[i] @ X) - h * row_sums[i] * momentum
-                                    - h * h * system.force(x + X[i], velocities[i]))
-            residual_rows[:, held] = 0.0
-            rows = residual_rows if sliding is None else (sliding @ residual_rows.T).T
+            rows = _mass_rows(system, WW @ X) - drift - (h * h) * system.forces(x + X, velocities)
+            rows[:, held] = 0.0
+            if sliding is not None:
+                rows = (sliding @ rows.T).T
             residual = max_norm(rows)
-            transformed = T_inverse @ rows  # (s, n), complex
-            for k, value in enumerate(values):
-                if blocks[k] is not None:
-                    update[k, free] = blocks[k](-transformed[k, free])
-            for k, value in enumerate(values):  # the conjugate eigenvalue's update is the conjugate of its pair's
-                if blocks[k] is None:
-                    partner = int(np.argmin(np.abs(values - np.conj(value))))
-                    update[k] = np.conj(update[partner])
-            change = np.real(T @ update)
+            free_rows = rows[:, free]
+            transformed_real, transformed_imag = inverse_real @ free_rows, inverse_imag @ free_rows
+            for k in solved:
+                if abs(values[k].imag) > 1e-12:
+                    solution = blocks[k](-(transformed_real[k] + 1j * transformed_imag[k]))
+                    update_real[k], update_imag[k] = solution.real, solution.imag
+                else:
+                    update_real[k] = blocks[k](-transformed_real[k])
+            for k, partner in conjugates:
+                update_real[k], update_imag[k] = update_real[partner], -update_imag[partner]
+            change = np.zeros_like(X)
+            change[:, free] = T.real @ update_real - T.imag @ update_imag  # Re(T U)
             if sliding is not None:
                 change = (sliding @ change.T).T
             X = X + change
@@ -301,9 +313,6 @@ class _Stop:
 
 
 EPSILON = float(np.finfo(float).eps)
-# an iteration that took more than two updates, contracting by more than this per update, had a Jacobian worth
-# evaluating anew at the next step (scipy's Radau; RADAU5 refreshes above 1e-3 whatever the count)
-SLOW_CONTRACTION = 1e-3
 
 
 @dataclass
@@ -358,6 +367,14 @@ def _blocks(system, values, h, stiffness, damping, free, sliding):
             matrix = filtered(matrix, sliding)
         blocks.append(factorised(matrix, free, complex_valued))
     return blocks
+
+
+def _mass_rows(system, rows: np.ndarray) -> np.ndarray:
+    """M times every row of ``rows`` (M with a consistent mass's correction where it has one)."""
+    product = system.mass * rows
+    if system.mass_correction is not None:
+        product += (system.mass_correction @ rows.T).T
+    return product
 
 
 def _mass_plus(system, factor, matrix):

@@ -223,7 +223,7 @@ def factorised(matrix, free: np.ndarray, complex_valued: bool = False):
     dtype = complex if complex_valued else float
 
     def cast(right):
-        return right.astype(dtype) if complex_valued else np.real(right)
+        return np.asarray(right, dtype=dtype) if complex_valued else np.real(right)  # SuperLU solves a copy
 
     if scipy.sparse.issparse(matrix):
         reduced = scipy.sparse.csc_matrix(scipy.sparse.csc_matrix(matrix, dtype=dtype)[free][:, free])

@@ -51,29 +51,6 @@ from .capabilities import Capabilities  # noqa: F401  (re-exported: what a syste
 from .patterns import colour_vertices, diagonal_blocks
 
 
-# the roots of m l^2 + d l + k of a damped oscillator count as distinct when they differ by this fraction of their size:
-# the two-exponential form of its exact motion (the spring's, one run or lanes) then loses at most eps / DISTINCT_ROOTS
-# of its digits (about 1e-13)
-DISTINCT_ROOTS = 1e-3
-
-
-def near_critical_states(m, k, d, q0, p0, t):
-    """(q, p) at t of m q'' + d q' + k q = 0 from (q0, p0), where the roots nearly coincide: the propagator exp(t A),
-    A = [[0, 1], [-k/m, -d/m]], in closed form, e^{s t} (cosh(delta t) I + sinh(delta t)/delta (A - s I)) with s =
-    -d/(2m) and delta^2 = s^2 - k/m (complex for an oscillation), sinh(z)/z taken as 1 at z = 0: no digits lost as
-    delta goes to 0, where the two-exponential form loses them. Arrays that broadcast (lanes, or times); a batched
-    scipy expm, one 2 x 2 matrix at a time, had cost a 42,000-run map 20 s of its 27."""
-    s = -d / (2.0 * m)
-    delta = np.sqrt((s * s - k / m).astype(complex))
-    z = delta * t
-    at_zero = z == 0.0
-    sinh_over_delta = np.where(at_zero, 1.0, np.sinh(z) / np.where(at_zero, 1.0, z)) * t
-    cosh, grow = np.cosh(z), np.exp(s * t)
-    q = grow * (cosh * q0 + sinh_over_delta * (p0 - s * q0))
-    p = grow * (cosh * p0 + sinh_over_delta * (s * p0 - (k / m) * q0))
-    return q.real, p.real
-
-
 # |KE0| + |PE0| below this fraction of the work of the initial forces over the length scale is round-off
 ENERGY_ROUND_OFF = 1e-8
 # P sums terms of both signs: a difference of two values of P below this fraction of them is round-off
@@ -385,6 +362,29 @@ class System(ABC):
         if self.sliding is not None:
             self.sliding.apply(force)
         return force
+
+    def forces(self, X: np.ndarray, V: np.ndarray) -> np.ndarray:
+        """f at every row (x_k, v_k) of X and V, shape (rows, dof_count) (N): the stages of an implicit Runge-Kutta
+        step evaluated together. ``force`` per row for a system with a force of its own; else ``gradients``, which a
+        system whose gradient vectorises over states overrides, with ``force``'s damping, fixed dofs and filters."""
+        if type(self).force is not System.force:
+            return np.stack([self.force(x, v) for x, v in zip(X, V)])
+        forces = -self.gradients(X)
+        if self.is_damped:
+            for force, x, v in zip(forces, X, V):
+                damping = self.damping_force(x, v)
+                if damping is not None:
+                    force += damping
+        if self.fixed_dofs.size:
+            forces[:, self.fixed_dofs] = 0.0
+        if self.sliding is not None:
+            for force in forces:
+                self.sliding.apply(force)
+        return forces
+
+    def gradients(self, X: np.ndarray) -> np.ndarray:
+        """dP/dx at every row of X, shape (rows, dof_count): one ``gradient`` per row."""
+        return np.stack([self.gradient(x) for x in X])
 
     def acceleration(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """M^-1 f(x, v) (m/s^2)."""

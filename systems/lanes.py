@@ -25,7 +25,8 @@ import functools
 
 import numpy as np
 
-from .base import DISTINCT_ROOTS, ENERGY_ROUND_OFF, near_critical_states
+from .base import ENERGY_ROUND_OFF
+from .oscillator import DISTINCT_ROOTS, near_critical_states
 
 
 class SpringMassLanes:

@@ -8,7 +8,8 @@ from typing import Literal
 import numpy as np
 from pydantic import ConfigDict, Field, model_validator
 
-from .base import DISTINCT_ROOTS, ParameterDerivative, System, SystemParams, near_critical_states
+from .base import ParameterDerivative, System, SystemParams
+from .oscillator import DISTINCT_ROOTS, near_critical_states
 from .compliant import anchored_springs
 from .lanes import SpringMassLanes
 

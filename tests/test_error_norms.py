@@ -128,11 +128,11 @@ def test_a_file_written_before_the_norms_reads_them_as_nan(tmp_path):
 
 def test_near_critical_motion_is_the_propagator_and_lanes_store_what_runs_store():
     """Where the two roots of m l^2 + d l + k nearly coincide, the spring's exact motion is exp(t A) (q0, p0) in closed
-    form (systems/base.py near_critical_states): within 1e-13 of scipy's expm at and either side of critical damping;
+    form (systems/oscillator.py near_critical_states): within 1e-13 of scipy's expm at and either side of critical damping;
     and lanes at those damping ratios store the error norms their runs store alone, bit for bit."""
     import scipy.linalg
 
-    from simrun.systems.base import near_critical_states
+    from simrun.systems.oscillator import near_critical_states
 
     m, k, q0, p0 = 1.3, 57.0, 0.7, -0.4
     t = np.array([0.0, 0.01, 0.3, 2.0, 10.0])

@@ -188,3 +188,68 @@ def test_a_step_controlled_run_counts_its_factorisations():
     tries = attrs["accepted_steps"] + attrs["rejected_steps"]
     assert attrs["factorisations"] % 2 == 0 and 2 <= attrs["factorisations"] < 2 * tries
     assert attrs["jacobian_evaluations"] <= attrs["factorisations"] // 2
+
+
+FORCE_SYSTEMS = {
+    # the compiled spring pass (MassSpring.gradients), with spring damping, a pin, sliding in a plane and along a line,
+    # and each spring law
+    "cloth_hookean": {"type": "mass_spring", "model": {"grid": {"resolution": [4, 4], "size": [0.3, 0.3]}},
+                      "stiffness": {"stretch": 60.0, "shear": 10.0, "bend": 1.0}, "mass": {"total": 0.2},
+                      "damping": [{"model": "spring", "coefficient": 0.02}], "pinned": [0],
+                      "constraints": [{"vertices": [5], "normal": [0.3, -0.2, 1.0]},
+                                      {"vertices": [10], "direction": [0.0, 1.0, 0.0]}]},
+    "rope_squared_length": {"type": "mass_spring", "model": {"rope": {"count": 5, "length": 0.4}},
+                            "spring_law": "squared_length", "stiffness": 50.0, "gravity": [0.0, 0.0, -9.81]},
+    # penalty contact, per state
+    "cloth_on_a_sphere": {"type": "cloth", "resolution": [5, 5], "stretch_stiffness": 1e3, "shear_stiffness": 1e2,
+                          "bend_stiffness": 1.0, "damping": 0.5, "pinned": [],
+                          "contact": {"sphere": {"center": [0.5, 0.5, -0.3], "radius": 0.35, "stiffness": 1e4}}},
+    # the default: one gradient per state
+    "fem_bar": {"type": "fem", "model": {"box": {"size": [0.2, 0.05, 0.05], "cells": [4, 1, 1]}}, "pinned": [0]},
+}
+
+
+@pytest.mark.parametrize("name", sorted(FORCE_SYSTEMS))
+def test_the_stages_forces_together_are_each_stages_force(name):
+    """``System.forces`` at three states (the stages' positions and velocities) is ``force`` at each, to round-off:
+    the compiled spring pass against the numpy gradient, the damping, fixed dofs, filters and contact per state."""
+    system = load_experiment({"name": "forces", "system": FORCE_SYSTEMS[name], "integrators": ["radau_iia"],
+                              "sweep": {"dt": [0.01]}})[0].system.build()
+    rng = np.random.default_rng(7)
+    X = system.x0 + 0.02 * rng.standard_normal((3, system.dof_count))
+    V = rng.standard_normal((3, system.dof_count))
+    together = system.forces(X, V)
+    each = np.stack([system.force(x, v) for x, v in zip(X, V)])
+    assert together.shape == (3, system.dof_count)
+    np.testing.assert_allclose(together, each, rtol=0.0, atol=1e-13 * np.max(np.abs(each)))
+    assert np.max(np.abs(each)) > 0.0
+
+
+def test_the_run_counts_each_stage_of_a_joint_force_evaluation():
+    """function_evaluations: three per simplified Newton iteration (the stages' forces, evaluated together), one per
+    try for the error estimate's F(u_n), and two before the first step (the controller's first step size)."""
+    config = {"name": "count", "system": {"type": "spring_mass", "stiffness": 100.0, "mass": 1.0, "x0": 1.0},
+              "integrators": ["radau_iia"], "duration": 2.0, "step_control": {"tolerance": 1e-8}}
+    from simrun.execution.simulate import simulate
+
+    result = simulate(expand_runs(load_experiment(config)[0])[0])
+    tries = result.attrs["accepted_steps"] + result.attrs["rejected_steps"]
+    iterations = int(np.sum(result.per_step["newton_iterations"]))
+    assert result.attrs["function_evaluations"] == 3 * iterations + tries + 2
+
+
+def test_a_lower_jacobian_refresh_evaluates_more_jacobians():
+    """``jacobian_refresh`` (RADAU5's THET): K is evaluated anew after an iteration slower than it, so 0 evaluates it
+    after every iteration of more than two updates and 0.9 hardly ever; both runs end ok."""
+    from simrun.execution.simulate import simulate
+
+    counts = {}
+    for refresh in (0.0, 0.9):
+        config = {"name": "refresh", "system": {"type": "cloth", "resolution": [4, 4], "stretch_stiffness": 1e3,
+                                                "shear_stiffness": 1e2, "bend_stiffness": 1.0, "damping": 0.0},
+                  "integrators": [{"type": "radau_iia", "jacobian_refresh": refresh}], "duration": 0.3,
+                  "step_control": {"tolerance": 1e-6}}
+        result = simulate(expand_runs(load_experiment(config)[0])[0])
+        assert result.status == "ok"
+        counts[refresh] = result.attrs["jacobian_evaluations"]
+    assert counts[0.0] > 2 * counts[0.9] >= 2

@@ -3,8 +3,9 @@ work-precision besides wall time (issue 28).
 
 The counts wrap the bound methods on the system instance (shadowing its class's), so that integrators and solvers,
 which call ``system.gradient`` and ``system.hessian`` / ``hessian_data``, are counted wherever they call them. A call
-made inside another counted call of the same kind (a Hessian built from its pattern's data) counts once. A released
-system (``System.released``: a shallow copy) is instrumented again, so that its methods run on the copy.
+made inside another counted call of the same kind (a Hessian built from its pattern's data) counts once. An evaluation
+at several states at once (``forces``: Radau IIA's stages) counts one per state. A released system
+(``System.released``: a shallow copy) is instrumented again, so that its methods run on the copy.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ from dataclasses import dataclass, field
 
 # what each count counts: the instance attributes wrapped
 FUNCTION_METHODS = ("gradient", "force", "acceleration", "kick")
+# the evaluations at several states at once (the rows of their first argument): each row counts one
+ROW_METHODS = ("gradients", "forces")
 JACOBIAN_METHODS = ("hessian", "hessian_data")
 
 
@@ -27,10 +30,12 @@ class EvaluationCounts:
         """Wrap ``system``'s evaluations so that this object counts them (again after a release)."""
         for name in FUNCTION_METHODS:
             self._wrap(system, name, "functions")
+        for name in ROW_METHODS:
+            self._wrap(system, name, "functions", per_row=True)
         for name in JACOBIAN_METHODS:
             self._wrap(system, name, "jacobians")
 
-    def _wrap(self, system, name: str, count: str) -> None:
+    def _wrap(self, system, name: str, count: str, per_row: bool = False) -> None:
         method = getattr(type(system), name, None)
         if method is None:
             return
@@ -39,7 +44,7 @@ class EvaluationCounts:
         def counted(*args, **kwargs):
             if inside[count]:
                 return method(system, *args, **kwargs)
-            setattr(counts, count, getattr(counts, count) + 1)
+            setattr(counts, count, getattr(counts, count) + (len(args[0]) if per_row else 1))
             inside[count] = True
             try:
                 return method(system, *args, **kwargs)

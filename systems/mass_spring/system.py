@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse
 
 from ..base import System, vertex_energy_reference
-from . import derivatives, split
+from . import derivatives, kernels, split
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
@@ -252,6 +252,19 @@ class MassSpring(ContactHooks, System):
         if self.contact is not None:
             self.contact.add_gradient(gradient, x)
         return gradient
+
+    def gradients(self, X: np.ndarray) -> np.ndarray:
+        """dP/dx at every row of X (Radau IIA's stages): the springs in one compiled pass per row (kernels.py), the
+        numbers of ``gradient`` row by row to round-off."""
+        X = np.ascontiguousarray(X, dtype=float)
+        gradients = kernels.spring_gradients(X, self.first, self.second, self.stiffness, self.rest_length,
+                                             self.rest_length_squared, self.dim, kernels.LAW_CODES[self.law.name],
+                                             np.empty_like(X))
+        gradients -= self._gravity_force
+        if self.contact is not None:
+            for gradient, x in zip(gradients, X):
+                self.contact.add_gradient(gradient, x)
+        return gradients
 
     @functools.cached_property
     def _vertex_positions(self) -> np.ndarray:
