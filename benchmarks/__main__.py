@@ -14,12 +14,13 @@ import numpy as np
 import scipy
 
 from . import (calibration, cloth_explicit, cloth_iteration, cloth_newton, contact, dirk, fem, graphics_solvers,
-               lagged_newton, lanes, mass_spring_paths, mesh_newton, parallel_sweep, small_steps, work_precision)
+               lagged_newton, lanes, mass_spring_paths, mesh_newton, parallel_sweep, realtime_kernels, small_steps,
+               work_precision)
 
 # cloth_iteration last: its cholesky part loads CHOLMOD, which holds numpy's BLAS at one thread
 BENCHMARKS = (small_steps, lanes, cloth_newton, lagged_newton, cloth_explicit, mass_spring_paths, mesh_newton, fem, dirk,
               work_precision,
-              graphics_solvers, contact, calibration, parallel_sweep, cloth_iteration)
+              graphics_solvers, realtime_kernels, contact, calibration, parallel_sweep, cloth_iteration)
 
 
 # the table's columns, wide enough for every row's name and target, so that each row is printed as it is measured

@@ -5,13 +5,15 @@ Macklin, Mueller & Chentanez, "XPBD: position-based simulation of compliant cons
 Chentanez, Jeschke & Mueller, "Small steps in physics simulation", SCA 2019 (many substeps of one iteration
 each instead of many iterations in one step). The springs come from ``System.compliant_springs()``
 (systems/compliant.py); the constraint projection is Gauss-Seidel over groups of springs that share no
-vertex, each group one vectorised update.
+vertex, each group one compiled parallel pass (xpbd_kernels.py; vector constraints one vectorised update).
 """
 
 from __future__ import annotations
 
+import functools
 import weakref
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import ClassVar
 
 import numpy as np
@@ -21,6 +23,7 @@ from simrun.solvers import EXPLICIT_STEP
 from simrun.systems.compliant import ANCHORED
 
 from .base import Integrator, State, mass_refusal
+from .xpbd_kernels import project_distance
 
 
 class XPBD(Integrator):
@@ -128,32 +131,45 @@ class SpringGroup:
                 damping_h: np.ndarray) -> None:
         """One XPBD update of every constraint of the group at x = x_n + displacement, in place on the
         displacement (m) and the multipliers (N s^2). start: x_n of the substep (m), shape (n d,);
-        stiffness_h2 = k h_s^2 (kg), damping_h = beta h_s (kg) per spring."""
+        stiffness_h2 = k h_s^2 (kg), damping_h = beta h_s (kg) per spring. Distance constraints in one compiled
+        pass (xpbd_kernels.py), vector constraints (l0 = 0) vectorised here."""
         d = self.first_weight.shape[1]
         start, moves = start.reshape(-1, d), displacement.reshape(-1, d)
+        damped = bool(damping_h.any())
+        if not self.vector:
+            compiled = self._compiled
+            project_distance(start, moves, multiplier, self.first, compiled.second, self.anchor, self.rest_length,
+                             stiffness_h2, damping_h, self.first_weight, self.second_weight, compiled.first_slides,
+                             compiled.first_projectors, compiled.second_slides, compiled.second_projectors, damped)
+            return
         # x_i - x_j as (x_i,n - x_j,n) + (relative displacement), the second the damper's grad C (x - x_n)
         moved = moves[self.first] - self._second_ends(moves, None)
         delta = (start[self.first] - self._second_ends(start, self.anchor)) + moved
-        damped = bool(damping_h.any())
-        if self.vector:
-            numerator = -stiffness_h2[:, None] * delta - multiplier
-            if damped:
-                numerator -= damping_h[:, None] * moved
-            change, first_step, second_step = self._vector_update(numerator, stiffness_h2 + damping_h)
-        else:
-            length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
-            direction = delta / np.where(length > 0.0, length, np.inf)[:, None]  # no direction at zero length: no move
-            first_gradient = _filtered(self.first_weight * direction, self.sliding[0])  # W_i grad_i C
-            second_gradient = _filtered(self.second_weight * direction, self.sliding[1])
-            weight = np.einsum("ij,ij->i", first_gradient + second_gradient, direction)  # grad C W grad C^T
-            numerator = -stiffness_h2 * (length - self.rest_length) - multiplier
-            if damped:
-                numerator -= damping_h * np.einsum("ij,ij->i", moved, direction)
-            change = numerator / ((stiffness_h2 + damping_h) * weight + 1.0)
-            first_step, second_step = first_gradient * change[:, None], second_gradient * change[:, None]
+        numerator = -stiffness_h2[:, None] * delta - multiplier
+        if damped:
+            numerator -= damping_h[:, None] * moved
+        change, first_step, second_step = self._vector_update(numerator, stiffness_h2 + damping_h)
         multiplier += change
         moves[self.first] += first_step
         moves[self.second] -= second_step if self.free_rows is None else second_step[self.free_rows]
+
+    @functools.cached_property
+    def _compiled(self) -> SimpleNamespace:
+        """The group in the compiled kernel's form: every row's second end (-1: anchored), and per end whether it
+        slides and its projector (the identity where it does not)."""
+        rows, d = self.first.size, self.first_weight.shape[1]
+        second = np.full(rows, -1, dtype=np.intp)
+        second[slice(None) if self.free_rows is None else self.free_rows] = self.second
+
+        def filters(sliding):
+            slides, projectors = np.zeros(rows, dtype=np.bool_), np.broadcast_to(np.eye(d), (rows, d, d)).copy()
+            if sliding is not None:
+                slides[sliding[0]], projectors[sliding[0]] = True, sliding[1]
+            return slides, projectors
+
+        (first_slides, first_projectors), (second_slides, second_projectors) = (filters(end) for end in self.sliding)
+        return SimpleNamespace(second=second, first_slides=first_slides, first_projectors=first_projectors,
+                               second_slides=second_slides, second_projectors=second_projectors)
 
     def _vector_update(self, numerator: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Delta lambda = ((k h^2 + beta h)(W_i + W_j) + I)^-1 numerator per spring, and the moves W_i Delta lambda,

@@ -14,6 +14,8 @@ both at the bottom of this module.
 from __future__ import annotations
 
 import difflib
+import os
+import warnings
 from typing import Annotated, Any, Literal, Optional, Union
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, ValidationError, field_validator, model_validator
@@ -29,9 +31,15 @@ from .projective import CHEBYSHEV_RHO_AUTO, ProjectiveDynamics
 from .vbd import VBD_SPD_PROJECTIONS, VertexBlockDescent
 
 # Fields that are not arguments of the solver's constructor: `type` picks the class, the runner reads
-# the other two; linear_tolerance and linear_max_iterations go to the linear solver's.
-RUNNER_FIELDS = ("type", "fallback", "on_not_converged")
+# the others; linear_tolerance and linear_max_iterations go to the linear solver's.
+RUNNER_FIELDS = ("type", "fallback", "on_not_converged", "threads")
 LINEAR_SOLVER_FIELDS = ("linear_tolerance", "linear_max_iterations", "mpcg_start")
+
+
+class ThreadsWarning(UserWarning):
+    """solver.threads above the machine's cores, capped: printed as one line by the command line (``one_line``)."""
+
+    one_line = True
 
 
 class SolverOptionError(ValueError):
@@ -125,6 +133,17 @@ class SolverParams(BaseModel):
     mpcg_start: Literal["zero", "filtered"] = Field("zero", description="mpcg: start from p0 = z (Baraff & Witkin) or from p0 = S g + (I - S) z with g the step to the inertial predictor (Ascher & Boxerman)")
     fallback: list[FallbackEntry] = Field([], description="solvers tried in turn when the previous one does not converge on a step (from its best iterate): names, or mappings {type: name, its own option: value}; the shared options are this solver's")
     on_not_converged: Literal["continue", "stop", "accept"] = Field("continue", description="go on after a step that did not converge (status not_converged at the end), stop the run there, or accept it (a real-time budget: max_iterations is the work per step; the run stays ok and counts the steps)")
+    threads: Optional[int] = Field(None, ge=1, description="threads of the compiled kernels (vbd's colour sweep): default the cores of the run's worker (with -j N the sweep divides the cores); more than the machine has are capped, with a warning line")
+
+    @field_validator("threads")
+    @classmethod
+    def _cap_threads(cls, value: int | None) -> int | None:
+        cores = os.cpu_count() or 1
+        if value is not None and value > cores:
+            warnings.warn(ThreadsWarning(f"solver.threads: {value} is more than this machine's {cores} cores; using {cores}"),
+                          stacklevel=2)
+            return cores
+        return value
 
     @classmethod
     def solver_name(cls) -> str:

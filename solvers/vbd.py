@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+import scipy.sparse
 
 from .base import Advance, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
@@ -42,6 +43,34 @@ class ColourPlan:
     vertices: np.ndarray
     filtered: np.ndarray
     projectors: np.ndarray
+    constrained: np.ndarray  # (k,) bool: vertex k has a filter, all_projectors[k] (the compiled sweep's form)
+    all_projectors: np.ndarray  # (k, d, d)
+
+
+@dataclass(frozen=True)
+class IncrementalParts:
+    """E = 1/2 |y - y~|_M^2 + s P(y) + w [damping: (D (y - a)) and D_ii] as the compiled sweep reads it: D in CSR
+    arrays (empty with w = 0 where the problem is undamped)."""
+
+    y_tilde: np.ndarray
+    mass: np.ndarray
+    scale: float
+    damping_indptr: np.ndarray
+    damping_indices: np.ndarray
+    damping_data: np.ndarray
+    damping_weight: float
+    velocity_origin: np.ndarray
+
+    @classmethod
+    def of(cls, problem) -> "IncrementalParts":
+        y_tilde = np.ascontiguousarray(problem.y_tilde, dtype=float)
+        if problem.damping is None:
+            empty = np.zeros(1, dtype=np.intp)
+            return cls(y_tilde, problem.system.mass, float(problem.scale), empty, empty, np.zeros(1), 0.0, y_tilde)
+        damping = scipy.sparse.csr_matrix(problem.damping)
+        return cls(y_tilde, problem.system.mass, float(problem.scale), damping.indptr.astype(np.intp),
+                   damping.indices.astype(np.intp), np.ascontiguousarray(damping.data, dtype=float),
+                   float(problem.damping_weight), np.ascontiguousarray(problem.velocity_origin, dtype=float))
 
 
 def colour_plans(colouring: list[np.ndarray], free: FreeDofs, dim: int) -> list[ColourPlan]:
@@ -60,7 +89,8 @@ def colour_plans(colouring: list[np.ndarray], free: FreeDofs, dim: int) -> list[
         vertices = colour[movable[colour]]
         if vertices.size:
             filtered = np.flatnonzero(constrained[vertices])
-            plans.append(ColourPlan(vertices, filtered, projectors[vertices[filtered]]))
+            plans.append(ColourPlan(vertices, filtered, projectors[vertices[filtered]], constrained[vertices].copy(),
+                                    np.ascontiguousarray(projectors[vertices])))
     return plans
 
 
@@ -68,6 +98,7 @@ def colour_plans(colouring: list[np.ndarray], free: FreeDofs, dim: int) -> list[
 class _SweepState:
     plans: list[ColourPlan]
     previous: np.ndarray  # y_{k-1}, for the Chebyshev update
+    compiled: tuple | None = None  # (the system's compiled sweep, the problem's IncrementalParts), or None: numpy
     swept: np.ndarray | None = None  # the sweep's result from y_k
     halvings: int = 0  # backtracking rounds of the last sweep
     position: int = 0  # iterates since the (re)start of the Chebyshev sequence
@@ -147,7 +178,9 @@ class VertexBlockDescent(NonlinearSolver):
     def _begin(self, problem, current, free):
         if self.rho > 0.0:
             current.energy = problem.value(current.y)
-        return _SweepState(self._plans(problem, free, current.y.size), current.y)
+        sweep = problem.system.vertex_sweep() if hasattr(problem, "y_tilde") else None
+        compiled = None if sweep is None else (sweep, IncrementalParts.of(problem))
+        return _SweepState(self._plans(problem, free, current.y.size), current.y, compiled)
 
     def _plans(self, problem, free: FreeDofs, size: int) -> list[ColourPlan]:
         colouring = problem.vertex_colouring()
@@ -162,7 +195,10 @@ class VertexBlockDescent(NonlinearSolver):
         return plans
 
     def _direction(self, problem, current, state):
-        state.swept, state.halvings = self._sweep(problem, current.y, state.plans)
+        if state.compiled is not None:
+            state.swept, state.halvings = self._compiled_sweep(current.y, state.plans, *state.compiled)
+        else:
+            state.swept, state.halvings = self._sweep(problem, current.y, state.plans)
         return state.swept - current.y, 0
 
     def _advance(self, problem, current, direction, state):
@@ -207,6 +243,19 @@ class VertexBlockDescent(NonlinearSolver):
             steps[rejected] = 0.0
             positions_of[vertices] += steps
             halvings += rounds
+        return swept, halvings
+
+    def _compiled_sweep(self, y: np.ndarray, plans: list[ColourPlan], sweep, parts) -> tuple[np.ndarray, int]:
+        """The same sweep by the system's compiled kernel (``System.vertex_sweep``): each colour's vertices in parallel,
+        the same numbers as ``_sweep`` to round-off. A colour's backtracking rounds are its vertices' most."""
+        swept = np.array(y, dtype=float)  # a new iterate: the solve keeps its iterates by reference
+        halvings = 0
+        rounds = np.zeros(max(plan.vertices.size for plan in plans) if plans else 0, dtype=np.int64)
+        for plan in plans:
+            count = plan.vertices.size
+            sweep.sweep(swept, plan.vertices, plan.constrained, plan.all_projectors, parts, self.spd_projection,
+                        self.determinant_floor, MAX_HALVINGS, rounds[:count])
+            halvings += int(rounds[:count].max())
         return swept, halvings
 
     def _newton_steps(self, gradient: np.ndarray, hessian: np.ndarray, plan: ColourPlan) -> np.ndarray:

@@ -276,6 +276,11 @@ class System(ABC):
         gradient = np.asarray(self.gradient(x), dtype=float).reshape(-1, self.dim)[vertices]
         return gradient, diagonal_blocks(self.hessian(x, project_spd=project_spd), vertices, self.dim)
 
+    def vertex_sweep(self):
+        """Vertex block descent's compiled colour sweep of this system's terms (MassSpring: blocks.py ``SpringSweep``),
+        or None: the solver then sweeps with ``vertex_blocks`` and ``vertex_energy_changes``."""
+        return None
+
     def vertex_energy_changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """The change of P (J), shape (k,), when vertex i of ``vertices`` moves by steps[i] ((k, dim), m) and every
         other vertex stays at x: what vertex block descent's backtracking judges. Systems of elements form it

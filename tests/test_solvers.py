@@ -484,7 +484,9 @@ FORMER_DEFAULTS = {"tolerance": 1e-10, "tolerance_mode": "residual", "max_iterat
                    # issue 18: Newton's lagged factorisation, off by default (a factorisation at every iteration)
                    "refactor": "every", "refactor_rate": 0.5,
                    # a frame's wall-time budget for the real-time solvers, off by default (not newton's: the reference)
-                   "time_budget": None}
+                   "time_budget": None,
+                   # issue 29: the compiled kernels' threads, by default the run's worker's cores
+                   "threads": None}
 # issue 16: newton gained a line search (backtracking) and safeguards; its own matrix stays the raw Hessian;
 # the new solvers' own defaults (plain PD and VBD: no Chebyshev; VBD starts from the paper's guess);
 # issue 26: L-BFGS's H_0 is the step's projected Hessian (the scalar one needed thousands of iterations on a cloth)
@@ -552,7 +554,7 @@ def test_every_solver_has_a_parameter_model_under_its_name():
 def test_a_solver_model_holds_exactly_the_arguments_of_its_constructor(name):
     """Its own fields are the constructor's arguments beyond NonlinearSolver's, and NonlinearSolver's time_budget
     where the model offers it (the real-time solvers; not the Newton family, whose runs stay the converged
-    reference); build() passes every field but type, fallback and on_not_converged, with the linear solver built
+    reference); build() passes every field but type, fallback, on_not_converged and threads, with the linear solver built
     from the linear_* fields."""
     model = SOLVER_PARAMS[name]
     budgeted = {"time_budget"} & set(model.model_fields)
@@ -587,7 +589,7 @@ def test_newton_refuses_history(tmp_path, capsys):
     assert refused_by_the_command_line(tmp_path, capsys, {"type": "newton", "history": 8}) == (
         "simrun: error: solver.history: newton does not use 'history'; it takes: tolerance, tolerance_mode, initial_guess, "
         "max_iterations, linear_solver, linear_tolerance, linear_max_iterations, mpcg_start, fallback, on_not_converged, "
-        "line_search, refactor, refactor_rate, spd_projection")
+        "threads, line_search, refactor, refactor_rate, spd_projection")
     with pytest.raises(SolverOptionError, match="^history: newton does not use 'history'; it takes: tolerance, "):
         solver_params(type="newton", history=8)  # from Python, the same line
 

@@ -311,7 +311,8 @@ def test_a_vertex_whose_block_is_singular_is_skipped_and_the_others_take_their_n
     hessian[2] = np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])  # rank 1: det 0
     gradient = rng.standard_normal((4, 3))
     expected = -np.linalg.solve(hessian[[0, 1, 3]], gradient[[0, 1, 3], :, None])[:, :, 0]
-    plan = ColourPlan(np.arange(4), np.zeros(0, dtype=np.intp), np.zeros((0, 3, 3)))
+    plan = ColourPlan(np.arange(4), np.zeros(0, dtype=np.intp), np.zeros((0, 3, 3)), np.zeros(4, dtype=bool),
+                      np.zeros((4, 3, 3)))
     steps = VertexBlockDescent(determinant_floor=1e-12)._newton_steps(gradient.copy(), hessian.copy(), plan)
     assert np.array_equal(steps[2], np.zeros(3))
     assert np.allclose(steps[[0, 1, 3]], expected, rtol=1e-12, atol=0.0)

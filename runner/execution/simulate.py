@@ -20,6 +20,7 @@ from .recording import STEP_ROWS, Recorder, SampleCadence
 from .measures import (RELEASE_SLACK, add_outcome, explicit_frequency, final_error, moving_dofs, on_paths, path_power,
                        release, vertex_constraint_kinds)
 from .step_control import StepController, StepTooSmall
+from .workers import compiled_threads
 
 
 # the per-step solver counts, in the order simulate binds them
@@ -48,6 +49,7 @@ def simulate(run: Run) -> RunResult:
     system = run.system.build()
     integrator = run.integrator
     solver = run.solver.build()
+    threads = compiled_threads(run.solver.threads)
     check_every = run.divergence.check_every
     controller = None  # the step controller of a step-controlled run (runner/execution/step_control.py)
     if run.step_control is None:
@@ -266,7 +268,8 @@ def simulate(run: Run) -> RunResult:
              **(_contact_attrs(per_step, steps) if with_contact else {}),
              **({f"factorisations_{path}": count for path, count in factorisations.as_dict().items()}
                 if factorisations is not None else {}),
-             **(evaluations.as_attrs() if evaluations is not None else {}), **system.capabilities.as_attrs()}
+             **(evaluations.as_attrs() if evaluations is not None else {}), **system.capabilities.as_attrs(),
+             "threads": threads}
     if controller is not None:  # the stored dt is the mean accepted step; the counts of the controller
         attrs.update(dt=t_reached / steps if (t_reached := controller.t) > 0 and steps else math.nan,
                      planned_steps=steps, accepted_steps=controller.accepted_steps, rejected_steps=controller.rejected_steps,

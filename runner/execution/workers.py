@@ -125,6 +125,8 @@ def _limit_compiled_threads(threads: int) -> None:
     per Newton iteration instead of 0.05 ms. A user who set NUMBA_NUM_THREADS chose the count."""
     if "NUMBA_NUM_THREADS" in os.environ:
         return
+    global _COMPILED_SHARE
+    _COMPILED_SHARE = threads
     numba = sys.modules.get("numba")
     if numba is None:  # not imported yet: numba reads the count when it is
         os.environ["NUMBA_NUM_THREADS"] = str(threads)
@@ -133,6 +135,22 @@ def _limit_compiled_threads(threads: int) -> None:
     # alone: once the pool runs, every compilation re-reads it, and a value other than the pool's size is an error
     # (a cold cache compiles in the worker: a fresh install's first parallel FEM run failed there)
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+# the threads of the compiled loops this process may use: its share of the cores in a sweep's worker, None in the main
+# process (every core numba has)
+_COMPILED_SHARE: int | None = None
+
+
+def compiled_threads(requested: int | None) -> int:
+    """Set and return the threads of this run's compiled kernels (numba's prange): ``requested`` (solver.threads)
+    within the process's share of the cores, else the share."""
+    import numba
+
+    share = min(_COMPILED_SHARE or numba.config.NUMBA_NUM_THREADS, numba.config.NUMBA_NUM_THREADS)
+    count = share if requested is None else min(requested, share)
+    numba.set_num_threads(count)
+    return count
 
 
 def start_worker_server() -> None:

@@ -143,3 +143,47 @@ class VertexBlocks:
         if system.contact is not None:
             changes += system.contact.point_energy_changes(positions, steps)
         return changes
+
+
+@dataclass(frozen=True, eq=False)
+class SpringSweep:
+    """The springs at every vertex for the compiled colour sweep (vbd_kernels.py): vertex i's incidences are
+    indptr[i]:indptr[i + 1] of ``other`` (the spring's other end) and ``springs`` (its index), in the numpy form's
+    order; the springs' constants; the law's code; gravity_force (n, d): m_i g (N)."""
+
+    indptr: np.ndarray
+    other: np.ndarray
+    springs: np.ndarray
+    max_degree: int  # the most springs at one vertex
+    stiffness: np.ndarray
+    rest_length: np.ndarray
+    rest_length_squared: np.ndarray
+    law: int
+    gravity_force: np.ndarray
+
+    @classmethod
+    def of(cls, system) -> "SpringSweep":
+        from .kernels import LAW_CODES
+
+        count = system.spring_count
+        owner = np.concatenate([system.first, system.second])
+        order = np.argsort(owner, kind="stable")  # each vertex's incidences as first end, then as second end
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=system.vertex_count))]).astype(np.intp)
+        return cls(indptr, np.concatenate([system.second, system.first])[order].astype(np.intp),
+                   np.concatenate([np.arange(count), np.arange(count)])[order].astype(np.intp),
+                   int(np.diff(indptr).max(initial=0)),
+                   np.ascontiguousarray(system.stiffness, dtype=float), np.ascontiguousarray(system.rest_length, dtype=float),
+                   np.ascontiguousarray(system.rest_length_squared, dtype=float), LAW_CODES[system.law.name],
+                   np.ascontiguousarray(system.vertex_masses[:, None] * system.gravity, dtype=float))
+
+    def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
+              halvings) -> None:
+        """One colour's steps in place in y (vbd_kernels.sweep_colour); ``potential``: the incremental potential's
+        parts (``IncrementalParts``)."""
+        from .vbd_kernels import PROJECTION_CODES, sweep_colour
+
+        sweep_colour(y, vertices, constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
+                     self.indptr, self.other, self.springs, self.max_degree, self.stiffness, self.rest_length,
+                     self.rest_length_squared, self.law, self.gravity_force, potential.damping_indptr, potential.damping_indices,
+                     potential.damping_data, potential.damping_weight, potential.velocity_origin,
+                     PROJECTION_CODES[projection], determinant_floor, max_halvings, halvings)

@@ -25,7 +25,7 @@ from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
-from .blocks import VertexBlocks
+from .blocks import SpringSweep, VertexBlocks
 from .laws import SPRING_LAWS, Damping, HookeanLaw, SpringGeometry
 
 
@@ -350,6 +350,16 @@ class MassSpring(ContactHooks, System):
 
     def vertex_colouring(self):
         return self._vertex_blocks.colouring()
+
+    def vertex_sweep(self):
+        """The springs for vertex block descent's compiled colour sweep (blocks.py ``SpringSweep``); None with
+        colliders, whose per-vertex terms have no compiled form yet (the numpy blocks take them)."""
+        if self.contact is not None:
+            return None
+        cached = self.__dict__.get("_vertex_sweep")
+        if cached is None or cached.stiffness is not self.stiffness:
+            cached = self.__dict__["_vertex_sweep"] = SpringSweep.of(self)
+        return cached
 
     def parameter_derivative(self, changed, change):
         return derivatives.parameter_derivative(self, changed, change)

@@ -1,0 +1,273 @@
+"""The compiled real-time solver kernels against a compiled C loop of the same algorithm (issue 29).
+
+Vertex block descent on the 64 x 64 hanging cloth of configs/realtime_solvers.yaml (stretch 1e4, shear 1e3, bend 10
+N/m, two corners pinned), the problem of a backward Euler step at the frame rate (dt = 1/60 s) from rest: one sweep
+over its colours, each vertex's Newton step on its 3 x 3 block (springs with the transverse factor clamped, inertia,
+gravity), the determinant floor and the per-vertex backtracking on the change of E. simrun's sweep is the kernel the
+solver calls (systems/mass_spring/vbd_kernels.py), timed at 1 and at 2 threads; the peer is the same sweep written
+here in C, compiled with the system's compiler (``cc -O2``), single-threaded, on the same arrays. The two must agree
+(max |difference| of the swept positions below 1e-12 m) for the times to be compared. Without a C compiler the C rows
+are skipped with one line. Targets: at most 0.3 us per vertex on one core, at most 2x the C loop, two threads at least
+1.6x one.
+
+XPBD on the same cloth: one iteration (every colour group's projection once, at the substep of 10 per frame) from the
+first substep's prediction, per spring constraint; target at most 0.2 us.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from simrun.experiment.config import load_experiment
+from simrun.integrators import INTEGRATORS, State
+from simrun.integrators.xpbd import spring_projection
+from simrun.solvers import SolveStats
+from simrun.solvers.dofs import free_dofs
+from simrun.solvers.vbd import MAX_HALVINGS, IncrementalParts, colour_plans
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+RESOLUTION = 64
+SWEEPS = 40  # per timing; the best of REPEATS
+REPEATS = 5
+PER_VERTEX_TARGET, C_RATIO_TARGET, THREADS_TARGET, XPBD_TARGET = 0.3, 2.0, 1.6, 0.2
+DETERMINANT_FLOOR = 1e-20
+
+C_SOURCE = r"""
+#include <math.h>
+/* one VBD sweep over the colours of a Hookean mass-spring incremental potential, clamped transverse factors, no
+   damping: the algorithm of simrun's kernel, vertex by vertex in each colour's order */
+static double change_of(int i, const double *u, const double *y, const double *y_tilde, const double *mass,
+                        double scale, const long *indptr, const long *springs, const double *stiffness,
+                        const double *rest_length, const double *gravity, const double *deltas, const double *lengths) {
+    double inertia = 0.0, potential = 0.0;
+    for (int a = 0; a < 3; a++) inertia += mass[3 * i + a] * u[a] * (y[3 * i + a] - y_tilde[3 * i + a] + 0.5 * u[a]);
+    for (long p = indptr[i]; p < indptr[i + 1]; p++) {
+        long e = springs[p], slot = p - indptr[i];
+        double moved = 0.0, squared_change = 0.0;
+        for (int a = 0; a < 3; a++) {
+            double shifted = deltas[3 * slot + a] + u[a];
+            moved += shifted * shifted;
+            squared_change += u[a] * (deltas[3 * slot + a] + deltas[3 * slot + a] + u[a]);
+        }
+        double length = lengths[slot], moved_length = sqrt(moved);
+        potential += 0.5 * stiffness[e] * squared_change / (moved_length + length)
+                     * (moved_length + length - 2.0 * rest_length[e]);
+    }
+    for (int a = 0; a < 3; a++) potential -= gravity[3 * i + a] * u[a];
+    return inertia + scale * potential;
+}
+
+void sweep(double *y, const long *colour_starts, long colours, const long *vertices, const double *y_tilde,
+           const double *mass, double scale, const long *indptr, const long *other, const long *springs,
+           const double *stiffness, const double *rest_length, const double *gravity, double floor_,
+           int max_halvings, double *deltas, double *lengths) {
+    for (long c = 0; c < colours; c++) {
+        for (long k = colour_starts[c]; k < colour_starts[c + 1]; k++) {
+            long i = vertices[k];
+            double g[3] = {0, 0, 0}, H[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}}, u[3];
+            for (long p = indptr[i]; p < indptr[i + 1]; p++) {
+                long j = other[p], e = springs[p], slot = p - indptr[i];
+                double squared = 0.0;
+                for (int a = 0; a < 3; a++) {
+                    deltas[3 * slot + a] = y[3 * i + a] - y[3 * j + a];
+                    squared += deltas[3 * slot + a] * deltas[3 * slot + a];
+                }
+                double length = sqrt(squared);
+                lengths[slot] = length;
+                double factor = stiffness[e] * (length - rest_length[e]) / length;
+                double along = stiffness[e], ratio = 1.0 - rest_length[e] / length;
+                double transverse = stiffness[e] * (ratio > 0.0 ? ratio : 0.0);
+                double outer_scale = (along - transverse) / squared;
+                for (int a = 0; a < 3; a++) {
+                    g[a] += factor * deltas[3 * slot + a];
+                    H[a][a] += transverse;
+                    for (int b = 0; b < 3; b++) H[a][b] += outer_scale * deltas[3 * slot + a] * deltas[3 * slot + b];
+                }
+            }
+            for (int a = 0; a < 3; a++) {
+                g[a] = mass[3 * i + a] * (y[3 * i + a] - y_tilde[3 * i + a]) + scale * (g[a] - gravity[3 * i + a]);
+                for (int b = 0; b < 3; b++) H[a][b] *= scale;
+                H[a][a] += mass[3 * i + a];
+            }
+            double det = H[0][0] * (H[1][1] * H[2][2] - H[1][2] * H[2][1]) - H[0][1] * (H[1][0] * H[2][2] - H[1][2] * H[2][0])
+                         + H[0][2] * (H[1][0] * H[2][1] - H[1][1] * H[2][0]);
+            double size = 0.0;
+            for (int a = 0; a < 3; a++) for (int b = 0; b < 3; b++) size += H[a][b] * H[a][b];
+            size = sqrt(size);
+            if (!(fabs(det) > floor_ * size * size * size) || !isfinite(det)) {
+                u[0] = u[1] = u[2] = 0.0;
+            } else {  /* Gaussian elimination with partial pivoting */
+                double w[3][4];
+                for (int r = 0; r < 3; r++) { for (int s = 0; s < 3; s++) w[r][s] = H[r][s]; w[r][3] = -g[r]; }
+                for (int col = 0; col < 3; col++) {
+                    int pivot = col;
+                    for (int r = col + 1; r < 3; r++) if (fabs(w[r][col]) > fabs(w[pivot][col])) pivot = r;
+                    if (pivot != col) for (int s = 0; s < 4; s++) { double t = w[col][s]; w[col][s] = w[pivot][s]; w[pivot][s] = t; }
+                    for (int r = col + 1; r < 3; r++) {
+                        double f = w[r][col] / w[col][col];
+                        for (int s = col; s < 4; s++) w[r][s] -= f * w[col][s];
+                    }
+                }
+                for (int r = 2; r >= 0; r--) {
+                    double t = w[r][3];
+                    for (int s = r + 1; s < 3; s++) t -= w[r][s] * u[s];
+                    u[r] = t / w[r][r];
+                }
+            }
+            int rounds = 0;
+            double change = change_of(i, u, y, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, gravity,
+                                      deltas, lengths);
+            while (!(change <= 0.0) && rounds < max_halvings) {
+                for (int a = 0; a < 3; a++) u[a] *= 0.5;
+                change = change_of(i, u, y, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, gravity,
+                                   deltas, lengths);
+                rounds++;
+            }
+            if (!(change <= 0.0)) u[0] = u[1] = u[2] = 0.0;
+            for (int a = 0; a < 3; a++) y[3 * i + a] += u[a];
+        }
+    }
+}
+"""
+
+
+class _Capture:
+    def minimize(self, problem, start):
+        self.problem, self.start = problem, start.copy()
+        return start, SolveStats()
+
+
+def _problem():
+    cloth = yaml.safe_load((CONFIGS / "realtime_solvers.yaml").read_text())["system"]
+    config = {"name": "bench_vbd", "system": {**cloth, "resolution": [RESOLUTION, RESOLUTION]},
+              "integrators": ["backward_euler"], "sweep": {"dt": [1.0 / 60.0]}}
+    system = load_experiment(config)[0].system.build()
+    capture = _Capture()
+    INTEGRATORS["backward_euler"]().step(system, State(0.0, system.x0, system.v0), 1.0 / 60.0, capture)
+    return system, capture.problem, capture.start
+
+
+def _compiled_c() -> ctypes.CDLL | None:
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        return None
+    folder = Path(tempfile.mkdtemp(prefix="simrun_vbd_c_"))
+    source, library = folder / "vbd.c", folder / "vbd.so"
+    source.write_text(C_SOURCE)
+    subprocess.run([compiler, "-O2", "-shared", "-fPIC", str(source), "-o", str(library), "-lm"], check=True)
+    return ctypes.CDLL(str(library))
+
+
+def _best(sweep_once) -> float:
+    sweep_once()  # compiled and warm
+    best = np.inf
+    for _ in range(REPEATS):
+        began = time.perf_counter()
+        for _ in range(SWEEPS):
+            sweep_once()
+        best = min(best, (time.perf_counter() - began) / SWEEPS)
+    return best
+
+
+def rows() -> list[tuple[str, float, str, str]]:
+    import numba
+
+    system, problem, start = _problem()
+    sweep = system.vertex_sweep()
+    parts = IncrementalParts.of(problem)
+    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
+    vertices = sum(plan.vertices.size for plan in plans)
+    rounds = np.zeros(max(plan.vertices.size for plan in plans), dtype=np.int64)
+
+    def simrun_sweep(y):
+        for plan in plans:
+            sweep.sweep(y, plan.vertices, plan.constrained, plan.all_projectors, parts, "clamp", DETERMINANT_FLOOR,
+                        MAX_HALVINGS, rounds[:plan.vertices.size])
+
+    available = numba.config.NUMBA_NUM_THREADS
+    y = start.copy()
+    times = {}
+    for threads in sorted({1, min(2, available)}):
+        numba.set_num_threads(threads)
+        times[threads] = _best(lambda: simrun_sweep(y))
+    numba.set_num_threads(available)
+    one = times[1]
+    table = [(f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}, 1 thread: us per vertex", one / vertices * 1e6,
+              f"<= {PER_VERTEX_TARGET:g}", f"{one * 1e3:.2f} ms per sweep, {vertices} vertices, {len(plans)} colours")]
+    if 2 in times:
+        table.append((f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}: 1 thread / 2 threads", one / times[2],
+                      f">= {THREADS_TARGET:g}", f"{times[2] * 1e3:.2f} ms per sweep at 2 threads"))
+    table.append(_xpbd_row(system))
+    library = _compiled_c()
+    if library is None:
+        print("vbd against a C loop: skipped, no C compiler (cc or gcc) on the path")
+        return table
+    order = np.concatenate([plan.vertices for plan in plans]).astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum([plan.vertices.size for plan in plans])]).astype(np.int64)
+    if any(plan.constrained.any() for plan in plans) or parts.damping_weight != 0.0 or sweep.law != 0:
+        raise AssertionError("the C loop takes pins only, Hookean springs and no damping")
+    deltas, lengths = np.empty(3 * sweep.max_degree), np.empty(sweep.max_degree)
+    arrays = [np.ascontiguousarray(array, dtype=np.int64) for array in (sweep.indptr, sweep.other, sweep.springs)]
+    gravity = np.ascontiguousarray(sweep.gravity_force.ravel())
+    library.sweep.restype = None
+    library.sweep.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
+                              ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+                              ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_int,
+                              ctypes.c_void_p, ctypes.c_void_p]
+
+    def c_sweep(z):
+        library.sweep(z.ctypes.data, starts.ctypes.data, len(plans), order.ctypes.data, parts.y_tilde.ctypes.data,
+                      parts.mass.ctypes.data, parts.scale, arrays[0].ctypes.data, arrays[1].ctypes.data,
+                      arrays[2].ctypes.data, sweep.stiffness.ctypes.data, sweep.rest_length.ctypes.data,
+                      gravity.ctypes.data, DETERMINANT_FLOOR, MAX_HALVINGS, deltas.ctypes.data, lengths.ctypes.data)
+
+    simrun_y, c_y = start.copy(), start.copy()
+    numba.set_num_threads(1)
+    simrun_sweep(simrun_y)
+    numba.set_num_threads(available)
+    c_sweep(c_y)
+    difference = float(np.max(np.abs(simrun_y - c_y)))
+    if difference > 1e-12:
+        raise AssertionError(f"simrun's sweep and the C loop differ by {difference:.2e} m")
+    z = start.copy()
+    c_time = _best(lambda: c_sweep(z))
+    table.append((f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}: simrun 1 thread / C loop", one / c_time,
+                  f"<= {C_RATIO_TARGET:g}", f"C {c_time / vertices * 1e6:.3f} us per vertex ({c_time * 1e3:.2f} ms), "
+                  f"swept positions within {difference:.1e} m"))
+    return table
+
+
+def _xpbd_row(system) -> tuple[str, float, str, str]:
+    """One XPBD iteration over every group, one thread, per spring constraint (the rows' distance constraints)."""
+    import numba
+
+    projection = spring_projection(system)
+    h = 1.0 / 60.0 / 10.0
+    scaled = projection.scaled(h)
+    acceleration = projection.acceleration(system, system.x0, system.v0)  # the substep's prediction x_n + h v
+    displacement = h * (system.v0 + (0.0 if acceleration is None else h * acceleration))
+    multipliers = [group.zero_multipliers() for group in projection.groups]
+    constraints = sum(group.first.size for group in projection.groups)
+
+    def iteration():
+        for group, (stiffness_h2, damping_h), multiplier in zip(projection.groups, scaled, multipliers):
+            group.project(system.x0, displacement, multiplier, stiffness_h2, damping_h)
+
+    available = numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(1)
+    seconds = _best(iteration)
+    numba.set_num_threads(available)
+    return (f"xpbd iteration cloth {RESOLUTION}x{RESOLUTION}, 1 thread: us per constraint", seconds / constraints * 1e6,
+            f"<= {XPBD_TARGET:g}", f"{seconds * 1e3:.2f} ms per iteration, {constraints} springs in "
+            f"{len(projection.groups)} groups")
+
+
+__all__ = ["rows"]

@@ -1,0 +1,287 @@
+"""Vertex block descent's colour sweep of a mass-spring incremental potential, compiled (issue 29).
+
+E(y) = 1/2 (y - y~)^T M (y - y~) + s P(y) + (s/b) [damping], P the springs and gravity (solvers/vbd.py has the method,
+systems/mass_spring/blocks.py the numpy form of the blocks this reproduces). For each vertex i of one colour, in
+parallel (``prange`` over chunks of the colour; no two vertices of a colour share a spring, so each reads its
+neighbours, which belong to other colours, and writes only its own dofs):
+
+    g_i = M_i (y_i - y~_i) + s (sum_{e at i} c_e (y_i - y_j) - m_i g) + w (D (y - a))_i,
+    H_i = M_i + s sum_{e at i} B_e + w D_ii,
+
+the filter of a constrained vertex (S H S + c (I - S), S g), the determinant floor, u = -H^-1 g (Gaussian elimination
+with partial pivoting, as LAPACK's), and the per-vertex backtracking: u halved until the change of E it causes,
+formed without cancellation, is <= 0, dropped after ``max_halvings``. The result does not depend on the thread
+count: every vertex's numbers are its own, in a fixed order.
+
+The incidences of a vertex are in the order of the numpy form (the springs at which it is the first end, then those
+at which it is the second, each in spring order), so the sums match it to round-off.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numba import prange
+
+from .kernels import SQUARED_LENGTH, gradient_factor
+
+# projections of the springs' blocks: none, negative eigenvalues clamped at 0, mirrored
+PROJECTION_CODES = {False: 0, "clamp": 1, True: 1, "abs": 2}
+# vertices per chunk of the parallel loop: the scratch arrays are made once per chunk, not per vertex
+CHUNK = 64
+
+
+@numba.njit(cache=True)
+def _filtered(value, projection):
+    if projection == 1:
+        return max(value, 0.0)
+    if projection == 2:
+        return abs(value)
+    return value
+
+
+@numba.njit(cache=True)
+def _energy_change(law, stiffness, rest_length, rest_length_squared, length, moved_length, squared_change):
+    """W(L') - W(L) of one spring without cancellation (laws.py ``energy_changes``)."""
+    if law == SQUARED_LENGTH:
+        ratios = (moved_length * moved_length + length * length) / rest_length_squared
+        return 0.5 * stiffness * squared_change * (ratios - 2.0)
+    return 0.5 * stiffness * squared_change / (moved_length + length) * (moved_length + length - 2.0 * rest_length)
+
+
+@numba.njit(cache=True)
+def _solve(H, g, u, work, d):
+    """u = -H^-1 g by Gaussian elimination with partial pivoting; work (d, d + 1) scratch."""
+    for r in range(d):
+        for c in range(d):
+            work[r, c] = H[r, c]
+        work[r, d] = -g[r]
+    for c in range(d):
+        pivot = c
+        for r in range(c + 1, d):
+            if abs(work[r, c]) > abs(work[pivot, c]):
+                pivot = r
+        if pivot != c:
+            for k in range(d + 1):
+                work[c, k], work[pivot, k] = work[pivot, k], work[c, k]
+        for r in range(c + 1, d):
+            factor = work[r, c] / work[c, c]
+            for k in range(c, d + 1):
+                work[r, k] -= factor * work[c, k]
+    for r in range(d - 1, -1, -1):
+        total = work[r, d]
+        for k in range(r + 1, d):
+            total -= work[r, k] * u[k]
+        u[r] = total / work[r, r]
+
+
+@numba.njit(cache=True)
+def _determinant(H, d):
+    if d == 1:
+        return H[0, 0]
+    if d == 2:
+        return H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
+    return (H[0, 0] * (H[1, 1] * H[2, 2] - H[1, 2] * H[2, 1]) - H[0, 1] * (H[1, 0] * H[2, 2] - H[1, 2] * H[2, 0])
+            + H[0, 2] * (H[1, 0] * H[2, 1] - H[1, 1] * H[2, 0]))
+
+
+@numba.njit(cache=True)
+def _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, rest_length, rest_length_squared, law,
+            gravity_force, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection,
+            g, H, rate, D, deltas, lengths):
+    """g_i and H_i of E at y (into g, H), the damping's rates (D (y - a))_i and block D_ii (into rate, D), and each
+    incident spring's y_i - y_j and length (into deltas, lengths: what ``_change`` reads)."""
+    for a in range(d):
+        g[a] = 0.0
+        for b in range(d):
+            H[a, b] = 0.0
+    for p in range(indptr[i], indptr[i + 1]):
+        j, e, slot = other[p], springs[p], p - indptr[i]
+        squared = 0.0
+        for a in range(d):
+            deltas[slot, a] = y[d * i + a] - y[d * j + a]
+            squared += deltas[slot, a] * deltas[slot, a]
+        length = math.sqrt(squared)
+        lengths[slot] = length
+        factor = gradient_factor(law, stiffness[e], length, rest_length[e], rest_length_squared[e])
+        if law == SQUARED_LENGTH:
+            ratio = length * length / rest_length_squared[e]
+            along = 2.0 * stiffness[e] * _filtered(3.0 * ratio - 1.0, projection)
+            transverse = 2.0 * stiffness[e] * _filtered(ratio - 1.0, projection)
+        else:
+            along = stiffness[e]
+            transverse = stiffness[e] * _filtered(1.0 - rest_length[e] / length, projection)
+        # B_e = along u u^T + transverse (I - u u^T) = (along - transverse) u u^T + transverse I, with u = delta / L
+        outer_scale = (along - transverse) / squared
+        for a in range(d):
+            g[a] += factor * deltas[slot, a]
+            H[a, a] += transverse
+            for b in range(d):
+                H[a, b] += outer_scale * deltas[slot, a] * deltas[slot, b]
+    for a in range(d):
+        g[a] = mass[d * i + a] * (y[d * i + a] - y_tilde[d * i + a]) + scale * (g[a] - gravity_force[i, a])
+        for b in range(d):
+            H[a, b] *= scale
+        H[a, a] += mass[d * i + a]
+    for a in range(d):
+        rate[a] = 0.0
+        for b in range(d):
+            D[a, b] = 0.0
+    if damping_weight != 0.0:
+        for a in range(d):
+            row = d * i + a
+            total = 0.0
+            for q in range(damping_indptr[row], damping_indptr[row + 1]):
+                column = damping_indices[q]
+                total += damping_data[q] * (y[column] - velocity_origin[column])
+                if d * i <= column < d * i + d:
+                    D[a, column - d * i] = damping_data[q]
+            rate[a] = total
+            g[a] += damping_weight * total
+        for a in range(d):
+            for b in range(d):
+                H[a, b] += damping_weight * D[a, b]
+
+
+@numba.njit(cache=True)
+def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, rest_length_squared, law,
+            gravity_force, damping_weight, rate, D, deltas, lengths):
+    """The change of E when vertex i alone moves by u, each term formed without cancellation, from the incident
+    springs' deltas and lengths at y (``_vertex``)."""
+    inertia = 0.0
+    for a in range(d):
+        inertia += mass[d * i + a] * u[a] * (y[d * i + a] - y_tilde[d * i + a] + 0.5 * u[a])
+    potential = 0.0
+    for p in range(indptr[i], indptr[i + 1]):
+        e, slot = springs[p], p - indptr[i]
+        moved = 0.0
+        squared_change = 0.0
+        for a in range(d):
+            shifted = deltas[slot, a] + u[a]
+            moved += shifted * shifted
+            squared_change += u[a] * (deltas[slot, a] + deltas[slot, a] + u[a])
+        potential += _energy_change(law, stiffness[e], rest_length[e], rest_length_squared[e], lengths[slot],
+                                    math.sqrt(moved), squared_change)
+    for a in range(d):
+        potential -= gravity_force[i, a] * u[a]
+    change = inertia + scale * potential
+    if damping_weight != 0.0:
+        linear = 0.0
+        quadratic = 0.0
+        for a in range(d):
+            linear += u[a] * rate[a]
+            for b in range(d):
+                quadratic += u[a] * D[a, b] * u[b]
+        change += damping_weight * (linear + 0.5 * quadratic)
+    return change
+
+
+@numba.njit(cache=True)
+def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, other,
+           springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr, damping_indices,
+           damping_data, damping_weight, velocity_origin, projection, determinant_floor, max_halvings, halvings):
+    """The vertices first_vertex:last_vertex of one colour; d a constant at each call site, so that the d x d loops
+    unroll."""
+    g = np.empty(d)
+    H = np.empty((d, d))
+    rate = np.empty(d)
+    D = np.empty((d, d))
+    filtered_vector = np.empty(d)
+    u = np.empty(d)
+    work = np.empty((d, d + 1))
+    filtered = np.empty((d, d))
+    deltas = np.empty((max_degree, d))
+    lengths = np.empty(max_degree)
+    for k in range(first_vertex, last_vertex):
+        i = vertices[k]
+        _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, rest_length,
+                rest_length_squared, law, gravity_force, damping_indptr, damping_indices, damping_data,
+                damping_weight, velocity_origin, projection, g, H, rate, D, deltas, lengths)
+        if constrained[k]:
+            S = projectors[k]
+            mean = 0.0
+            for a in range(d):
+                mean += abs(H[a, a])
+            mean /= d
+            if not mean > 0.0:
+                mean = 1.0
+            for a in range(d):
+                for b in range(d):
+                    total = 0.0
+                    for p in range(d):
+                        for q in range(d):
+                            total += S[a, p] * H[p, q] * S[q, b]
+                    filtered[a, b] = total + mean * ((1.0 if a == b else 0.0) - S[a, b])
+            for a in range(d):
+                for b in range(d):
+                    H[a, b] = filtered[a, b]
+            for a in range(d):
+                total = 0.0
+                for b in range(d):
+                    total += S[a, b] * g[b]
+                filtered_vector[a] = total
+            for a in range(d):
+                g[a] = filtered_vector[a]
+        determinant = _determinant(H, d)
+        size = 0.0
+        finite = True
+        for a in range(d):
+            finite = finite and math.isfinite(g[a])
+            for b in range(d):
+                size += H[a, b] * H[a, b]
+        size = math.sqrt(size)
+        solvable = abs(determinant) > determinant_floor * size ** d and math.isfinite(determinant) and finite
+        if not solvable:
+            for a in range(d):
+                u[a] = 0.0
+        else:
+            _solve(H, g, u, work, d)
+        if constrained[k]:
+            S = projectors[k]
+            for a in range(d):
+                total = 0.0
+                for b in range(d):
+                    total += S[a, b] * u[b]
+                filtered_vector[a] = total
+            for a in range(d):
+                u[a] = filtered_vector[a]
+        rounds = 0
+        change = _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, rest_length_squared,
+                         law, gravity_force, damping_weight, rate, D, deltas, lengths)
+        while not change <= 0.0 and rounds < max_halvings:  # NaN too
+            for a in range(d):
+                u[a] *= 0.5
+            change = _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length,
+                             rest_length_squared, law, gravity_force, damping_weight, rate, D, deltas, lengths)
+            rounds += 1
+        if not change <= 0.0:
+            for a in range(d):
+                u[a] = 0.0
+        for a in range(d):
+            y[d * i + a] += u[a]
+        halvings[k] = rounds
+
+
+@numba.njit(parallel=True, cache=True)
+def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, other, springs, max_degree,
+                 stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr, damping_indices,
+                 damping_data, damping_weight, velocity_origin, projection, determinant_floor, max_halvings, halvings):
+    """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
+    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding)."""
+    dim = projectors.shape[1]
+    count = vertices.size
+    chunks = (count + CHUNK - 1) // CHUNK
+    for chunk in prange(chunks):
+        first_vertex, last_vertex = chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)
+        if dim == 3:
+            _chunk(first_vertex, last_vertex, 3, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
+                   other, springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr,
+                   damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
+                   max_halvings, halvings)
+        else:
+            _chunk(first_vertex, last_vertex, 2, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
+                   other, springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr,
+                   damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
+                   max_halvings, halvings)
