@@ -12,7 +12,7 @@ CONFIGS ?= $(wildcard configs/*.yaml)
 RESULTS := $(patsubst configs/%.yaml,results/%/results.h5,$(CONFIGS))
 REPORTS := $(patsubst configs/%.yaml,results/%/report.html,$(CONFIGS))
 
-.PHONY: install install-test install-cholmod run test plot bench sweep reports clean
+.PHONY: install install-test install-cholmod install-peers run test plot bench sweep reports clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -49,6 +49,12 @@ $(VENV)/.installed-cholmod: pyproject.toml $(VENV)/.installed
 	  fi; \
 	fi
 	$(BIN)/python -m pip install --quiet -e '.[cholmod]'
+	touch $@
+
+install-peers: $(VENV)/.installed-peers  ## the peers `make bench` compares with, where they install (Newton on Warp)
+
+$(VENV)/.installed-peers: pyproject.toml $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e '.[peers]'
 	touch $@
 
 run: install                           ## run the default experiment (CONFIG=... for another)

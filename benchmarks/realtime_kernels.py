@@ -10,6 +10,13 @@ here in C, compiled with the system's compiler (``cc -O2``), single-threaded, on
 are skipped with one line. Targets: at most 0.3 us per vertex on one core, at most 2x the C loop, two threads at least
 1.6x one.
 
+The peer on its own scene, where the ``newton`` package (NVIDIA's Newton on Warp, ``make install-peers``) is installed:
+its VBD cloth example (newton.examples cloth_hanging: 64 x 32 cells of 0.1 m, StVK triangles, bending, ground and
+self-contact, 10 substeps of 10 iterations per 1/60 s frame) on the CPU device, time per vertex iteration, against
+simrun's VBD solve on a mass-spring cloth of the same mesh (65 x 33 vertices, pinned along one side) at the same
+substep, per vertex iteration (the whole solve: sweeps and convergence tests). The energies differ (springs against
+triangles and self-contact): the row says what a vertex iteration costs each, not that they compute the same.
+
 XPBD on the same cloth: one iteration (every colour group's projection once, at the substep of 10 per frame) from the
 first substep's prediction, per spring constraint; target at most 0.2 us.
 """
@@ -22,6 +29,7 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import yaml
@@ -29,9 +37,9 @@ import yaml
 from simrun.experiment.config import load_experiment
 from simrun.integrators import INTEGRATORS, State
 from simrun.integrators.xpbd import spring_projection
-from simrun.solvers import SolveStats
+from simrun.solvers import Newton, SolveStats
 from simrun.solvers.dofs import free_dofs
-from simrun.solvers.vbd import MAX_HALVINGS, IncrementalParts, colour_plans
+from simrun.solvers.vbd import MAX_HALVINGS, IncrementalParts, VertexBlockDescent, colour_plans
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 RESOLUTION = 64
@@ -206,6 +214,7 @@ def rows() -> list[tuple[str, float, str, str]]:
         table.append((f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}: 1 thread / 2 threads", one / times[2],
                       f">= {THREADS_TARGET:g}", f"{times[2] * 1e3:.2f} ms per sweep at 2 threads"))
     table.append(_xpbd_row(system))
+    table.extend(_newton_rows())
     library = _compiled_c()
     if library is None:
         print("vbd against a C loop: skipped, no C compiler (cc or gcc) on the path")
@@ -243,6 +252,52 @@ def rows() -> list[tuple[str, float, str, str]]:
                   f"<= {C_RATIO_TARGET:g}", f"C {c_time / vertices * 1e6:.3f} us per vertex ({c_time * 1e3:.2f} ms), "
                   f"swept positions within {difference:.1e} m"))
     return table
+
+
+def _newton_rows() -> list[tuple[str, float, str, str]]:
+    try:
+        import warp
+
+        warp.config.log_level = warp.LOG_WARNING  # before newton initialises Warp: no line per kernel module loaded
+        import newton
+        import newton.viewer
+        from newton.examples.cloth.example_cloth_hanging import Example
+    except ImportError:
+        print("vbd against newton: skipped, the newton package is not installed (make install-peers)")
+        return []
+    warp.set_device("cpu")
+    width, height, frames = 64, 32, 5
+    example = Example(newton.viewer.ViewerNull(), SimpleNamespace(solver="vbd", width=width, height=height))
+    example.step()  # its kernels compiled
+    began = time.perf_counter()
+    for _ in range(frames):
+        example.step()
+    warp.synchronize()
+    seconds = time.perf_counter() - began
+    particles = example.model.particle_count
+    newton_cost = seconds / (frames * example.sim_substeps * example.iterations * particles)
+    cloth = {"type": "cloth", "resolution": [width + 1, height + 1], "size": [0.1 * width, 0.1 * height],
+             "mass": 0.1 * particles, "stretch_stiffness": 1.0e3, "shear_stiffness": 1.0e2, "bend_stiffness": 10.0,
+             "damping": 0.0, "gravity": [0.0, 0.0, -9.81], "pinned": ["left"]}
+    system = load_experiment({"name": "bench_vbd_peer", "system": cloth, "integrators": ["backward_euler"],
+                              "sweep": {"dt": [example.sim_dt]}})[0].system.build()
+    # a substep of the cloth in motion (0.2 s of swinging, by Newton), so that 10 iterations do not converge
+    method, state = INTEGRATORS["backward_euler"](), State(0.0, system.x0, system.v0)
+    newton_solver = Newton(tolerance=1e-9, max_iterations=50)
+    for _ in range(12):
+        state, _ = method.step(system, state, 1.0 / 60.0, newton_solver)
+    capture = _Capture()
+    method.step(system, state, example.sim_dt, capture)
+    solver = VertexBlockDescent(tolerance=1e-300, max_iterations=example.iterations)
+    _, stats = solver.minimize(capture.problem, capture.start)  # compiled and warm
+    repeats = 20
+    began = time.perf_counter()
+    for _ in range(repeats):
+        solver.minimize(capture.problem, capture.start)
+    simrun_cost = (time.perf_counter() - began) / (repeats * stats.iterations * system.vertex_count)
+    return [(f"vbd cloth {width}x{height} cells: newton (cpu) / simrun, per vertex iteration", newton_cost / simrun_cost,
+             "information", f"newton {newton.__version__} {newton_cost * 1e6:.2f} us (triangles, bending, self-contact), "
+             f"simrun {simrun_cost * 1e6:.2f} us (springs, {stats.iterations} iterations), {particles} vertices")]
 
 
 def _xpbd_row(system) -> tuple[str, float, str, str]:

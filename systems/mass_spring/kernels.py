@@ -21,7 +21,7 @@ HOOKEAN, SQUARED_LENGTH = 0, 1
 LAW_CODES = {"hookean": HOOKEAN, "squared_length": SQUARED_LENGTH}
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def gradient_factor(law, stiffness, length, rest_length, rest_length_squared):
     """c_e of the law, in the order of operations of its numpy form (laws.py): k (L - l0) / L (HookeanLaw),
     2 k (L^2 / l0^2 - 1) (SquaredLengthLaw)."""
@@ -30,7 +30,7 @@ def gradient_factor(law, stiffness, length, rest_length, rest_length_squared):
     return stiffness * (length - rest_length) / length
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def spring_gradients(X, first, second, stiffness, rest_length, rest_length_squared, dim, law, out):
     """out[r] = sum_e c_e(L_e) (e_i - e_j) kron delta_e at the state X[r], for every row r; out is overwritten."""
     rows = X.shape[0]

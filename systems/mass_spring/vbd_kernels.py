@@ -27,13 +27,28 @@ from numba import prange
 
 from .kernels import SQUARED_LENGTH, gradient_factor
 
+# a colour's vertices as unsigned indices, by the identity of the colour's array (the solver keeps its colours for
+# the run): made once, not per sweep
+_UNSIGNED: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def unsigned(vertices: np.ndarray) -> np.ndarray:
+    """``vertices`` as uint64: numba's indexing then skips the wraparound test of a negative index."""
+    kept = _UNSIGNED.get(id(vertices))
+    if kept is None or kept[0] is not vertices:
+        if len(_UNSIGNED) > 4096:
+            _UNSIGNED.clear()
+        kept = _UNSIGNED[id(vertices)] = (vertices, vertices.astype(np.uint64))
+    return kept[1]
+
+
 # projections of the springs' blocks: none, negative eigenvalues clamped at 0, mirrored
 PROJECTION_CODES = {False: 0, "clamp": 1, True: 1, "abs": 2}
 # vertices per chunk of the parallel loop: the scratch arrays are made once per chunk, not per vertex
 CHUNK = 64
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _filtered(value, projection):
     if projection == 1:
         return max(value, 0.0)
@@ -42,7 +57,7 @@ def _filtered(value, projection):
     return value
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _energy_change(law, stiffness, rest_length, rest_length_squared, length, moved_length, squared_change):
     """W(L') - W(L) of one spring without cancellation (laws.py ``energy_changes``)."""
     if law == SQUARED_LENGTH:
@@ -51,7 +66,7 @@ def _energy_change(law, stiffness, rest_length, rest_length_squared, length, mov
     return 0.5 * stiffness * squared_change / (moved_length + length) * (moved_length + length - 2.0 * rest_length)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _solve(H, g, u, work, d):
     """u = -H^-1 g by Gaussian elimination with partial pivoting; work (d, d + 1) scratch."""
     for r in range(d):
@@ -77,7 +92,7 @@ def _solve(H, g, u, work, d):
         u[r] = total / work[r, r]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _determinant(H, d):
     if d == 1:
         return H[0, 0]
@@ -87,12 +102,10 @@ def _determinant(H, d):
             + H[0, 2] * (H[1, 0] * H[2, 1] - H[1, 1] * H[2, 0]))
 
 
-@numba.njit(cache=True)
-def _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, rest_length, rest_length_squared, law,
-            gravity_force, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection,
-            g, H, rate, D, deltas, lengths):
-    """g_i and H_i of E at y (into g, H), the damping's rates (D (y - a))_i and block D_ii (into rate, D), and each
-    incident spring's y_i - y_j and length (into deltas, lengths: what ``_change`` reads)."""
+@numba.njit(cache=True, error_model="numpy")
+def _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
+             deltas, lengths):
+    """sum_{e at i} c_e (y_i - y_j) into g and sum_e B_e into H; each spring's delta and length into deltas, lengths."""
     for a in range(d):
         g[a] = 0.0
         for b in range(d):
@@ -120,6 +133,60 @@ def _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, re
             H[a, a] += transverse
             for b in range(d):
                 H[a, b] += outer_scale * deltas[slot, a] * deltas[slot, b]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _springs3(i, y, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
+              deltas, lengths):
+    """``_springs`` in 3-D with the sums in scalars (B_e is symmetric: six of its entries)."""
+    g0 = g1 = g2 = 0.0
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    for p in range(indptr[i], indptr[i + 1]):
+        j, e, slot = other[p], springs[p], p - indptr[i]
+        dx = y[3 * i] - y[3 * j]
+        dy = y[3 * i + 1] - y[3 * j + 1]
+        dz = y[3 * i + 2] - y[3 * j + 2]
+        deltas[slot, 0], deltas[slot, 1], deltas[slot, 2] = dx, dy, dz
+        squared = dx * dx + dy * dy + dz * dz
+        length = math.sqrt(squared)
+        lengths[slot] = length
+        factor = gradient_factor(law, stiffness[e], length, rest_length[e], rest_length_squared[e])
+        if law == SQUARED_LENGTH:
+            ratio = length * length / rest_length_squared[e]
+            along = 2.0 * stiffness[e] * _filtered(3.0 * ratio - 1.0, projection)
+            transverse = 2.0 * stiffness[e] * _filtered(ratio - 1.0, projection)
+        else:
+            along = stiffness[e]
+            transverse = stiffness[e] * _filtered(1.0 - rest_length[e] / length, projection)
+        outer_scale = (along - transverse) / squared
+        g0 += factor * dx
+        g1 += factor * dy
+        g2 += factor * dz
+        sx, sy = outer_scale * dx, outer_scale * dy
+        h00 += transverse + sx * dx
+        h11 += transverse + sy * dy
+        h22 += transverse + outer_scale * dz * dz
+        h01 += sx * dy
+        h02 += sx * dz
+        h12 += sy * dz
+    g[0], g[1], g[2] = g0, g1, g2
+    H[0, 0], H[0, 1], H[0, 2] = h00, h01, h02
+    H[1, 0], H[1, 1], H[1, 2] = h01, h11, h12
+    H[2, 0], H[2, 1], H[2, 2] = h02, h12, h22
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, rest_length, rest_length_squared, law,
+            gravity_force, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection,
+            g, H, rate, D, deltas, lengths):
+    """g_i and H_i of E at y (into g, H), the damping's rates (D (y - a))_i and block D_ii (into rate, D), and each
+    incident spring's y_i - y_j and length (into deltas, lengths: what ``_change`` reads)."""
+    if d == 3:  # the springs' sums in registers (scalars), not in the scratch arrays
+        _springs3(i, y, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
+                  deltas, lengths)
+    else:
+        _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
+                 deltas, lengths)
     for a in range(d):
         g[a] = mass[d * i + a] * (y[d * i + a] - y_tilde[d * i + a]) + scale * (g[a] - gravity_force[i, a])
         for b in range(d):
@@ -145,7 +212,7 @@ def _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, re
                 H[a, b] += damping_weight * D[a, b]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, rest_length_squared, law,
             gravity_force, damping_weight, rate, D, deltas, lengths):
     """The change of E when vertex i alone moves by u, each term formed without cancellation, from the incident
@@ -178,7 +245,7 @@ def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_l
     return change
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, other,
            springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr, damping_indices,
            damping_data, damping_weight, velocity_origin, projection, determinant_floor, max_halvings, halvings):
@@ -232,7 +299,10 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
             for b in range(d):
                 size += H[a, b] * H[a, b]
         size = math.sqrt(size)
-        solvable = abs(determinant) > determinant_floor * size ** d and math.isfinite(determinant) and finite
+        bound = determinant_floor
+        for a in range(d):
+            bound *= size
+        solvable = abs(determinant) > bound and math.isfinite(determinant) and finite
         if not solvable:
             for a in range(d):
                 u[a] = 0.0
@@ -264,7 +334,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
         halvings[k] = rounds
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, error_model="numpy")
 def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, other, springs, max_degree,
                  stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr, damping_indices,
                  damping_data, damping_weight, velocity_origin, projection, determinant_floor, max_halvings, halvings):
