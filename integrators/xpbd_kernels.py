@@ -19,6 +19,8 @@ import numba
 import numpy as np
 from numba import prange
 
+from simrun.systems.constraints import filter_in_place
+
 # springs per chunk of the parallel loop: the scratch arrays are made once per chunk, not per spring
 CHUNK = 256
 
@@ -49,21 +51,9 @@ def _project_chunk(first_spring, last_spring, d, start, moves, multiplier, first
             first_gradient[a] = first_weight[r, a] * direction[a]
             second_gradient[a] = second_weight[r, a] * direction[a]
         if first_slides[r]:
-            for a in range(d):
-                total = 0.0
-                for b in range(d):
-                    total += first_projector[r, a, b] * first_gradient[b]
-                filtered[a] = total
-            for a in range(d):
-                first_gradient[a] = filtered[a]
+            filter_in_place(first_projector[r], first_gradient, filtered, d)
         if second_slides[r]:
-            for a in range(d):
-                total = 0.0
-                for b in range(d):
-                    total += second_projector[r, a, b] * second_gradient[b]
-                filtered[a] = total
-            for a in range(d):
-                second_gradient[a] = filtered[a]
+            filter_in_place(second_projector[r], second_gradient, filtered, d)
         weight = 0.0
         for a in range(d):
             weight += (first_gradient[a] + second_gradient[a]) * direction[a]

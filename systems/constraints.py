@@ -20,8 +20,21 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse
+
+
+@numba.njit(cache=True, error_model="numpy")
+def filter_in_place(projector, vector, scratch, d):
+    """vector = S vector in place, S (d, d) a vertex's filter; scratch: d entries (the compiled loops' form)."""
+    for a in range(d):
+        total = 0.0
+        for b in range(d):
+            total += projector[a, b] * vector[b]
+        scratch[a] = total
+    for a in range(d):
+        vector[a] = scratch[a]
 
 
 @dataclass(frozen=True, eq=False)

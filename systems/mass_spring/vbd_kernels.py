@@ -25,6 +25,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from ..constraints import filter_in_place
 from .kernels import SQUARED_LENGTH, gradient_factor
 
 # a colour's vertices as unsigned indices, by the identity of the colour's array (the solver keeps its colours for
@@ -136,57 +137,13 @@ def _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_lengt
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _springs3(i, y, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
-              deltas, lengths):
-    """``_springs`` in 3-D with the sums in scalars (B_e is symmetric: six of its entries)."""
-    g0 = g1 = g2 = 0.0
-    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-    for p in range(indptr[i], indptr[i + 1]):
-        j, e, slot = other[p], springs[p], p - indptr[i]
-        dx = y[3 * i] - y[3 * j]
-        dy = y[3 * i + 1] - y[3 * j + 1]
-        dz = y[3 * i + 2] - y[3 * j + 2]
-        deltas[slot, 0], deltas[slot, 1], deltas[slot, 2] = dx, dy, dz
-        squared = dx * dx + dy * dy + dz * dz
-        length = math.sqrt(squared)
-        lengths[slot] = length
-        factor = gradient_factor(law, stiffness[e], length, rest_length[e], rest_length_squared[e])
-        if law == SQUARED_LENGTH:
-            ratio = length * length / rest_length_squared[e]
-            along = 2.0 * stiffness[e] * _filtered(3.0 * ratio - 1.0, projection)
-            transverse = 2.0 * stiffness[e] * _filtered(ratio - 1.0, projection)
-        else:
-            along = stiffness[e]
-            transverse = stiffness[e] * _filtered(1.0 - rest_length[e] / length, projection)
-        outer_scale = (along - transverse) / squared
-        g0 += factor * dx
-        g1 += factor * dy
-        g2 += factor * dz
-        sx, sy = outer_scale * dx, outer_scale * dy
-        h00 += transverse + sx * dx
-        h11 += transverse + sy * dy
-        h22 += transverse + outer_scale * dz * dz
-        h01 += sx * dy
-        h02 += sx * dz
-        h12 += sy * dz
-    g[0], g[1], g[2] = g0, g1, g2
-    H[0, 0], H[0, 1], H[0, 2] = h00, h01, h02
-    H[1, 0], H[1, 1], H[1, 2] = h01, h11, h12
-    H[2, 0], H[2, 1], H[2, 2] = h02, h12, h22
-
-
-@numba.njit(cache=True, error_model="numpy")
 def _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, rest_length, rest_length_squared, law,
             gravity_force, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection,
             g, H, rate, D, deltas, lengths):
     """g_i and H_i of E at y (into g, H), the damping's rates (D (y - a))_i and block D_ii (into rate, D), and each
     incident spring's y_i - y_j and length (into deltas, lengths: what ``_change`` reads)."""
-    if d == 3:  # the springs' sums in registers (scalars), not in the scratch arrays
-        _springs3(i, y, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
-                  deltas, lengths)
-    else:
-        _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
-                 deltas, lengths)
+    _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
+             deltas, lengths)
     for a in range(d):
         g[a] = mass[d * i + a] * (y[d * i + a] - y_tilde[d * i + a]) + scale * (g[a] - gravity_force[i, a])
         for b in range(d):
@@ -284,13 +241,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
             for a in range(d):
                 for b in range(d):
                     H[a, b] = filtered[a, b]
-            for a in range(d):
-                total = 0.0
-                for b in range(d):
-                    total += S[a, b] * g[b]
-                filtered_vector[a] = total
-            for a in range(d):
-                g[a] = filtered_vector[a]
+            filter_in_place(S, g, filtered_vector, d)
         determinant = _determinant(H, d)
         size = 0.0
         finite = True
@@ -309,14 +260,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
         else:
             _solve(H, g, u, work, d)
         if constrained[k]:
-            S = projectors[k]
-            for a in range(d):
-                total = 0.0
-                for b in range(d):
-                    total += S[a, b] * u[b]
-                filtered_vector[a] = total
-            for a in range(d):
-                u[a] = filtered_vector[a]
+            filter_in_place(projectors[k], u, filtered_vector, d)
         rounds = 0
         change = _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, rest_length_squared,
                          law, gravity_force, damping_weight, rate, D, deltas, lengths)
