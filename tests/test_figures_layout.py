@@ -217,6 +217,7 @@ def test_solver_iterations_are_named_by_solver_and_settings_at_one_dt_told_apart
     config = Path(__file__).resolve().parents[1] / "configs" / "realtime_solvers.yaml"
     results = simrun.run(config, output=tmp_path / "rt", jobs=1, progress=False, figures=False,
                          overrides=["duration=0.05", "sweep.solver.time_budget=[0.004]", "sweep.solver.chebyshev_rho=[0.0]",
+                                    "sweep.system.resolution=[[12, 12]]",
                                     "integrators=[backward_euler, {type: xpbd, substeps: 5}]"])
     figures = drawn(results.path)
     try:
@@ -240,7 +241,8 @@ def test_many_settings_at_one_dt_wrap_into_rows_not_one_tall_column(tmp_path):
 
     config = Path(__file__).resolve().parents[1] / "configs" / "realtime_solvers.yaml"
     results = simrun.run(config, output=tmp_path / "rt", jobs=1, progress=False, figures=False,
-                         overrides=["duration=0.05", "integrators=[backward_euler]"])
+                         overrides=["duration=0.05", "integrators=[backward_euler]", "sweep.system.resolution=[[12, 12]]",
+                                    "sweep.solver.time_budget=[0.002, 0.008]"])
     figures = drawn(results.path)
     try:
         ((_, figure),) = [(name, figure) for name, figure in figures if name == "energy_over_time"]

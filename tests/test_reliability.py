@@ -48,11 +48,12 @@ SWEEP = """\
 
 
 def run_data(path: Path) -> dict[str, dict]:
-    """Every run's datasets and attributes, minus what legitimately differs between executions."""
+    """Every run's datasets and attributes, minus what legitimately differs between executions: the wall time, and
+    the threads of the compiled kernels (a run in the main process has every core, a pool's worker its share)."""
     data = {}
     with h5py.File(path, "r") as file:
         for run_id, group in file["runs"].items():
-            attrs = {key: value for key, value in group.attrs.items() if key != "wall_time"}
+            attrs = {key: value for key, value in group.attrs.items() if key not in ("wall_time", "threads")}
             data[run_id] = {"attrs": attrs, **{key: group[key][()] for key in group}}
     return data
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from simrun.execution.lane_recording import LaneSeries, LaneSummary, lane_decays, lane_errors, lane_final_error
 from simrun.execution.simulate import simulate
+from simrun.execution.workers import compiled_threads
 from simrun.experiment.config import Run
 from simrun.format.run_result import LaneBatch, lane_summary, lane_table
 from simrun.format.size import estimate_run_bytes
@@ -214,7 +215,7 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
     # the run's scalars (simulate's attrs), for all lanes at once
     final_error = lane_final_error(system, kept["last_t"], kept["last_positions"])
     errors = lane_errors(system, error_times, error_positions, error_velocities, frequencies)
-    shared = singles[0].capabilities.as_attrs()
+    shared = {**singles[0].capabilities.as_attrs(), "threads": compiled_threads(first.solver.threads)}
     columns = {"final_error": final_error, "not_converged_steps": not_converged_steps,
                "first_not_converged_step": first_not_converged, "diverged_step": np.where(diverged, stopped_at, 0),
                "safeguard_steps": kept["safeguard_steps"]}

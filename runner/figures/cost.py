@@ -55,7 +55,7 @@ def cost_vs_accuracy(data: FigureData):
                       else "error (m)" if evidence["measure"] == "error" else DRIFT_LABEL)
         for ax, title in ((distance_ax, "distance from the converged solve" if by_distance else "accuracy"),
                           (drift_ax, "energy change (artificial damping)")):
-            layout.log_log_panel(ax, f"{where}: {title}")
+            layout.log_log_panel(ax, f"{where}:\n{title}")  # two lines: a swept setting makes the first one long
             ax.axvline(1e3 * FRAME_TIME, color="0.35", ls=":", lw=1.0)
         left, right, floor_marker = [], [], None
         for name, method in evidence["methods"].items():
