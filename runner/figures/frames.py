@@ -139,7 +139,9 @@ def snapshot_grid(data: FigureData):
     limits = {}
     for dim in sorted({run.vertex_dim for run in runs}):
         frames = shown.get(dim) or [next(run for run in runs if run.vertex_dim == dim)["frames"][0]]
-        limits[dim] = _limits(np.array(frames), boxes.get(dim, []))
+        # runs of other sizes (a swept resolution) have frames of other shapes: their vertices, pooled
+        limits[dim] = _limits(np.concatenate([np.asarray(frame).reshape(-1, dim) for frame in frames]),
+                              boxes.get(dim, []))
     extents = []
     for dim, (low, high) in limits.items():
         extent = ", ".join(f"{name} {round(low[axis], 2) + 0.0:g} to {round(high[axis], 2) + 0.0:g} m"

@@ -56,7 +56,8 @@ def across_settings(members: list[tuple[str, str]], settings: dict[str, dict]) -
 
 
 def _settings_text(titles: frozenset, settings: dict[str, dict]) -> str:
-    keys = list(next(iter(settings.values()), {}))
+    # every key any setting has (an explicit method's settings have no solver keys), in the order first seen
+    keys = list(dict.fromkeys(key for setting in settings.values() for key in setting))
     names = " and ".join(keys) if len(keys) < 3 else ", ".join(keys[:-1]) + " and " + keys[-1]
     if len(titles) == len(settings):
         return f"at every setting of {names} ({len(settings):,})"
@@ -65,7 +66,9 @@ def _settings_text(titles: frozenset, settings: dict[str, dict]) -> str:
         return f"at {title}"
     ranges = []
     for key in keys:
-        values = [settings[title][key] for title in titles if title in settings]
+        values = [settings[title][key] for title in titles if key in settings.get(title, {})]
+        if not values:
+            continue
         numbers = [value for value in values if isinstance(value, (int, float)) and not isinstance(value, bool)]
         if len(numbers) == len(values):
             low, high = min(numbers), max(numbers)
