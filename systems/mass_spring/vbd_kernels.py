@@ -11,7 +11,8 @@ neighbours, which belong to other colours, and writes only its own dofs):
 the filter of a constrained vertex (S H S + c (I - S), S g), the determinant floor, u = -H^-1 g (Gaussian elimination
 with partial pivoting, as LAPACK's), and the per-vertex backtracking: u halved until the change of E it causes,
 formed without cancellation, is <= 0, dropped after ``max_halvings``. The result does not depend on the thread
-count: every vertex's numbers are its own, in a fixed order.
+count: every vertex's numbers are its own, in a fixed order. The inertia, damping, filter and solve are the shared
+ones of systems/vertex_kernels.py; the springs' blocks and changes are this module's.
 
 The incidences of a vertex are in the order of the numpy form (the springs at which it is the first end, then those
 at which it is the second, each in spring order), so the sums match it to round-off.
@@ -25,7 +26,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..constraints import filter_in_place
+from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step
 from .kernels import SQUARED_LENGTH, gradient_factor
 
 # a colour's vertices as unsigned indices, by the identity of the colour's array (the solver keeps its colours for
@@ -65,42 +66,6 @@ def _energy_change(law, stiffness, rest_length, rest_length_squared, length, mov
         ratios = (moved_length * moved_length + length * length) / rest_length_squared
         return 0.5 * stiffness * squared_change * (ratios - 2.0)
     return 0.5 * stiffness * squared_change / (moved_length + length) * (moved_length + length - 2.0 * rest_length)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _solve(H, g, u, work, d):
-    """u = -H^-1 g by Gaussian elimination with partial pivoting; work (d, d + 1) scratch."""
-    for r in range(d):
-        for c in range(d):
-            work[r, c] = H[r, c]
-        work[r, d] = -g[r]
-    for c in range(d):
-        pivot = c
-        for r in range(c + 1, d):
-            if abs(work[r, c]) > abs(work[pivot, c]):
-                pivot = r
-        if pivot != c:
-            for k in range(d + 1):
-                work[c, k], work[pivot, k] = work[pivot, k], work[c, k]
-        for r in range(c + 1, d):
-            factor = work[r, c] / work[c, c]
-            for k in range(c, d + 1):
-                work[r, k] -= factor * work[c, k]
-    for r in range(d - 1, -1, -1):
-        total = work[r, d]
-        for k in range(r + 1, d):
-            total -= work[r, k] * u[k]
-        u[r] = total / work[r, r]
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _determinant(H, d):
-    if d == 1:
-        return H[0, 0]
-    if d == 2:
-        return H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
-    return (H[0, 0] * (H[1, 1] * H[2, 2] - H[1, 2] * H[2, 1]) - H[0, 1] * (H[1, 0] * H[2, 2] - H[1, 2] * H[2, 0])
-            + H[0, 2] * (H[1, 0] * H[2, 1] - H[1, 1] * H[2, 0]))
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -145,28 +110,9 @@ def _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, re
     _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
              deltas, lengths)
     for a in range(d):
-        g[a] = mass[d * i + a] * (y[d * i + a] - y_tilde[d * i + a]) + scale * (g[a] - gravity_force[i, a])
-        for b in range(d):
-            H[a, b] *= scale
-        H[a, a] += mass[d * i + a]
-    for a in range(d):
-        rate[a] = 0.0
-        for b in range(d):
-            D[a, b] = 0.0
-    if damping_weight != 0.0:
-        for a in range(d):
-            row = d * i + a
-            total = 0.0
-            for q in range(damping_indptr[row], damping_indptr[row + 1]):
-                column = damping_indices[q]
-                total += damping_data[q] * (y[column] - velocity_origin[column])
-                if d * i <= column < d * i + d:
-                    D[a, column - d * i] = damping_data[q]
-            rate[a] = total
-            g[a] += damping_weight * total
-        for a in range(d):
-            for b in range(d):
-                H[a, b] += damping_weight * D[a, b]
+        g[a] -= gravity_force[i, a]
+    finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
+                  velocity_origin, g, H, rate, D)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -174,9 +120,6 @@ def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_l
             gravity_force, damping_weight, rate, D, deltas, lengths):
     """The change of E when vertex i alone moves by u, each term formed without cancellation, from the incident
     springs' deltas and lengths at y (``_vertex``)."""
-    inertia = 0.0
-    for a in range(d):
-        inertia += mass[d * i + a] * u[a] * (y[d * i + a] - y_tilde[d * i + a] + 0.5 * u[a])
     potential = 0.0
     for p in range(indptr[i], indptr[i + 1]):
         e, slot = springs[p], p - indptr[i]
@@ -190,16 +133,8 @@ def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_l
                                     math.sqrt(moved), squared_change)
     for a in range(d):
         potential -= gravity_force[i, a] * u[a]
-    change = inertia + scale * potential
-    if damping_weight != 0.0:
-        linear = 0.0
-        quadratic = 0.0
-        for a in range(d):
-            linear += u[a] * rate[a]
-            for b in range(d):
-                quadratic += u[a] * D[a, b] * u[b]
-        change += damping_weight * (linear + 0.5 * quadratic)
-    return change
+    change = inertia_change(i, u, y, d, y_tilde, mass) + scale * potential
+    return change + damping_change(u, d, damping_weight, rate, D)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -223,44 +158,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
         _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, rest_length,
                 rest_length_squared, law, gravity_force, damping_indptr, damping_indices, damping_data,
                 damping_weight, velocity_origin, projection, g, H, rate, D, deltas, lengths)
-        if constrained[k]:
-            S = projectors[k]
-            mean = 0.0
-            for a in range(d):
-                mean += abs(H[a, a])
-            mean /= d
-            if not mean > 0.0:
-                mean = 1.0
-            for a in range(d):
-                for b in range(d):
-                    total = 0.0
-                    for p in range(d):
-                        for q in range(d):
-                            total += S[a, p] * H[p, q] * S[q, b]
-                    filtered[a, b] = total + mean * ((1.0 if a == b else 0.0) - S[a, b])
-            for a in range(d):
-                for b in range(d):
-                    H[a, b] = filtered[a, b]
-            filter_in_place(S, g, filtered_vector, d)
-        determinant = _determinant(H, d)
-        size = 0.0
-        finite = True
-        for a in range(d):
-            finite = finite and math.isfinite(g[a])
-            for b in range(d):
-                size += H[a, b] * H[a, b]
-        size = math.sqrt(size)
-        bound = determinant_floor
-        for a in range(d):
-            bound *= size
-        solvable = abs(determinant) > bound and math.isfinite(determinant) and finite
-        if not solvable:
-            for a in range(d):
-                u[a] = 0.0
-        else:
-            _solve(H, g, u, work, d)
-        if constrained[k]:
-            filter_in_place(projectors[k], u, filtered_vector, d)
+        newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
         rounds = 0
         change = _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, rest_length_squared,
                          law, gravity_force, damping_weight, rate, D, deltas, lengths)
