@@ -570,6 +570,10 @@ class IncrementalPotential:
             hessian += self.damping_weight * damping_blocks
         return gradient, hessian
 
+    def vertex_step_fractions(self, y: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray | None:
+        """The system's step filter per vertex (``System.vertex_step_fractions``): E adds no bound of its own."""
+        return self.system.vertex_step_fractions(y, vertices, steps)
+
     def vertex_energy_changes(self, y: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """The change of E (J), shape (k,), when vertex i moves by u = steps[i] ((k, d), m) and the others stay at y,
 

@@ -232,6 +232,9 @@ class VertexBlockDescent(NonlinearSolver):
             if positions_of is None:
                 positions_of = swept.reshape(-1, gradient.shape[1])
             steps = self._newton_steps(gradient, hessian, plan)
+            fractions = problem.vertex_step_fractions(swept, vertices, steps)
+            if fractions is not None:
+                steps *= np.minimum(fractions, 1.0)[:, None]
             changes = problem.vertex_energy_changes(swept, vertices, steps)
             rejected = np.flatnonzero(~(changes <= 0.0))  # NaN too
             rounds = 0

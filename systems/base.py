@@ -281,6 +281,11 @@ class System(ABC):
         or None: the solver then sweeps with ``vertex_blocks`` and ``vertex_energy_changes``."""
         return None
 
+    def vertex_step_fractions(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray | None:
+        """The largest fraction (k,) of each vertex's step (vertex i alone moving by steps[i]) that the system's step
+        filter allows (Fem: its elements keep their volumes), or None where every step may be taken whole."""
+        return None
+
     def vertex_energy_changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """The change of P (J), shape (k,), when vertex i of ``vertices`` moves by steps[i] ((k, dim), m) and every
         other vertex stays at x: what vertex block descent's backtracking judges. Systems of elements form it

@@ -24,6 +24,7 @@ from ..contact.model import ContactModel
 from . import bending, kernels, membrane, split
 from .materials import MATERIALS
 from .mesh import SimplexMesh
+from .vertex import FemSweep
 
 # Every line search keeps each element above this fraction of its volume at the search's start, as the course code's
 # init_step_size does: the neo-Hookean energy is infinite at J <= 0, and an element pushed through zero volume
@@ -385,6 +386,50 @@ class Fem(ContactHooks, System):
 
     def with_terms(self, names, complement=False):
         return split.with_terms(self, names, complement)
+
+    # -- for vertex block descent: only the elements at each vertex (vertex.py, vbd_kernels.py) --------------
+    def _element_sweep(self):
+        """The elements at each vertex (vertex.py ``FemSweep``), or None where the generic blocks serve: a shell (its
+        membrane's F is 3 x 2, and its hinges couple four vertices), or an IMEX part without the elements."""
+        if self.is_shell or not self.includes_elements or len(self.hinges):
+            return None
+        cached = self.__dict__.get("_fem_sweep")
+        if cached is None or cached.source_mu is not self.mu or cached.source_lam is not self.lam:
+            cached = self.__dict__["_fem_sweep"] = FemSweep.of(self, KEPT_VOLUME)
+        return cached
+
+    def vertex_blocks(self, x, vertices, project_spd=False):
+        """The elements' blocks at each vertex, each element's projected on its own (vbd_kernels.py), gravity, and the
+        colliders' blocks."""
+        sweep = self._element_sweep()
+        if sweep is None:
+            return super().vertex_blocks(x, vertices, project_spd)
+        gradient, hessian = sweep.blocks(x, vertices, project_spd)
+        if self.contact is not None:  # the colliders act on each vertex alone
+            self.contact.point_terms(x.reshape(-1, self.dim)[vertices], gradient, hessian, project_spd)
+        return gradient, hessian
+
+    def vertex_energy_changes(self, x, vertices, steps):
+        sweep = self._element_sweep()
+        if sweep is None:
+            return super().vertex_energy_changes(x, vertices, steps)
+        changes, _ = sweep.changes(x, vertices, steps)
+        if self.contact is not None:
+            changes += self.contact.point_energy_changes(x.reshape(-1, self.dim)[vertices], steps)
+        return changes
+
+    def vertex_step_fractions(self, x, vertices, steps):
+        """The largest fraction of each vertex's step that keeps its elements above KEPT_VOLUME of their volume (the
+        step filter of ``max_step``, exact for one vertex: J is linear in its position)."""
+        sweep = self._element_sweep()
+        if sweep is None:
+            return super().vertex_step_fractions(x, vertices, steps)
+        return sweep.changes(x, vertices, steps)[1]
+
+    def vertex_sweep(self):
+        """The elements for vertex block descent's compiled colour sweep; None with colliders (the numpy sweep takes
+        their blocks) and where ``_element_sweep`` is None."""
+        return None if self.contact is not None else self._element_sweep()
 
     # -- vertices on prescribed paths -----------------------------------------------------------
     def acceleration(self, x, v):

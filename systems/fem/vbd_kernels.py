@@ -1,0 +1,529 @@
+"""Vertex block descent on a finite-element solid, compiled (issue 29): each vertex's gradient and d x d Hessian
+block from the elements around it, the change of the elastic energy when the vertex alone moves, the fraction of its
+step that keeps those elements' volumes, and one colour's sweep (solvers/vbd.py has the method).
+
+Vertex i is corner a of element e with shape gradient n = g_a (kernels.py). Moving the vertex alone by u changes the
+element's deformation gradient by a rank-one term, F' = F + u n^T, so
+
+    dPsi_e/dx_i = V P n,    d^2 Psi_e / dx_i^2 = V K,  K_ik = sum_jl n_j A_(ij)(kl) n_l  (A = d^2 psi / dF^2).
+
+K has a closed form for the invariant-based energies (docs/fem.md, "Vertex block descent"); with w = F n, c = cof(F) n
+(cof(F) = J F^-T), |n|^2 = n . n, and the cofactor's derivative contracted with n n vanishing (eps_jkl n_j n_k = 0):
+
+- LINEAR:             mu |n|^2 I + (mu + lambda) n n^T
+- STVK:               (n^T S n) I + (mu + lambda) w w^T + mu |n|^2 F F^T,   S = 2 mu E + lambda tr(E) I
+- NEO_HOOKEAN:        mu |n|^2 I + (mu + lambda (1 - ln J)) / J^2 c c^T
+- STABLE_NEO_HOOKEAN: (mu - mu / (I_C + 1)) |n|^2 I + 2 mu / (I_C + 1)^2 w w^T + lambda c c^T
+- COROTATED:          the contraction of its exact tangent A (energies.py), which needs the SVD's rotation derivative.
+
+Each element's K is projected to SPD on its own (clamp or mirror its negative eigenvalues), as the springs' blocks are
+in the mass-spring sweep (Chen et al., "Vertex block descent", 2024: the vertex's Hessian is the sum of its elements'
+blocks): the diagonal block of the element's projected 12 x 12 Hessian would cost an eigensystem of A per element and
+vertex, four times per sweep.
+
+The energy change is formed without cancellation from the exact changes of the invariants, I_C' - I_C = 2 u . w +
+|u|^2 |n|^2 and J' - J = c . u (the matrix determinant lemma: exact, J is linear in u), and for St. Venant-Kirchhoff
+and linear elasticity from the strain's change; the co-rotated energy's is the difference of the element's energies.
+J' = J + t c . u also gives the exact largest fraction t of the step that keeps every element at the vertex above
+``kept_volume`` of its volume (the step filter, systems/fem/system.py ``max_step``).
+
+The parallel loops run over chunks of vertices (one colour's, or the asked ones); every vertex's numbers are its own,
+in a fixed order, so the result does not depend on the thread count.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numba import prange
+
+from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step
+from .energies import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, WORK_SLOTS, _cofactor, material_terms
+from .linalg import _determinant, _symmetric_eigen
+
+# vertices per chunk of the parallel loops: the scratch arrays are made once per chunk, not per vertex
+CHUNK = 32
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _scratch(d, max_degree):
+    """One chunk's arrays: each incident element's F, w = F n, c = cof(F) n, J and I_C; P, A, the material's work, K
+    and its eigensystem, a moved F (the co-rotated change), P n; one element's F, n, w and c.
+
+    The loops index these whole arrays and copy one element's values in and out: a view per element (``Fs[slot]``)
+    costs numba two atomic reference counts, which had been most of the sweep's time."""
+    return (np.empty((max_degree, d, d)), np.empty((max_degree, d)), np.empty((max_degree, d)), np.empty(max_degree),
+            np.empty(max_degree), np.empty((d, d)), np.empty((d * d, d * d)), np.empty((WORK_SLOTS, d, d)),
+            np.empty((d, d)), np.empty((d, d)), np.empty(d), np.empty((d, d)), np.empty((d, d)), np.empty(d),
+            np.empty((d, d)), np.empty(d), np.empty(d), np.empty(d))
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _element_gradient(x, elements, shape_gradients, e, d, F):
+    """F = sum_a x_a g_a^T of element e (kernels.py's, indexing the whole arrays)."""
+    for i in range(d):
+        for j in range(d):
+            value = 0.0
+            for a in range(d + 1):
+                value += x[d * elements[e, a] + i] * shape_gradients[e, a, j]
+            F[i, j] = value
+
+
+@numba.njit(cache=True, error_model="numpy")
+def vertex_stiffness(model, F, n, d, mu, lam, A, K, work):
+    """K = n^T A n (d, d) at F, in closed form but for the co-rotated energy, whose A the caller has computed."""
+    squared = 0.0
+    for j in range(d):
+        squared += n[j] * n[j]
+    for i in range(d):
+        for k in range(d):
+            K[i, k] = 0.0
+    if model == COROTATED:
+        for i in range(d):
+            for k in range(d):
+                total = 0.0
+                for j in range(d):
+                    for m in range(d):
+                        total += n[j] * A[i * d + j, k * d + m] * n[m]
+                K[i, k] = total
+        return
+    if model == LINEAR:
+        for i in range(d):
+            K[i, i] += mu * squared
+            for k in range(d):
+                K[i, k] += (mu + lam) * n[i] * n[k]
+        return
+    w = work[0, 0]
+    for i in range(d):
+        total = 0.0
+        for j in range(d):
+            total += F[i, j] * n[j]
+        w[i] = total
+    if model == STVK:
+        E = work[1]
+        trace = 0.0
+        for i in range(d):
+            for j in range(d):
+                value = 0.0
+                for p in range(d):
+                    value += F[p, i] * F[p, j]
+                E[i, j] = 0.5 * (value - (1.0 if i == j else 0.0))
+            trace += E[i, i]
+        stress = 0.0  # n^T S n
+        for i in range(d):
+            for j in range(d):
+                stress += n[i] * (2.0 * mu * E[i, j] + (lam * trace if i == j else 0.0)) * n[j]
+        for i in range(d):
+            K[i, i] += stress
+            for k in range(d):
+                gram = 0.0
+                for m in range(d):
+                    gram += F[i, m] * F[k, m]
+                K[i, k] += (mu + lam) * w[i] * w[k] + mu * squared * gram
+        return
+    C = work[2]
+    _cofactor(F, d, C)
+    c = work[0, 1]
+    for i in range(d):
+        total = 0.0
+        for j in range(d):
+            total += C[i, j] * n[j]
+        c[i] = total
+    if model == NEO_HOOKEAN:
+        J = _determinant(F, d)
+        factor = (mu + lam * (1.0 - math.log(J))) / (J * J) if J > 0.0 else math.nan
+        for i in range(d):
+            K[i, i] += mu * squared
+            for k in range(d):
+                K[i, k] += factor * c[i] * c[k]
+        return
+    invariant = 0.0
+    for i in range(d):
+        for j in range(d):
+            invariant += F[i, j] * F[i, j]
+    shrink = mu / (invariant + 1.0)
+    curvature = 2.0 * mu / ((invariant + 1.0) * (invariant + 1.0))
+    for i in range(d):
+        K[i, i] += (mu - shrink) * squared
+        for k in range(d):
+            K[i, k] += curvature * w[i] * w[k] + lam * c[i] * c[k]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def project_block(K, d, projection, copy, values, vectors):
+    """K made SPD in place: its negative eigenvalues clamped to 0 (projection 1) or mirrored (2); left as it is where
+    it is positive definite or projection is 0."""
+    if projection == 0:
+        return
+    # positive definite by its leading minors (linalg's _positive_definite_small, here inlined: a call per element
+    # costs more than the test)
+    if K[0, 0] > 0.0:
+        minor = K[0, 0] * K[1, 1] - K[0, 1] * K[1, 0]
+        if minor > 0.0 and (d == 2 or (K[0, 0] * (K[1, 1] * K[2, 2] - K[1, 2] * K[2, 1])
+                                       - K[0, 1] * (K[1, 0] * K[2, 2] - K[1, 2] * K[2, 0])
+                                       + K[0, 2] * (K[1, 0] * K[2, 1] - K[1, 1] * K[2, 0])) > 0.0):
+            return
+    for i in range(d):
+        for k in range(d):
+            copy[i, k] = K[i, k]
+    _symmetric_eigen(copy, d, values, vectors)
+    for m in range(d):
+        if values[m] < 0.0:
+            values[m] = 0.0 if projection == 1 else -values[m]
+    for i in range(d):
+        for k in range(d):
+            total = 0.0
+            for m in range(d):
+                total += vectors[i, m] * values[m] * vectors[k, m]
+            K[i, k] = total
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _invariant_terms(model, F, n, d, mu, lam, C, w, c, stress, K):
+    """The neo-Hookean energies' P n (into stress) and K straight from the invariants (w = F n and c = cof(F) n into
+    w, c; C scratch): no tangent, no full P. Returns (J, I_C)."""
+    J = _determinant(F, d)
+    _cofactor(F, d, C)
+    invariant, squared = 0.0, 0.0
+    for i in range(d):
+        squared += n[i] * n[i]
+        along, volume = 0.0, 0.0
+        for j in range(d):
+            invariant += F[i, j] * F[i, j]
+            along += F[i, j] * n[j]
+            volume += C[i, j] * n[j]
+        w[i], c[i] = along, volume
+    _invariant_blocks(model, J, invariant, squared, d, mu, lam, w, c, stress, K)
+    return J, invariant
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _invariant_terms_3d(y, elements, shape_gradients, e, corner, model, mu, lam, w, c, stress, K):
+    """``_invariant_terms`` of a tetrahedron written out in scalars (F's columns f_j, cof(F) = [f1 x f2, f2 x f0,
+    f0 x f1]): the same numbers to round-off at a third of the cost of the loops over d. Returns (J, I_C)."""
+    v0, v1, v2, v3 = 3 * elements[e, 0], 3 * elements[e, 1], 3 * elements[e, 2], 3 * elements[e, 3]
+    g00, g01, g02 = shape_gradients[e, 0, 0], shape_gradients[e, 0, 1], shape_gradients[e, 0, 2]
+    g10, g11, g12 = shape_gradients[e, 1, 0], shape_gradients[e, 1, 1], shape_gradients[e, 1, 2]
+    g20, g21, g22 = shape_gradients[e, 2, 0], shape_gradients[e, 2, 1], shape_gradients[e, 2, 2]
+    g30, g31, g32 = shape_gradients[e, 3, 0], shape_gradients[e, 3, 1], shape_gradients[e, 3, 2]
+    x0, x1, x2, x3 = y[v0], y[v1], y[v2], y[v3]
+    f00 = x0 * g00 + x1 * g10 + x2 * g20 + x3 * g30
+    f01 = x0 * g01 + x1 * g11 + x2 * g21 + x3 * g31
+    f02 = x0 * g02 + x1 * g12 + x2 * g22 + x3 * g32
+    x0, x1, x2, x3 = y[v0 + 1], y[v1 + 1], y[v2 + 1], y[v3 + 1]
+    f10 = x0 * g00 + x1 * g10 + x2 * g20 + x3 * g30
+    f11 = x0 * g01 + x1 * g11 + x2 * g21 + x3 * g31
+    f12 = x0 * g02 + x1 * g12 + x2 * g22 + x3 * g32
+    x0, x1, x2, x3 = y[v0 + 2], y[v1 + 2], y[v2 + 2], y[v3 + 2]
+    f20 = x0 * g00 + x1 * g10 + x2 * g20 + x3 * g30
+    f21 = x0 * g01 + x1 * g11 + x2 * g21 + x3 * g31
+    f22 = x0 * g02 + x1 * g12 + x2 * g22 + x3 * g32
+    n0, n1, n2 = shape_gradients[e, corner, 0], shape_gradients[e, corner, 1], shape_gradients[e, corner, 2]
+    # cofactor columns: C[:, 0] = f1 x f2, C[:, 1] = f2 x f0, C[:, 2] = f0 x f1 (f_j = F[:, j])
+    c00, c10, c20 = f11 * f22 - f21 * f12, f21 * f02 - f01 * f22, f01 * f12 - f11 * f02
+    c01, c11, c21 = f12 * f20 - f22 * f10, f22 * f00 - f02 * f20, f02 * f10 - f12 * f00
+    c02, c12, c22 = f10 * f21 - f20 * f11, f20 * f01 - f00 * f21, f00 * f11 - f10 * f01
+    J = f00 * c00 + f10 * c10 + f20 * c20
+    invariant = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21
+                 + f22 * f22)
+    w[0], w[1], w[2] = f00 * n0 + f01 * n1 + f02 * n2, f10 * n0 + f11 * n1 + f12 * n2, f20 * n0 + f21 * n1 + f22 * n2
+    c[0], c[1], c[2] = c00 * n0 + c01 * n1 + c02 * n2, c10 * n0 + c11 * n1 + c12 * n2, c20 * n0 + c21 * n1 + c22 * n2
+    _invariant_blocks(model, J, invariant, n0 * n0 + n1 * n1 + n2 * n2, 3, mu, lam, w, c, stress, K)
+    return J, invariant
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _invariant_blocks(model, J, invariant, squared, d, mu, lam, w, c, stress, K):
+    """P n and K of the neo-Hookean energies from J, I_C, |n|^2, w = F n and c = cof(F) n (see ``_invariant_terms``)."""
+    if model == NEO_HOOKEAN:
+        # P n = mu w + (lambda ln J - mu) / J c
+        log_J = math.log(J) if J > 0.0 else math.nan
+        shear, stretch, spread = mu, 0.0, (mu + lam * (1.0 - log_J)) / (J * J)
+        volume_stress = (lam * log_J - mu) / J
+    else:  # STABLE_NEO_HOOKEAN: P n = (mu - mu / (I_C + 1)) w + lambda (J - alpha) c
+        shear = mu - mu / (invariant + 1.0)
+        stretch, spread = 2.0 * mu / ((invariant + 1.0) * (invariant + 1.0)), lam
+        volume_stress = lam * (J - 1.0 - mu * d / ((d + 1.0) * lam))
+    diagonal = shear * squared
+    for i in range(d):
+        stress[i] = shear * w[i] + volume_stress * c[i]
+        for k in range(d):
+            K[i, k] = stretch * w[i] * w[k] + spread * c[i] * c[k]
+        K[i, i] += diagonal
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, model, projection,
+                 g, H, scratch):
+    """dP_el/dy_i into g and the projected sum of the elements' K into H; each incident element's F, w, c, J and I_C
+    into the scratch (what ``_elastic_change`` and ``_kept_fraction`` read)."""
+    Fs, ws, cs, Js, Is, P, A, work, K, copy, values, vectors, _, stress, F, n, w, c = scratch
+    for a in range(d):
+        g[a] = 0.0
+        for b in range(d):
+            H[a, b] = 0.0
+    invariant_based = model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN
+    if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars: F itself is not kept
+        for p in range(indptr[i], indptr[i + 1]):
+            slot = p - indptr[i]
+            Js[slot], Is[slot] = _invariant_terms_3d(y, elements, shape_gradients, p, 0, model, mu[p], lam[p], w, c,
+                                                     stress, K)
+            ws[slot, 0], ws[slot, 1], ws[slot, 2] = w[0], w[1], w[2]
+            cs[slot, 0], cs[slot, 1], cs[slot, 2] = c[0], c[1], c[2]
+            project_block(K, 3, projection, copy, values, vectors)
+            volume = volumes[p]
+            for a in range(3):
+                g[a] += volume * stress[a]
+                for b in range(3):
+                    H[a, b] += volume * K[a, b]
+        return
+    for p in range(indptr[i], indptr[i + 1]):
+        e, corner, slot = p, 0, p - indptr[i]  # incidence p: its element with vertex i first
+        _element_gradient(y, elements, shape_gradients, e, d, F)
+        for a in range(d):
+            n[a] = shape_gradients[e, corner, a]
+            for b in range(d):
+                Fs[slot, a, b] = F[a, b]
+        if invariant_based:
+            J, invariant = _invariant_terms(model, F, n, d, mu[e], lam[e], copy, w, c, stress, K)
+        else:
+            material_terms(model, F, d, mu[e], lam[e], P, A, model == COROTATED, work)
+            vertex_stiffness(model, F, n, d, mu[e], lam[e], A, K, work)
+            _cofactor(F, d, copy)
+            J, invariant = _determinant(F, d), 0.0
+            for a in range(d):
+                total, cofactor = 0.0, 0.0
+                for b in range(d):
+                    total += P[a, b] * n[b]
+                    cofactor += copy[a, b] * n[b]
+                stress[a] = total
+                c[a] = cofactor
+        Js[slot], Is[slot] = J, invariant
+        for a in range(d):
+            ws[slot, a], cs[slot, a] = w[a], c[a]
+        project_block(K, d, projection, copy, values, vectors)
+        volume = volumes[e]
+        for a in range(d):
+            g[a] += volume * stress[a]
+            for b in range(d):
+                H[a, b] += volume * K[a, b]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _density_change(model, F, n, w, c, J, invariant, u, d, mu, lam, moved, P, A, work):
+    """psi(F + u n^T) - psi(F) without cancellation (see the module docstring); w = F n and I_C (the neo-Hookean
+    energies'), c = cof(F) n, J = det F."""
+    squared_n, squared_u, turned, volume_change = 0.0, 0.0, 0.0, 0.0  # |n|^2, |u|^2, u . n, c . u
+    for j in range(d):
+        squared_n += n[j] * n[j]
+        squared_u += u[j] * u[j]
+        turned += u[j] * n[j]
+        volume_change += c[j] * u[j]
+    if model == COROTATED:
+        for i in range(d):
+            for j in range(d):
+                moved[i, j] = F[i, j] + u[i] * n[j]
+        return (material_terms(model, moved, d, mu, lam, P, A, False, work)
+                - material_terms(model, F, d, mu, lam, P, A, False, work))
+    if model == LINEAR:
+        # eps' - eps = (u n^T + n u^T)/2: mu (2 u^T eps n + (|u|^2 |n|^2 + (u . n)^2)/2) + lambda/2 dtr (2 tr eps + dtr)
+        strain, trace = 0.0, 0.0
+        for i in range(d):
+            trace += F[i, i] - 1.0
+            for j in range(d):
+                strain += u[i] * (0.5 * (F[i, j] + F[j, i]) - (1.0 if i == j else 0.0)) * n[j]
+        return (mu * (2.0 * strain + 0.5 * (squared_u * squared_n + turned * turned))
+                + 0.5 * lam * turned * (2.0 * trace + turned))
+    if model == STVK:
+        # E' - E = (v n^T + n v^T + |u|^2 n n^T)/2 with v = F^T u
+        v, E, change = work[0, 0], work[1], work[2]
+        for j in range(d):
+            total = 0.0
+            for m in range(d):
+                total += F[m, j] * u[m]
+            v[j] = total
+        trace, trace_change, product, squared_change = 0.0, 0.0, 0.0, 0.0
+        for i in range(d):
+            for j in range(d):
+                value = 0.0
+                for p in range(d):
+                    value += F[p, i] * F[p, j]
+                E[i, j] = 0.5 * (value - (1.0 if i == j else 0.0))
+                change[i, j] = 0.5 * (v[i] * n[j] + n[i] * v[j] + squared_u * n[i] * n[j])
+                product += E[i, j] * change[i, j]
+                squared_change += change[i, j] * change[i, j]
+            trace += E[i, i]
+            trace_change += change[i, i]
+        return mu * (2.0 * product + squared_change) + 0.5 * lam * trace_change * (2.0 * trace + trace_change)
+    along = 0.0
+    for j in range(d):
+        along += u[j] * w[j]
+    return _invariant_change(model, J, invariant, 2.0 * along + squared_u * squared_n, volume_change, d, mu, lam)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _invariant_change(model, J, invariant, invariant_change, volume_change, d, mu, lam):
+    """psi' - psi of the neo-Hookean energies from the exact changes of I_C and J."""
+    if model == NEO_HOOKEAN:
+        if not (J > 0.0 and J + volume_change > 0.0):
+            return math.inf  # inverted or flat: the energy is infinite there, and no step is taken to it
+        log_ratio = math.log1p(volume_change / J)
+        return (0.5 * mu * invariant_change - mu * log_ratio
+                + 0.5 * lam * log_ratio * (2.0 * math.log(J) + log_ratio))
+    alpha = 1.0 + mu * d / ((d + 1.0) * lam)
+    return (0.5 * mu * invariant_change + 0.5 * lam * volume_change * (2.0 * (J - alpha) + volume_change)
+            - 0.5 * mu * math.log1p(invariant_change / (invariant + 1.0)))
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, model, scratch):
+    """The change of the elements' energy when vertex i alone moves by u, from the scratch ``_elements_at`` filled."""
+    Fs, ws, cs, Js, Is, P, A, work, _, _, _, _, moved, _, F, n, w, c = scratch
+    invariant_based = model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN
+    total = 0.0
+    if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars
+        u0, u1, u2 = u[0], u[1], u[2]
+        squared_u = u0 * u0 + u1 * u1 + u2 * u2
+        for p in range(indptr[i], indptr[i + 1]):
+            slot = p - indptr[i]
+            n0, n1, n2 = shape_gradients[p, 0, 0], shape_gradients[p, 0, 1], shape_gradients[p, 0, 2]
+            total += volumes[p] * _invariant_change(
+                model, Js[slot], Is[slot], 2.0 * (u0 * ws[slot, 0] + u1 * ws[slot, 1] + u2 * ws[slot, 2])
+                + squared_u * (n0 * n0 + n1 * n1 + n2 * n2), u0 * cs[slot, 0] + u1 * cs[slot, 1] + u2 * cs[slot, 2], 3,
+                mu[p], lam[p])
+        return total
+    for p in range(indptr[i], indptr[i + 1]):
+        e, corner, slot = p, 0, p - indptr[i]  # incidence p: its element with vertex i first
+        for a in range(d):
+            n[a], w[a], c[a] = shape_gradients[e, corner, a], ws[slot, a], cs[slot, a]
+            if not invariant_based:
+                for b in range(d):
+                    F[a, b] = Fs[slot, a, b]
+        total += volumes[e] * _density_change(model, F, n, w, c, Js[slot], Is[slot], u, d, mu[e], lam[e], moved, P, A,
+                                              work)
+    return total
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _kept_fraction(i, u, d, indptr, kept_volume, scratch):
+    """The largest t <= 1 at which every element at vertex i keeps ``kept_volume`` of its volume, J + t c . u >=
+    kept_volume J (elements at or below zero volume are not cut: nothing keeps them positive)."""
+    cs, Js = scratch[2], scratch[3]
+    fraction = 1.0
+    for p in range(indptr[i], indptr[i + 1]):
+        slot = p - indptr[i]
+        rate = 0.0
+        for a in range(d):
+            rate += cs[slot, a] * u[a]
+        if Js[slot] > 0.0 and rate < 0.0:
+            fraction = min(fraction, (1.0 - kept_volume) * Js[slot] / -rate)
+    return fraction
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
+           elements, shape_gradients, volumes, mu, lam, model, gravity_force, kept_volume,
+           damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
+           max_halvings, halvings):
+    """The vertices first_vertex:last_vertex of one colour; d a constant at each call site."""
+    scratch = _scratch(d, max_degree)
+    g = np.empty(d)
+    H = np.empty((d, d))
+    rate = np.empty(d)
+    D = np.empty((d, d))
+    filtered_vector = np.empty(d)
+    u = np.empty(d)
+    work = np.empty((d, d + 1))
+    filtered = np.empty((d, d))
+    for k in range(first_vertex, last_vertex):
+        i = vertices[k]
+        _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, model, projection,
+                     g, H, scratch)
+        for a in range(d):
+            g[a] -= gravity_force[i, a]
+        finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
+                      velocity_origin, g, H, rate, D)
+        newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
+        fraction = _kept_fraction(i, u, d, indptr, kept_volume, scratch)
+        if fraction < 1.0:
+            for a in range(d):
+                u[a] *= fraction
+        rounds = 0
+        while True:
+            potential = _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, model,
+                                        scratch)
+            for a in range(d):
+                potential -= gravity_force[i, a] * u[a]
+            change = inertia_change(i, u, y, d, y_tilde, mass) + scale * potential
+            change += damping_change(u, d, damping_weight, rate, D)
+            if change <= 0.0 or rounds >= max_halvings:  # NaN halves too
+                break
+            for a in range(d):
+                u[a] *= 0.5
+            rounds += 1
+        if not change <= 0.0:
+            for a in range(d):
+                u[a] = 0.0
+        for a in range(d):
+            y[d * i + a] += u[a]
+        halvings[k] = rounds
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, max_degree,
+                 elements, shape_gradients, volumes, mu, lam, model, gravity_force, kept_volume, damping_indptr,
+                 damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
+                 max_halvings, halvings):
+    """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
+    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding)."""
+    dim = projectors.shape[1]
+    count = vertices.size
+    for chunk in prange((count + CHUNK - 1) // CHUNK):
+        first_vertex, last_vertex = chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)
+        if dim == 3:
+            _chunk(first_vertex, last_vertex, 3, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale,
+                   indptr, elements, shape_gradients, volumes, mu, lam, model, gravity_force,
+                   kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin,
+                   projection, determinant_floor, max_halvings, halvings)
+        else:
+            _chunk(first_vertex, last_vertex, 2, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale,
+                   indptr, elements, shape_gradients, volumes, mu, lam, model, gravity_force,
+                   kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin,
+                   projection, determinant_floor, max_halvings, halvings)
+
+
+# -- the same terms for given vertices, each at x with the others held (what the numpy sweep and contact take) --------
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def vertex_blocks(x, vertices, indptr, max_degree, elements, shape_gradients, volumes, mu, lam,
+                  model, projection, gradient, hessian):
+    """gradient[k] = dP_el/dx_i (N) and hessian[k] the projected sum of the elements' blocks (N/m) of vertex
+    i = vertices[k]: the elements' energy only (the caller adds gravity and contact)."""
+    d = shape_gradients.shape[2]
+    count = vertices.size
+    for chunk in prange((count + CHUNK - 1) // CHUNK):
+        scratch = _scratch(d, max_degree)
+        for k in range(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)):
+            _elements_at(vertices[k], x, d, indptr, elements, shape_gradients, volumes, mu, lam,
+                         model, projection, gradient[k], hessian[k], scratch)
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def vertex_changes(x, vertices, steps, indptr, max_degree, elements, shape_gradients, volumes, mu,
+                   lam, model, kept_volume, changes, fractions):
+    """changes[k]: the change of the elements' energy (J) when vertex i = vertices[k] alone moves by steps[k];
+    fractions[k]: the largest fraction of that step that keeps its elements above ``kept_volume`` of their volume."""
+    d = shape_gradients.shape[2]
+    count = vertices.size
+    for chunk in prange((count + CHUNK - 1) // CHUNK):
+        scratch = _scratch(d, max_degree)
+        g = np.empty(d)
+        H = np.empty((d, d))
+        for k in range(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)):
+            i = vertices[k]
+            _elements_at(i, x, d, indptr, elements, shape_gradients, volumes, mu, lam, model, 0, g, H,
+                         scratch)
+            changes[k] = _elastic_change(i, steps[k], d, indptr, shape_gradients, volumes, mu, lam,
+                                         model, scratch)
+            fractions[k] = _kept_fraction(i, steps[k], d, indptr, kept_volume, scratch)
