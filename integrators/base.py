@@ -570,8 +570,7 @@ class IncrementalPotential:
             hessian += self.damping_weight * damping_blocks
         return gradient, hessian
 
-    def vertex_step_fractions(self, y: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray | None:
-        """The system's step filter per vertex (``System.vertex_step_fractions``): E adds no bound of its own."""
+    def vertex_step_fractions(self, y, vertices, steps):  # the system's step filter per vertex: E adds no bound
         return self.system.vertex_step_fractions(y, vertices, steps)
 
     def vertex_energy_changes(self, y: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -595,9 +594,7 @@ class IncrementalPotential:
 
     def _damping_rows(self, vertices: np.ndarray, dofs: np.ndarray):
         """D's rows at the vertices' dofs and its diagonal blocks D_ii (k, d, d), kept per vertex set for this step."""
-        kept = self.__dict__.setdefault("_damping_parts", {})
-        key = vertices.tobytes()
-        part = kept.get(key)
-        if part is None:
-            part = kept[key] = (self.damping[dofs.ravel()], diagonal_blocks(self.damping, vertices, self.system.dim))
-        return part
+        kept, key = self.__dict__.setdefault("_damping_parts", {}), vertices.tobytes()
+        if key not in kept:
+            kept[key] = (self.damping[dofs.ravel()], diagonal_blocks(self.damping, vertices, self.system.dim))
+        return kept[key]
