@@ -157,11 +157,14 @@ def _diagonal(matrix) -> np.ndarray:
     return np.asarray(diagonal, dtype=float)
 
 
-def _inverse_diagonal(matrix) -> np.ndarray:
-    """1 / diag(A), with 1 where the diagonal vanishes (no scaling is better than a division by zero)."""
+def _safe_diagonal(matrix) -> np.ndarray:
+    """diag(A), with 1 where the diagonal vanishes (no scaling is better than a division by zero)."""
     diagonal = _diagonal(matrix)
-    safe = np.where(diagonal != 0.0, diagonal, 1.0)
-    return 1.0 / safe
+    return np.where(diagonal != 0.0, diagonal, 1.0)
+
+
+def _inverse_diagonal(matrix) -> np.ndarray:
+    return 1.0 / _safe_diagonal(matrix)
 
 
 class LinearSolver(ABC):
@@ -547,12 +550,9 @@ class Jacobi(ReducedSolver):
 class GaussSeidel(ReducedSolver):
     """Forward Gauss-Seidel p_{k+1} = p_k + (D + L)^{-1} (b - A p_k), L the strictly lower part of A.
 
-    Converges for SPD and for strictly diagonally dominant A (Saad, sec. 4.1). Each sweep is one
-    sparse triangular solve in compiled code: the lower triangle factored once per linear solve by
-    SuperLU in natural order without pivoting (its factors are the triangle itself), which sweeps
-    faster than scipy.sparse.linalg.spsolve_triangular, whose per-call copies and rescaling dominate
-    at the cloth's sizes (docs/performance.md).
-    Dense matrices use LAPACK's triangular solve."""
+    Converges for SPD and for strictly diagonally dominant A (Saad, sec. 4.1). Each sweep is one sparse triangular
+    solve: the lower triangle factored once per linear solve by SuperLU in natural order without pivoting (its factors
+    are the triangle itself), faster than spsolve_triangular's per-call copies (docs/performance.md); dense: LAPACK's."""
 
     name = "gauss_seidel"
 
@@ -571,8 +571,28 @@ class GaussSeidel(ReducedSolver):
         return self._stationary(matrix, rhs, sweep)
 
 
+class MulticolourGaussSeidel(ReducedSolver):
+    """Gauss-Seidel over a colouring of the rows (multicolour.py): the forward sweep in colour order, each colour's rows
+    in parallel, compiled; the colouring made once per sparsity pattern. It is forward Gauss-Seidel on P A P^T (P the
+    colour order), so it converges where that does (SPD A, strictly diagonally dominant A)."""
+
+    name = "multicolour_gauss_seidel"
+    _colouring = None  # the last pattern's (multicolour.Colouring.of)
+
+    def _solve(self, matrix, rhs, spd):
+        from .multicolour import Colouring
+
+        matrix = scipy.sparse.csr_matrix(matrix)
+        matrix.sort_indices()
+        colouring = self._colouring = Colouring.of(matrix, self._colouring)
+        ordered, order, correction = colouring.ordered(matrix), colouring.rows, np.empty_like(rhs)
+        diagonal = _safe_diagonal(ordered)
+        solution, iterations = self._stationary(ordered, rhs[order], lambda r: colouring.forward(ordered, diagonal, r, correction))
+        return solution[np.argsort(order)], iterations
+
+
 # config name -> class; each is built with (tolerance, max_iterations)
 LINEAR_SOLVERS: dict[str, type[LinearSolver]] = {
     cls.name: cls for cls in (DirectSolver, CholeskySolver, ConjugateGradient, JacobiPCG, ModifiedPCG, Jacobi,
-                              GaussSeidel)
+                              GaussSeidel, MulticolourGaussSeidel)
 }
