@@ -181,9 +181,9 @@ def project_block(K, d, projection, copy, values, vectors):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _invariant_terms(model, F, n, d, mu, lam, C, w, c, stress, K):
+def _invariant_terms(model, F, n, d, mu, lam, alpha, C, w, c, stress, K):
     """The neo-Hookean energies' P n (into stress) and K straight from the invariants (w = F n and c = cof(F) n into
-    w, c; C scratch): no tangent, no full P. Returns (J, I_C)."""
+    w, c; C scratch): no tangent, no full P. Returns J and what ``_invariant_blocks`` returns."""
     J = _determinant(F, d)
     _cofactor(F, d, C)
     invariant, squared = 0.0, 0.0
@@ -195,12 +195,11 @@ def _invariant_terms(model, F, n, d, mu, lam, C, w, c, stress, K):
             along += F[i, j] * n[j]
             volume += C[i, j] * n[j]
         w[i], c[i] = along, volume
-    _invariant_blocks(model, J, invariant, squared, d, mu, lam, w, c, stress, K)
-    return J, invariant
+    return J, _invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, stress, K)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_terms_3d(y, elements, shape_gradients, e, corner, model, mu, lam, w, c, stress, K):
+def _invariant_terms_3d(y, elements, shape_gradients, e, corner, model, mu, lam, alpha, w, c, stress, K):
     """``_invariant_terms`` of a tetrahedron written out in scalars (F's columns f_j, cof(F) = [f1 x f2, f2 x f0,
     f0 x f1]): the same numbers to round-off at a third of the cost of the loops over d. Returns (J, I_C)."""
     v0, v1, v2, v3 = 3 * elements[e, 0], 3 * elements[e, 1], 3 * elements[e, 2], 3 * elements[e, 3]
@@ -230,32 +229,36 @@ def _invariant_terms_3d(y, elements, shape_gradients, e, corner, model, mu, lam,
                  + f22 * f22)
     w[0], w[1], w[2] = f00 * n0 + f01 * n1 + f02 * n2, f10 * n0 + f11 * n1 + f12 * n2, f20 * n0 + f21 * n1 + f22 * n2
     c[0], c[1], c[2] = c00 * n0 + c01 * n1 + c02 * n2, c10 * n0 + c11 * n1 + c12 * n2, c20 * n0 + c21 * n1 + c22 * n2
-    _invariant_blocks(model, J, invariant, n0 * n0 + n1 * n1 + n2 * n2, 3, mu, lam, w, c, stress, K)
-    return J, invariant
+    return J, _invariant_blocks(model, J, invariant, n0 * n0 + n1 * n1 + n2 * n2, 3, mu, lam, alpha, w, c, stress, K)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_blocks(model, J, invariant, squared, d, mu, lam, w, c, stress, K):
-    """P n and K of the neo-Hookean energies from J, I_C, |n|^2, w = F n and c = cof(F) n (see ``_invariant_terms``)."""
+def _invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, stress, K):
+    """P n and K of the neo-Hookean energies from J, I_C, |n|^2, w = F n and c = cof(F) n (see ``_invariant_terms``);
+    returns what their energy change reads besides J: ln J (neo-Hookean), 1 / (I_C + 1) (stable neo-Hookean, whose
+    alpha = 1 + mu d / ((d + 1) lambda) is the element's, made once)."""
     if model == NEO_HOOKEAN:
         # P n = mu w + (lambda ln J - mu) / J c
         log_J = math.log(J) if J > 0.0 else math.nan
-        shear, stretch, spread = mu, 0.0, (mu + lam * (1.0 - log_J)) / (J * J)
-        volume_stress = (lam * log_J - mu) / J
+        inverse = 1.0 / J
+        shear, stretch, spread = mu, 0.0, (mu + lam * (1.0 - log_J)) * inverse * inverse
+        volume_stress, kept = (lam * log_J - mu) * inverse, log_J
     else:  # STABLE_NEO_HOOKEAN: P n = (mu - mu / (I_C + 1)) w + lambda (J - alpha) c
-        shear = mu - mu / (invariant + 1.0)
-        stretch, spread = 2.0 * mu / ((invariant + 1.0) * (invariant + 1.0)), lam
-        volume_stress = lam * (J - 1.0 - mu * d / ((d + 1.0) * lam))
+        kept = 1.0 / (invariant + 1.0)
+        shear = mu - mu * kept
+        stretch, spread = 2.0 * mu * kept * kept, lam
+        volume_stress = lam * (J - alpha)
     diagonal = shear * squared
     for i in range(d):
         stress[i] = shear * w[i] + volume_stress * c[i]
         for k in range(d):
             K[i, k] = stretch * w[i] * w[k] + spread * c[i] * c[k]
         K[i, i] += diagonal
+    return kept
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, model, projection,
+def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection,
                  g, H, scratch):
     """dP_el/dy_i into g and the projected sum of the elements' K into H; each incident element's F, w, c, J and I_C
     into the scratch (what ``_elastic_change`` and ``_kept_fraction`` read)."""
@@ -268,8 +271,8 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, m
     if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars: F itself is not kept
         for p in range(indptr[i], indptr[i + 1]):
             slot = p - indptr[i]
-            Js[slot], Is[slot] = _invariant_terms_3d(y, elements, shape_gradients, p, 0, model, mu[p], lam[p], w, c,
-                                                     stress, K)
+            Js[slot], Is[slot] = _invariant_terms_3d(y, elements, shape_gradients, p, 0, model, mu[p], lam[p], alpha[p],
+                                                     w, c, stress, K)
             ws[slot, 0], ws[slot, 1], ws[slot, 2] = w[0], w[1], w[2]
             cs[slot, 0], cs[slot, 1], cs[slot, 2] = c[0], c[1], c[2]
             project_block(K, 3, projection, copy, values, vectors)
@@ -287,7 +290,7 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, m
             for b in range(d):
                 Fs[slot, a, b] = F[a, b]
         if invariant_based:
-            J, invariant = _invariant_terms(model, F, n, d, mu[e], lam[e], copy, w, c, stress, K)
+            J, invariant = _invariant_terms(model, F, n, d, mu[e], lam[e], alpha[e], copy, w, c, stress, K)
         else:
             material_terms(model, F, d, mu[e], lam[e], P, A, model == COROTATED, work)
             vertex_stiffness(model, F, n, d, mu[e], lam[e], A, K, work)
@@ -312,7 +315,7 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, m
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _density_change(model, F, n, w, c, J, invariant, u, d, mu, lam, moved, P, A, work):
+def _density_change(model, F, n, w, c, J, invariant, u, d, mu, lam, alpha, moved, P, A, work):
     """psi(F + u n^T) - psi(F) without cancellation (see the module docstring); w = F n and I_C (the neo-Hookean
     energies'), c = cof(F) n, J = det F."""
     squared_n, squared_u, turned, volume_change = 0.0, 0.0, 0.0, 0.0  # |n|^2, |u|^2, u . n, c . u
@@ -360,25 +363,24 @@ def _density_change(model, F, n, w, c, J, invariant, u, d, mu, lam, moved, P, A,
     along = 0.0
     for j in range(d):
         along += u[j] * w[j]
-    return _invariant_change(model, J, invariant, 2.0 * along + squared_u * squared_n, volume_change, d, mu, lam)
+    return _invariant_change(model, J, invariant, 2.0 * along + squared_u * squared_n, volume_change, mu, lam, alpha)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_change(model, J, invariant, invariant_change, volume_change, d, mu, lam):
-    """psi' - psi of the neo-Hookean energies from the exact changes of I_C and J."""
+def _invariant_change(model, J, kept, invariant_change, volume_change, mu, lam, alpha):
+    """psi' - psi of the neo-Hookean energies from the exact changes of I_C and J; kept: ln J (neo-Hookean) or
+    1 / (I_C + 1) (stable neo-Hookean), as ``_invariant_blocks`` left it."""
     if model == NEO_HOOKEAN:
         if not (J > 0.0 and J + volume_change > 0.0):
             return math.inf  # inverted or flat: the energy is infinite there, and no step is taken to it
         log_ratio = math.log1p(volume_change / J)
-        return (0.5 * mu * invariant_change - mu * log_ratio
-                + 0.5 * lam * log_ratio * (2.0 * math.log(J) + log_ratio))
-    alpha = 1.0 + mu * d / ((d + 1.0) * lam)
+        return 0.5 * mu * invariant_change - mu * log_ratio + 0.5 * lam * log_ratio * (2.0 * kept + log_ratio)
     return (0.5 * mu * invariant_change + 0.5 * lam * volume_change * (2.0 * (J - alpha) + volume_change)
-            - 0.5 * mu * math.log1p(invariant_change / (invariant + 1.0)))
+            - 0.5 * mu * math.log1p(invariant_change * kept))
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, model, scratch):
+def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, alpha, model, scratch):
     """The change of the elements' energy when vertex i alone moves by u, from the scratch ``_elements_at`` filled."""
     Fs, ws, cs, Js, Is, P, A, work, _, _, _, _, moved, _, F, n, w, c = scratch
     invariant_based = model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN
@@ -391,8 +393,8 @@ def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, model, s
             n0, n1, n2 = shape_gradients[p, 0, 0], shape_gradients[p, 0, 1], shape_gradients[p, 0, 2]
             total += volumes[p] * _invariant_change(
                 model, Js[slot], Is[slot], 2.0 * (u0 * ws[slot, 0] + u1 * ws[slot, 1] + u2 * ws[slot, 2])
-                + squared_u * (n0 * n0 + n1 * n1 + n2 * n2), u0 * cs[slot, 0] + u1 * cs[slot, 1] + u2 * cs[slot, 2], 3,
-                mu[p], lam[p])
+                + squared_u * (n0 * n0 + n1 * n1 + n2 * n2), u0 * cs[slot, 0] + u1 * cs[slot, 1] + u2 * cs[slot, 2],
+                mu[p], lam[p], alpha[p])
         return total
     for p in range(indptr[i], indptr[i + 1]):
         e, corner, slot = p, 0, p - indptr[i]  # incidence p: its element with vertex i first
@@ -401,8 +403,8 @@ def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, model, s
             if not invariant_based:
                 for b in range(d):
                     F[a, b] = Fs[slot, a, b]
-        total += volumes[e] * _density_change(model, F, n, w, c, Js[slot], Is[slot], u, d, mu[e], lam[e], moved, P, A,
-                                              work)
+        total += volumes[e] * _density_change(model, F, n, w, c, Js[slot], Is[slot], u, d, mu[e], lam[e], alpha[e],
+                                              moved, P, A, work)
     return total
 
 
@@ -424,9 +426,9 @@ def _kept_fraction(i, u, d, indptr, kept_volume, scratch):
 
 @numba.njit(cache=True, error_model="numpy")
 def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
-           elements, shape_gradients, volumes, mu, lam, model, gravity_force, kept_volume,
-           damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
-           max_halvings, halvings):
+           elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force, kept_volume, damping_indptr,
+           damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor, max_halvings,
+           halvings):
     """The vertices first_vertex:last_vertex of one colour; d a constant at each call site."""
     scratch = _scratch(d, max_degree)
     g = np.empty(d)
@@ -439,7 +441,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
     filtered = np.empty((d, d))
     for k in range(first_vertex, last_vertex):
         i = vertices[k]
-        _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, model, projection,
+        _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection,
                      g, H, scratch)
         for a in range(d):
             g[a] -= gravity_force[i, a]
@@ -452,7 +454,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
                 u[a] *= fraction
         rounds = 0
         while True:
-            potential = _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, model,
+            potential = _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, alpha, model,
                                         scratch)
             for a in range(d):
                 potential -= gravity_force[i, a] * u[a]
@@ -473,7 +475,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
 
 @numba.njit(parallel=True, cache=True, error_model="numpy")
 def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, max_degree,
-                 elements, shape_gradients, volumes, mu, lam, model, gravity_force, kept_volume, damping_indptr,
+                 elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force, kept_volume, damping_indptr,
                  damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
                  max_halvings, halvings):
     """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
@@ -484,20 +486,20 @@ def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, ind
         first_vertex, last_vertex = chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)
         if dim == 3:
             _chunk(first_vertex, last_vertex, 3, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale,
-                   indptr, elements, shape_gradients, volumes, mu, lam, model, gravity_force,
+                   indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force,
                    kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin,
                    projection, determinant_floor, max_halvings, halvings)
         else:
             _chunk(first_vertex, last_vertex, 2, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale,
-                   indptr, elements, shape_gradients, volumes, mu, lam, model, gravity_force,
+                   indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force,
                    kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin,
                    projection, determinant_floor, max_halvings, halvings)
 
 
 # -- the same terms for given vertices, each at x with the others held (what the numpy sweep and contact take) --------
 @numba.njit(parallel=True, cache=True, error_model="numpy")
-def vertex_blocks(x, vertices, indptr, max_degree, elements, shape_gradients, volumes, mu, lam,
-                  model, projection, gradient, hessian):
+def vertex_blocks(x, vertices, indptr, max_degree, elements, shape_gradients, volumes, mu, lam, alpha, model,
+                  projection, gradient, hessian):
     """gradient[k] = dP_el/dx_i (N) and hessian[k] the projected sum of the elements' blocks (N/m) of vertex
     i = vertices[k]: the elements' energy only (the caller adds gravity and contact)."""
     d = shape_gradients.shape[2]
@@ -505,13 +507,13 @@ def vertex_blocks(x, vertices, indptr, max_degree, elements, shape_gradients, vo
     for chunk in prange((count + CHUNK - 1) // CHUNK):
         scratch = _scratch(d, max_degree)
         for k in range(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)):
-            _elements_at(vertices[k], x, d, indptr, elements, shape_gradients, volumes, mu, lam,
-                         model, projection, gradient[k], hessian[k], scratch)
+            _elements_at(vertices[k], x, d, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model,
+                         projection, gradient[k], hessian[k], scratch)
 
 
 @numba.njit(parallel=True, cache=True, error_model="numpy")
 def vertex_changes(x, vertices, steps, indptr, max_degree, elements, shape_gradients, volumes, mu,
-                   lam, model, kept_volume, changes, fractions):
+                   lam, alpha, model, kept_volume, changes, fractions):
     """changes[k]: the change of the elements' energy (J) when vertex i = vertices[k] alone moves by steps[k];
     fractions[k]: the largest fraction of that step that keeps its elements above ``kept_volume`` of their volume."""
     d = shape_gradients.shape[2]
@@ -522,8 +524,8 @@ def vertex_changes(x, vertices, steps, indptr, max_degree, elements, shape_gradi
         H = np.empty((d, d))
         for k in range(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)):
             i = vertices[k]
-            _elements_at(i, x, d, indptr, elements, shape_gradients, volumes, mu, lam, model, 0, g, H,
+            _elements_at(i, x, d, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, 0, g, H,
                          scratch)
-            changes[k] = _elastic_change(i, steps[k], d, indptr, shape_gradients, volumes, mu, lam,
-                                         model, scratch)
+            changes[k] = _elastic_change(i, steps[k], d, indptr, shape_gradients, volumes, mu, lam, alpha, model,
+                                         scratch)
             fractions[k] = _kept_fraction(i, steps[k], d, indptr, kept_volume, scratch)

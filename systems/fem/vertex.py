@@ -24,6 +24,7 @@ class FemSweep:
     volumes: np.ndarray
     mu: np.ndarray
     lam: np.ndarray
+    alpha: np.ndarray  # the stable neo-Hookean energy's rest volume term 1 + mu d / ((d + 1) lambda) (0 for the others)
     model: int
     gravity_force: np.ndarray
     kept_volume: float
@@ -39,17 +40,22 @@ class FemSweep:
         element, corner = np.divmod(order, corners)
         turned = (corner[:, None] + np.arange(corners)) % corners  # the vertex's corner first, the others in turn
         indptr = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=system.vertex_count))]).astype(np.uint64)
+        mu, lam, d = system.mu[element], system.lam[element], system.dim
+        alpha = np.zeros_like(mu)
+        if system.material == "stable_neo_hookean":
+            with np.errstate(divide="ignore"):  # lambda = 0: alpha infinite, as the energy's own formula has it
+                alpha = 1.0 + mu * d / ((d + 1.0) * lam)
         return cls(indptr, int(np.diff(indptr).max(initial=0)),
                    np.ascontiguousarray(elements[element[:, None], turned], dtype=np.uint64),
                    np.ascontiguousarray(system.shape_gradients[element[:, None], turned]),
-                   system.volumes[element], system.mu[element], system.lam[element], system._model,
-                   np.ascontiguousarray(system.vertex_masses[:, None] * system.gravity, dtype=float), float(kept_volume),
-                   system.mu, system.lam)
+                   system.volumes[element], mu, lam, alpha, system._model,
+                   np.ascontiguousarray(system.vertex_masses[:, None] * system.gravity, dtype=float),
+                   float(kept_volume), system.mu, system.lam)
 
     @property
     def _elements(self) -> tuple:
         return (self.indptr, self.max_degree, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
-                self.model)
+                self.alpha, self.model)
 
     def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
               halvings) -> None:
