@@ -26,6 +26,7 @@ from simrun.solvers import VertexBlockDescent
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.vbd import IncrementalParts, colour_plans
+from simrun.systems import SYSTEMS
 from simrun.systems.base import System
 from simrun.systems.fem import energies, kernels, vbd_kernels
 from simrun.systems.fem.materials import MATERIALS
@@ -106,10 +107,10 @@ def element_vertex_blocks(system, x):
 def test_projected_blocks_sum_each_elements_block_projected_by_eigh(model, material, scales, mode):
     """Indefinite blocks: St. Venant-Kirchhoff elements compressed by a random field; neo-Hookean ones stretched 20x
     along x (its block mu |n|^2 I + (mu + lambda (1 - ln J)) / J^2 c c^T, c = J F^-T n, is indefinite past
-    ln J = 1 + 2 mu / lambda for n across the stretch); co-rotated ones squeezed to 0.2 in two axes (its rotation's
-    derivative grows as 1 / (sigma_1 + sigma_2))."""
+    ln J = 1 + 2 mu / lambda for n across the stretch: projected in closed form for tets); co-rotated ones squeezed to
+    0.2 in two axes (its rotation's derivative grows as 1 / (sigma_1 + sigma_2))."""
     system = fem(model, material)
-    noise = deformed(system, 0.08 if material == "stvk" else 0.004, seed=2) - system.x0
+    noise = deformed(system, 0.004 if material in ("neo_hookean", "corotated") else 0.08, seed=2) - system.x0
     x = system.x0.reshape(-1, system.dim) * np.array(scales + (1.0,) * (system.dim - 2)) + noise.reshape(-1, system.dim)
     x = x.ravel()
     if material == "neo_hookean":
@@ -124,6 +125,26 @@ def test_projected_blocks_sum_each_elements_block_projected_by_eigh(model, mater
     _, hessian = system.vertex_blocks(x, np.arange(system.vertex_count), mode)
     assert relative(hessian, expected) < 1e-12
     assert np.all(np.linalg.eigvalsh(hessian) >= -1e-10 * np.abs(hessian).max())
+
+
+@pytest.mark.parametrize("model", MODELS)
+@pytest.mark.parametrize("poisson_ratio", [-0.95, 0.0, 0.45])
+def test_stable_neo_hookean_blocks_are_positive_definite_for_every_deformation(model, poisson_ratio):
+    """(mu - mu/(I_C + 1)) |n|^2 I + 2 mu/(I_C + 1)^2 w w^T + lambda c c^T with the re-parametrised lambda > 0 for every
+    nu > -1: no element's block needs a projection, inverted or not."""
+    config = {"type": "fem", "model": model, "gravity": [0.0] * (3 if "box" in model else 2),
+              "material": {"model": "stable_neo_hookean", "youngs_modulus": 2.0e4, "poisson_ratio": poisson_ratio,
+                           "density": 1000.0}}
+    system = SYSTEMS["fem"].model_validate(config).build()
+    assert np.all(system.lam > 0.0)
+    x = deformed(system, 0.3, seed=6)
+    assert np.any(system.volume_ratios(x) < 0.0), "some elements inverted"
+    raw = element_vertex_blocks(system, x)
+    values = np.linalg.eigvalsh(raw)
+    assert np.all(values > 1e-9 * np.abs(values).max())
+    _, projected = system.vertex_blocks(x, np.arange(system.vertex_count), "clamp")
+    _, exact = system.vertex_blocks(x, np.arange(system.vertex_count), False)
+    np.testing.assert_array_equal(projected, exact)
 
 
 @pytest.mark.parametrize("model", MODELS)

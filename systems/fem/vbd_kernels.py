@@ -49,7 +49,8 @@ CHUNK = 32
 
 @numba.njit(cache=True, error_model="numpy")
 def _scratch(d, max_degree):
-    """One chunk's arrays: each incident element's F, w = F n, c = cof(F) n, J and I_C; P, A, the material's work, K
+    """One chunk's arrays: each incident element's F, w = F n, c = cof(F) n, J and its energy's kept value (ln J or
+    1 / (I_C + 1), ``_invariant_blocks``); P, A, the material's work, K
     and its eigensystem, a moved F (the co-rotated change), P n; one element's F, n, w and c.
 
     The loops index these whole arrays and copy one element's values in and out: a view per element (``Fs[slot]``)
@@ -199,9 +200,10 @@ def _invariant_terms(model, F, n, d, mu, lam, alpha, C, w, c, stress, K):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_terms_3d(y, elements, shape_gradients, e, corner, model, mu, lam, alpha, w, c, stress, K):
+def _invariant_terms_3d(y, elements, shape_gradients, e, corner, model, mu, lam, alpha, projection, w, c, stress, K):
     """``_invariant_terms`` of a tetrahedron written out in scalars (F's columns f_j, cof(F) = [f1 x f2, f2 x f0,
-    f0 x f1]): the same numbers to round-off at a third of the cost of the loops over d. Returns (J, I_C)."""
+    f0 x f1]), with K's projection in closed form where it has one: the same numbers to round-off at a third of the
+    cost of the loops over d. Returns (J, the kept value)."""
     v0, v1, v2, v3 = 3 * elements[e, 0], 3 * elements[e, 1], 3 * elements[e, 2], 3 * elements[e, 3]
     g00, g01, g02 = shape_gradients[e, 0, 0], shape_gradients[e, 0, 1], shape_gradients[e, 0, 2]
     g10, g11, g12 = shape_gradients[e, 1, 0], shape_gradients[e, 1, 1], shape_gradients[e, 1, 2]
@@ -227,9 +229,46 @@ def _invariant_terms_3d(y, elements, shape_gradients, e, corner, model, mu, lam,
     J = f00 * c00 + f10 * c10 + f20 * c20
     invariant = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21
                  + f22 * f22)
-    w[0], w[1], w[2] = f00 * n0 + f01 * n1 + f02 * n2, f10 * n0 + f11 * n1 + f12 * n2, f20 * n0 + f21 * n1 + f22 * n2
-    c[0], c[1], c[2] = c00 * n0 + c01 * n1 + c02 * n2, c10 * n0 + c11 * n1 + c12 * n2, c20 * n0 + c21 * n1 + c22 * n2
-    return J, _invariant_blocks(model, J, invariant, n0 * n0 + n1 * n1 + n2 * n2, 3, mu, lam, alpha, w, c, stress, K)
+    w0, w1, w2 = f00 * n0 + f01 * n1 + f02 * n2, f10 * n0 + f11 * n1 + f12 * n2, f20 * n0 + f21 * n1 + f22 * n2
+    a0, a1, a2 = c00 * n0 + c01 * n1 + c02 * n2, c10 * n0 + c11 * n1 + c12 * n2, c20 * n0 + c21 * n1 + c22 * n2
+    w[0], w[1], w[2] = w0, w1, w2
+    c[0], c[1], c[2] = a0, a1, a2
+    squared = n0 * n0 + n1 * n1 + n2 * n2
+    if model == NEO_HOOKEAN:
+        # P n = mu w + (lambda ln J - mu) / J c
+        log_J = math.log(J) if J > 0.0 else math.nan
+        inverse = 1.0 / J
+        shear, stretch, spread = mu, 0.0, (mu + lam * (1.0 - log_J)) * inverse * inverse
+        volume_stress, kept = (lam * log_J - mu) * inverse, log_J
+    else:  # STABLE_NEO_HOOKEAN: P n = (mu - mu / (I_C + 1)) w + lambda (J - alpha) c
+        kept = 1.0 / (invariant + 1.0)
+        shear = mu - mu * kept
+        stretch, spread = 2.0 * mu * kept * kept, lam
+        volume_stress = lam * (J - alpha)
+    stress[0], stress[1], stress[2] = (shear * w0 + volume_stress * a0, shear * w1 + volume_stress * a1,
+                                       shear * w2 + volume_stress * a2)
+    diagonal = shear * squared
+    if projection != 0 and spread < 0.0:
+        # K = shear |n|^2 I + stretch w w^T + spread c c^T with shear, stretch >= 0. Only the neo-Hookean K (stretch 0)
+        # gets here: its eigenvalue along c is shear |n|^2 + spread |c|^2 (across c: shear |n|^2), so the projection
+        # moves that one. The stable neo-Hookean spread is its lambda, above 0 for every nu > -1 (materials.py).
+        along = a0 * a0 + a1 * a1 + a2 * a2
+        lowest = diagonal + spread * along
+        if lowest < 0.0:
+            spread = ((0.0 if projection == 1 else -lowest) - diagonal) / along
+    _fill_stiffness(K, diagonal, stretch, w0, w1, w2, spread, a0, a1, a2)
+    return J, kept
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _fill_stiffness(K, diagonal, stretch, w0, w1, w2, spread, a0, a1, a2):
+    """K = diagonal I + stretch w w^T + spread c c^T (3 x 3)."""
+    K[0, 0] = diagonal + stretch * w0 * w0 + spread * a0 * a0
+    K[1, 1] = diagonal + stretch * w1 * w1 + spread * a1 * a1
+    K[2, 2] = diagonal + stretch * w2 * w2 + spread * a2 * a2
+    K[0, 1] = K[1, 0] = stretch * w0 * w1 + spread * a0 * a1
+    K[0, 2] = K[2, 0] = stretch * w0 * w2 + spread * a0 * a2
+    K[1, 2] = K[2, 1] = stretch * w1 * w2 + spread * a1 * a2
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -257,12 +296,13 @@ def _invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, str
     return kept
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, error_model="numpy")
 def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection,
                  g, H, scratch):
-    """dP_el/dy_i into g and the projected sum of the elements' K into H; each incident element's F, w, c, J and I_C
-    into the scratch (what ``_elastic_change`` and ``_kept_fraction`` read)."""
-    Fs, ws, cs, Js, Is, P, A, work, K, copy, values, vectors, _, stress, F, n, w, c = scratch
+    """dP_el/dy_i into g and the projected sum of the elements' K into H; each incident element's F, w, c, J and kept
+    value into the scratch (what ``_elastic_change`` and ``_kept_fraction`` read). Incidence p is vertex i's element
+    with vertex i as its corner 0 (vertex.py)."""
+    Fs, ws, cs, Js, kept, P, A, work, K, copy, values, vectors, _, stress, F, n, w, c = scratch
     for a in range(d):
         g[a] = 0.0
         for b in range(d):
@@ -271,11 +311,10 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
     if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars: F itself is not kept
         for p in range(indptr[i], indptr[i + 1]):
             slot = p - indptr[i]
-            Js[slot], Is[slot] = _invariant_terms_3d(y, elements, shape_gradients, p, 0, model, mu[p], lam[p], alpha[p],
-                                                     w, c, stress, K)
+            Js[slot], kept[slot] = _invariant_terms_3d(y, elements, shape_gradients, p, 0, model, mu[p], lam[p],
+                                                     alpha[p], projection, w, c, stress, K)
             ws[slot, 0], ws[slot, 1], ws[slot, 2] = w[0], w[1], w[2]
             cs[slot, 0], cs[slot, 1], cs[slot, 2] = c[0], c[1], c[2]
-            project_block(K, 3, projection, copy, values, vectors)
             volume = volumes[p]
             for a in range(3):
                 g[a] += volume * stress[a]
@@ -283,19 +322,19 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
                     H[a, b] += volume * K[a, b]
         return
     for p in range(indptr[i], indptr[i + 1]):
-        e, corner, slot = p, 0, p - indptr[i]  # incidence p: its element with vertex i first
+        e, slot = p, p - indptr[i]  # row p holds the element's corners and constants (vertex.py)
         _element_gradient(y, elements, shape_gradients, e, d, F)
         for a in range(d):
-            n[a] = shape_gradients[e, corner, a]
+            n[a] = shape_gradients[e, 0, a]
             for b in range(d):
                 Fs[slot, a, b] = F[a, b]
         if invariant_based:
-            J, invariant = _invariant_terms(model, F, n, d, mu[e], lam[e], alpha[e], copy, w, c, stress, K)
+            J, value = _invariant_terms(model, F, n, d, mu[e], lam[e], alpha[e], copy, w, c, stress, K)
         else:
             material_terms(model, F, d, mu[e], lam[e], P, A, model == COROTATED, work)
             vertex_stiffness(model, F, n, d, mu[e], lam[e], A, K, work)
             _cofactor(F, d, copy)
-            J, invariant = _determinant(F, d), 0.0
+            J, value = _determinant(F, d), 0.0
             for a in range(d):
                 total, cofactor = 0.0, 0.0
                 for b in range(d):
@@ -303,7 +342,7 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
                     cofactor += copy[a, b] * n[b]
                 stress[a] = total
                 c[a] = cofactor
-        Js[slot], Is[slot] = J, invariant
+        Js[slot], kept[slot] = J, value
         for a in range(d):
             ws[slot, a], cs[slot, a] = w[a], c[a]
         project_block(K, d, projection, copy, values, vectors)
@@ -314,10 +353,10 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
                 H[a, b] += volume * K[a, b]
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _density_change(model, F, n, w, c, J, invariant, u, d, mu, lam, alpha, moved, P, A, work):
-    """psi(F + u n^T) - psi(F) without cancellation (see the module docstring); w = F n and I_C (the neo-Hookean
-    energies'), c = cof(F) n, J = det F."""
+@numba.njit(cache=True, error_model="numpy")
+def _density_change(model, F, n, w, c, J, kept, u, d, mu, lam, alpha, moved, P, A, work):
+    """psi(F + u n^T) - psi(F) without cancellation (see the module docstring); w = F n and kept (the neo-Hookean
+    energies', ``_invariant_blocks``), c = cof(F) n, J = det F."""
     squared_n, squared_u, turned, volume_change = 0.0, 0.0, 0.0, 0.0  # |n|^2, |u|^2, u . n, c . u
     for j in range(d):
         squared_n += n[j] * n[j]
@@ -363,7 +402,7 @@ def _density_change(model, F, n, w, c, J, invariant, u, d, mu, lam, alpha, moved
     along = 0.0
     for j in range(d):
         along += u[j] * w[j]
-    return _invariant_change(model, J, invariant, 2.0 * along + squared_u * squared_n, volume_change, mu, lam, alpha)
+    return _invariant_change(model, J, kept, 2.0 * along + squared_u * squared_n, volume_change, mu, lam, alpha)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -379,10 +418,10 @@ def _invariant_change(model, J, kept, invariant_change, volume_change, mu, lam, 
             - 0.5 * mu * math.log1p(invariant_change * kept))
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, error_model="numpy")
 def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, alpha, model, scratch):
     """The change of the elements' energy when vertex i alone moves by u, from the scratch ``_elements_at`` filled."""
-    Fs, ws, cs, Js, Is, P, A, work, _, _, _, _, moved, _, F, n, w, c = scratch
+    Fs, ws, cs, Js, kept, P, A, work, _, _, _, _, moved, _, F, n, w, c = scratch
     invariant_based = model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN
     total = 0.0
     if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars
@@ -392,18 +431,18 @@ def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, alpha, m
             slot = p - indptr[i]
             n0, n1, n2 = shape_gradients[p, 0, 0], shape_gradients[p, 0, 1], shape_gradients[p, 0, 2]
             total += volumes[p] * _invariant_change(
-                model, Js[slot], Is[slot], 2.0 * (u0 * ws[slot, 0] + u1 * ws[slot, 1] + u2 * ws[slot, 2])
+                model, Js[slot], kept[slot], 2.0 * (u0 * ws[slot, 0] + u1 * ws[slot, 1] + u2 * ws[slot, 2])
                 + squared_u * (n0 * n0 + n1 * n1 + n2 * n2), u0 * cs[slot, 0] + u1 * cs[slot, 1] + u2 * cs[slot, 2],
                 mu[p], lam[p], alpha[p])
         return total
     for p in range(indptr[i], indptr[i + 1]):
-        e, corner, slot = p, 0, p - indptr[i]  # incidence p: its element with vertex i first
+        slot = p - indptr[i]
         for a in range(d):
-            n[a], w[a], c[a] = shape_gradients[e, corner, a], ws[slot, a], cs[slot, a]
+            n[a], w[a], c[a] = shape_gradients[p, 0, a], ws[slot, a], cs[slot, a]
             if not invariant_based:
                 for b in range(d):
                     F[a, b] = Fs[slot, a, b]
-        total += volumes[e] * _density_change(model, F, n, w, c, Js[slot], Is[slot], u, d, mu[e], lam[e], alpha[e],
+        total += volumes[p] * _density_change(model, F, n, w, c, Js[slot], kept[slot], u, d, mu[p], lam[p], alpha[p],
                                               moved, P, A, work)
     return total
 
@@ -483,17 +522,10 @@ def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, ind
     dim = projectors.shape[1]
     count = vertices.size
     for chunk in prange((count + CHUNK - 1) // CHUNK):
-        first_vertex, last_vertex = chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)
-        if dim == 3:
-            _chunk(first_vertex, last_vertex, 3, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale,
-                   indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force,
-                   kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin,
-                   projection, determinant_floor, max_halvings, halvings)
-        else:
-            _chunk(first_vertex, last_vertex, 2, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale,
-                   indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force,
-                   kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin,
-                   projection, determinant_floor, max_halvings, halvings)
+        _chunk(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK), dim, max_degree, y, vertices, constrained, projectors,
+               y_tilde, mass, scale, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force,
+               kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection,
+               determinant_floor, max_halvings, halvings)
 
 
 # -- the same terms for given vertices, each at x with the others held (what the numpy sweep and contact take) --------
