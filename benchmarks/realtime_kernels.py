@@ -154,10 +154,12 @@ class _Capture:
         return start, SolveStats()
 
 
-def _problem():
-    cloth = yaml.safe_load((CONFIGS / "realtime_solvers.yaml").read_text())["system"]
-    config = {"name": "bench_vbd", "system": {**cloth, "resolution": [RESOLUTION, RESOLUTION]},
-              "integrators": ["backward_euler"], "sweep": {"dt": [1.0 / 60.0]}}
+def _problem(config_name: str, **system_changes):
+    """(the system of a shipped config's ``system``, changed as given; the first backward Euler step's problem at
+    1/60 s; its start)."""
+    shipped = yaml.safe_load((CONFIGS / config_name).read_text())["system"]
+    config = {"name": "bench_vbd", "system": {**shipped, **system_changes}, "integrators": ["backward_euler"],
+              "sweep": {"dt": [1.0 / 60.0]}}
     system = load_experiment(config)[0].system.build()
     capture = _Capture()
     INTEGRATORS["backward_euler"]().step(system, State(0.0, system.x0, system.v0), 1.0 / 60.0, capture)
@@ -186,28 +188,37 @@ def _best(sweep_once) -> float:
     return best
 
 
-def rows() -> list[tuple[str, float, str, str]]:
+def _timed_sweeps(system, problem, start):
+    """(the compiled sweep, the problem's parts, the colour plans, the vertices they move, one sweep in place as a
+    function of y, {threads: the best time of a sweep}) at 1 and, where there are 2, 2 threads."""
     import numba
 
-    system, problem, start = _problem()
-    sweep = system.vertex_sweep()
-    parts = IncrementalParts.of(problem)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
-    vertices = sum(plan.vertices.size for plan in plans)
+    sweep, parts = system.vertex_sweep(), IncrementalParts.of(problem)
+    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
+                         system.dim)
     rounds = np.zeros(max(plan.vertices.size for plan in plans), dtype=np.int64)
 
-    def simrun_sweep(y):
+    def sweep_once(y):
         for plan in plans:
             sweep.sweep(y, plan.vertices, plan.constrained, plan.all_projectors, parts, "clamp", DETERMINANT_FLOOR,
                         MAX_HALVINGS, rounds[:plan.vertices.size])
 
     available = numba.config.NUMBA_NUM_THREADS
-    y = start.copy()
     times = {}
     for threads in sorted({1, min(2, available)}):
         numba.set_num_threads(threads)
-        times[threads] = _best(lambda: simrun_sweep(y))
+        y = start.copy()
+        times[threads] = _best(lambda: sweep_once(y))
     numba.set_num_threads(available)
+    return sweep, parts, plans, sum(plan.vertices.size for plan in plans), sweep_once, times
+
+
+def rows() -> list[tuple[str, float, str, str]]:
+    import numba
+
+    system, problem, start = _problem("realtime_solvers.yaml", resolution=[RESOLUTION, RESOLUTION])
+    sweep, parts, plans, vertices, simrun_sweep, times = _timed_sweeps(system, problem, start)
+    available = numba.config.NUMBA_NUM_THREADS
     one = times[1]
     table = [(f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}, 1 thread: us per vertex", one / vertices * 1e6,
               f"<= {PER_VERTEX_TARGET:g}", f"{one * 1e3:.2f} ms per sweep, {vertices} vertices, {len(plans)} colours")]
@@ -258,31 +269,8 @@ def rows() -> list[tuple[str, float, str, str]]:
 
 def _fem_rows() -> list[tuple[str, float, str, str]]:
     """VBD's sweep of realtime_fem.yaml's beam (12,288 stable neo-Hookean tets) at its first frame, 1 and 2 threads."""
-    import numba
-
-    config = yaml.safe_load((CONFIGS / "realtime_fem.yaml").read_text())
-    config = {"name": "bench_vbd_fem", "system": config["system"], "integrators": ["backward_euler"],
-              "sweep": {"dt": [1.0 / 60.0]}}
-    system = load_experiment(config)[0].system.build()
-    capture = _Capture()
-    INTEGRATORS["backward_euler"]().step(system, State(0.0, system.x0, system.v0), 1.0 / 60.0, capture)
-    sweep, parts = system.vertex_sweep(), IncrementalParts.of(capture.problem)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
-    vertices = sum(plan.vertices.size for plan in plans)
-    rounds = np.zeros(max(plan.vertices.size for plan in plans), dtype=np.int64)
-
-    def fem_sweep(y):
-        for plan in plans:
-            sweep.sweep(y, plan.vertices, plan.constrained, plan.all_projectors, parts, "clamp", DETERMINANT_FLOOR,
-                        MAX_HALVINGS, rounds[:plan.vertices.size])
-
-    available = numba.config.NUMBA_NUM_THREADS
-    times = {}
-    for threads in sorted({1, min(2, available)}):
-        numba.set_num_threads(threads)
-        y = capture.start.copy()
-        times[threads] = _best(lambda: fem_sweep(y))
-    numba.set_num_threads(available)
+    system, problem, start = _problem("realtime_fem.yaml")
+    _, _, plans, vertices, _, times = _timed_sweeps(system, problem, start)
     one = times[1]
     table = [(f"vbd sweep fem beam ({len(system.elements)} tets), 1 thread: us per vertex", one / vertices * 1e6,
               f"<= {FEM_PER_VERTEX_TARGET:g}", f"{one * 1e3:.2f} ms per sweep, {vertices} vertices, {len(plans)} colours")]

@@ -148,3 +148,12 @@ def damping_change(u, d, damping_weight, rate, D):
         for b in range(d):
             quadratic += u[a] * D[a, b] * u[b]
     return damping_weight * (linear + 0.5 * quadratic)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def take_step(y, i, u, d, change):
+    """y_i += u where the backtracking accepted u (E's change <= 0); a step whose change stayed above 0 (or NaN) after
+    the last halving is dropped."""
+    if change <= 0.0:
+        for a in range(d):
+            y[d * i + a] += u[a]

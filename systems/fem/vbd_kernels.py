@@ -39,7 +39,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step
+from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
 from .energies import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, WORK_SLOTS, _cofactor, material_terms
 from .linalg import _determinant, _symmetric_eigen
 
@@ -234,17 +234,7 @@ def _invariant_terms_3d(y, elements, shape_gradients, e, corner, model, mu, lam,
     w[0], w[1], w[2] = w0, w1, w2
     c[0], c[1], c[2] = a0, a1, a2
     squared = n0 * n0 + n1 * n1 + n2 * n2
-    if model == NEO_HOOKEAN:
-        # P n = mu w + (lambda ln J - mu) / J c
-        log_J = math.log(J) if J > 0.0 else math.nan
-        inverse = 1.0 / J
-        shear, stretch, spread = mu, 0.0, (mu + lam * (1.0 - log_J)) * inverse * inverse
-        volume_stress, kept = (lam * log_J - mu) * inverse, log_J
-    else:  # STABLE_NEO_HOOKEAN: P n = (mu - mu / (I_C + 1)) w + lambda (J - alpha) c
-        kept = 1.0 / (invariant + 1.0)
-        shear = mu - mu * kept
-        stretch, spread = 2.0 * mu * kept * kept, lam
-        volume_stress = lam * (J - alpha)
+    shear, stretch, spread, volume_stress, kept = _invariant_coefficients(model, J, invariant, mu, lam, alpha)
     stress[0], stress[1], stress[2] = (shear * w0 + volume_stress * a0, shear * w1 + volume_stress * a1,
                                        shear * w2 + volume_stress * a2)
     diagonal = shear * squared
@@ -272,21 +262,26 @@ def _fill_stiffness(K, diagonal, stretch, w0, w1, w2, spread, a0, a1, a2):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, stress, K):
-    """P n and K of the neo-Hookean energies from J, I_C, |n|^2, w = F n and c = cof(F) n (see ``_invariant_terms``);
-    returns what their energy change reads besides J: ln J (neo-Hookean), 1 / (I_C + 1) (stable neo-Hookean, whose
-    alpha = 1 + mu d / ((d + 1) lambda) is the element's, made once)."""
+def _invariant_coefficients(model, J, invariant, mu, lam, alpha):
+    """The neo-Hookean energies' P n = shear w + volume_stress c and K = shear |n|^2 I + stretch w w^T + spread c c^T
+    (w = F n, c = cof(F) n): (shear, stretch, spread, volume_stress, kept), kept what their energy change reads
+    besides J: ln J (neo-Hookean), 1 / (I_C + 1) (stable neo-Hookean, whose alpha = 1 + mu d / ((d + 1) lambda) is
+    the element's, made once)."""
     if model == NEO_HOOKEAN:
         # P n = mu w + (lambda ln J - mu) / J c
         log_J = math.log(J) if J > 0.0 else math.nan
         inverse = 1.0 / J
-        shear, stretch, spread = mu, 0.0, (mu + lam * (1.0 - log_J)) * inverse * inverse
-        volume_stress, kept = (lam * log_J - mu) * inverse, log_J
-    else:  # STABLE_NEO_HOOKEAN: P n = (mu - mu / (I_C + 1)) w + lambda (J - alpha) c
-        kept = 1.0 / (invariant + 1.0)
-        shear = mu - mu * kept
-        stretch, spread = 2.0 * mu * kept * kept, lam
-        volume_stress = lam * (J - alpha)
+        return mu, 0.0, (mu + lam * (1.0 - log_J)) * inverse * inverse, (lam * log_J - mu) * inverse, log_J
+    # STABLE_NEO_HOOKEAN: P n = (mu - mu / (I_C + 1)) w + lambda (J - alpha) c
+    kept = 1.0 / (invariant + 1.0)
+    return mu - mu * kept, 2.0 * mu * kept * kept, lam, lam * (J - alpha), kept
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, stress, K):
+    """P n (into stress) and K of the neo-Hookean energies from J, I_C, |n|^2, w and c; returns the kept value
+    (``_invariant_coefficients``)."""
+    shear, stretch, spread, volume_stress, kept = _invariant_coefficients(model, J, invariant, mu, lam, alpha)
     diagonal = shear * squared
     for i in range(d):
         stress[i] = shear * w[i] + volume_stress * c[i]
@@ -504,11 +499,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
             for a in range(d):
                 u[a] *= 0.5
             rounds += 1
-        if not change <= 0.0:
-            for a in range(d):
-                u[a] = 0.0
-        for a in range(d):
-            y[d * i + a] += u[a]
+        take_step(y, i, u, d, change)
         halvings[k] = rounds
 
 

@@ -26,7 +26,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step
+from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
 from .kernels import SQUARED_LENGTH, gradient_factor
 
 # a colour's vertices as unsigned indices, by the identity of the colour's array (the solver keeps its colours for
@@ -168,11 +168,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
             change = _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length,
                              rest_length_squared, law, gravity_force, damping_weight, rate, D, deltas, lengths)
             rounds += 1
-        if not change <= 0.0:
-            for a in range(d):
-                u[a] = 0.0
-        for a in range(d):
-            y[d * i + a] += u[a]
+        take_step(y, i, u, d, change)
         halvings[k] = rounds
 
 
