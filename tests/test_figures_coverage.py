@@ -61,7 +61,7 @@ SHORT = {
     "work_precision": ["duration=0.05", "sweep.step_control.tolerance=[1.0e-2,1.0e-4]"],
     # three sizes as the config has, smaller (its 64x64 Newton runs take seconds a frame)
     "realtime_solvers": ["duration=0.05", "sweep.system.resolution=[[4, 4], [6, 6], [8, 8]]"],
-    "realtime_fem": ["duration=0.05", "system.model={box: {size: [1.0, 0.25, 0.25], cells: [4, 1, 1]}}"],
+    "realtime_fem": ["duration=0.05", "sweep.system.model.box.cells=[[2, 1, 1], [4, 1, 1]]"],
     # calibrations (`simrun fit`): every integrator at two steps, observations every 10 ms of a short motion
     # the map: every integrator at 4 step sizes h w x 3 damping ratios (its sweep has 100 x 60)
     "damping_map": ["duration=1.0", "sweep.system.stiffness={logspace: [0.0, 6.0, 4]}",
