@@ -113,7 +113,8 @@ class VertexBlockDescent(NonlinearSolver):
     Vertices of one colour share no term of E, so E(y + sum_i u_i) - E(y) = sum_i dE_i(u_i) exactly: each colour,
     and so each sweep, never raises E. The steps are Newton steps of SPD blocks (``spd_projection``: the
     system's blocks with negative eigenvalues clamped at 0 or mirrored, plus M_i), hence descent directions,
-    and the full step is taken wherever E_i's quadratic model is good.
+    and the full step is taken wherever E_i's quadratic model is good. Where the system has a step filter (finite
+    elements keep a tenth of their volume), each vertex's step is first cut to it (``vertex_step_fractions``).
 
     Constraints. A vertex with fixed dofs or a sliding filter S_i takes the exact constrained step: the
     minimiser of the local quadratic model over y_i + range(S_i), the solution of
