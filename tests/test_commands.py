@@ -398,12 +398,12 @@ def test_one_error_of_a_union_is_one_line(tmp_path, capsys):
 
 # -- 11. a swept solver key that a run does not use does not multiply it -----------------------------------
 def test_solver_comparison_runs_each_first_order_solver_once_per_dt():
-    """2 Newton-type solvers x 6 linear solvers x 3 dt + 5 solvers without a linear solve (3 first-order ones,
-    projective dynamics, vbd) x 3 dt, L-BFGS twice (its swept initial_hessian) = 54 runs, not 252."""
+    """2 Newton-type solvers x 7 linear solvers x 3 dt + 5 solvers without a linear solve (3 first-order ones,
+    projective dynamics, vbd) x 3 dt, L-BFGS twice (its swept initial_hessian) = 60 runs, not 294."""
     experiment, _ = load_experiment(ROOT / "configs" / "solver_comparison.yaml")
     runs = expand_runs(experiment)
-    assert len(runs) == 2 * 6 * 3 + (5 + 1) * 3 == 54
-    assert len({run.run_id for run in runs}) == 54 and [run.index for run in runs] == list(range(54))
+    assert len(runs) == 2 * 7 * 3 + (5 + 1) * 3 == 60
+    assert len({run.run_id for run in runs}) == 60 and [run.index for run in runs] == list(range(60))
     for run in runs:
         newton_type = run.solver.type in ("newton", "projected_newton")
         assert ("solver.linear_solver" in run.run_id) == newton_type == ("solver.linear_solver" in run.swept), run.run_id
