@@ -1,13 +1,19 @@
-"""Compiled spring loops: the springs' gradient at several states at once (Radau IIA's stages, ``MassSpring.gradients``).
+"""Compiled spring loops: the springs' geometry and gradient at one state (every solver's, and projective dynamics'
+local step and right-hand side), and the gradient at several states at once (Radau IIA's stages,
+``MassSpring.gradients``).
 
-One pass over the springs per state: delta = x_i - x_j, L = |delta|, the law's factor c_e(L) (dW_e/dx_i = c_e delta),
-scattered into the gradient in spring order. The numpy path makes the same numbers with a dozen array operations
+At one state: one pass over the springs for delta = x_i - x_j, L = |delta|, L - l0 and k (L - l0)
+(``spring_geometry``), one over the vertices gathering c_e delta_e in the incidence matrix's row order
+(``gather_spring_gradient``), single-threaded (why: at the kernels). They reproduce the numpy forms bit for bit
+(tests/test_mass_spring_kernels.py).
+
+At several states: one pass over the springs per state, the law's factor c_e(L) (dW_e/dx_i = c_e delta) scattered
+into the gradient in spring order. The numpy path makes the same numbers with a dozen array operations
 and two transposing copies (about 100 us for three states of the 16 x 16 cloth against 40 us here); its
 incidence product sums each vertex's springs in spring order too, so the two agree to round-off. A law enters the loop
 as its code (``LAW_CODES``): numba's cache does not keep a kernel that takes a compiled function as an argument (every
 process compiled it again, into a new cache entry).
 """
-
 from __future__ import annotations
 
 import math
@@ -48,4 +54,45 @@ def spring_gradients(X, first, second, stiffness, rest_length, rest_length_squar
                 value = delta[c] * scale
                 out[r, i + c] += value
                 out[r, j + c] -= value
+    return out
+
+
+# The springs at one state, for every solver (projective dynamics' local step and right-hand side are these): one
+# pass over the springs for the geometry, one over the vertices for the gradient, which gathers each vertex's springs
+# in the order of the incidence matrix's row (what scipy's sparse product does): the numpy path's numbers bit for bit.
+# Single-threaded on purpose: a pass costs 0.25 ms on the 64 x 64 cloth (24k springs), and with numba's two OpenMP
+# threads the gradient took 1.2 ms instead of 0.48 (two parallel regions' wake-ups), and the energy's BLAS dot after
+# it 8.7 ms instead of 0.47 (OpenMP's spinning threads against OpenBLAS's on two cores).
+@numba.njit(cache=True, error_model="numpy")
+def spring_geometry(x, first, second, stiffness, rest_length, dim, delta, length, stretch, tension):
+    """delta_e = x_i - x_j, L_e = |delta_e|, L_e - l0_e and k_e (L_e - l0_e), written into the four arrays."""
+    for e in range(first.size):
+        i, j = first[e] * dim, second[e] * dim
+        squared = 0.0
+        for c in range(dim):
+            component = x[i + c] - x[j + c]
+            delta[e, c] = component
+            squared += component * component
+        length[e] = math.sqrt(squared)
+        stretch[e] = length[e] - rest_length[e]
+        tension[e] = stiffness[e] * stretch[e]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def gather_spring_gradient(indptr, springs, signs, delta, factor, dim, out):
+    """out[d v + c] = sum over the springs e of vertex v (incidence row v, in its order) of sign * delta_e[c] c_e;
+    out is overwritten. dim is 2 or 3: the components are summed side by side, each in the row's order."""
+    for v in range(indptr.size - 1):
+        x_total, y_total, z_total = 0.0, 0.0, 0.0
+        for k in range(indptr[v], indptr[v + 1]):
+            e = springs[k]
+            scale = factor[e]
+            x_total += signs[k] * (delta[e, 0] * scale)
+            y_total += signs[k] * (delta[e, 1] * scale)
+            if dim == 3:
+                z_total += signs[k] * (delta[e, 2] * scale)
+        out[dim * v] = x_total
+        out[dim * v + 1] = y_total
+        if dim == 3:
+            out[dim * v + 2] = z_total
     return out
