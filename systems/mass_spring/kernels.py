@@ -14,6 +14,7 @@ incidence product sums each vertex's springs in spring order too, so the two agr
 as its code (``LAW_CODES``): numba's cache does not keep a kernel that takes a compiled function as an argument (every
 process compiled it again, into a new cache entry).
 """
+
 from __future__ import annotations
 
 import math

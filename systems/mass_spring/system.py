@@ -111,9 +111,9 @@ class MassSpring(ContactHooks, System):
         self.hessian_pattern = pattern  # every Hessian and damping matrix shares its index arrays
         diagonal_keys = np.arange(n, dtype=np.int64) * (n + 1)
         self.diagonal_positions = np.searchsorted(keys, diagonal_keys)  # where M enters the data array
-        # gradient scatter: the incidence matrix (+1 at vertex i, -1 at vertex j of each spring) times the
-        # springs' forces, one sparse product for all components, cheaper than the equivalent
-        # np.bincount over d i + c and d j + c (docs/performance.md)
+        # the incidence matrix (+1 at vertex i, -1 at vertex j of each spring): its rows are the springs each vertex's
+        # gradient gathers, in order (kernels.gather_spring_gradient); the prescribed vertices' forces and the
+        # sensitivities take its sparse products
         self._first_dofs = (d * i[:, None] + offsets).ravel()
         self._second_dofs = (d * j[:, None] + offsets).ravel()
         springs = np.arange(self.spring_count)
@@ -152,7 +152,7 @@ class MassSpring(ContactHooks, System):
     # -- geometry of all springs at once ---------------------------------------------------------
     def _geometry_at(self, x: np.ndarray) -> SpringGeometry:
         # one compiled pass over the springs (kernels.spring_geometry): the numbers of the numpy form
-        # delta = x[d i + c] - x[d j + c], L = sqrt(delta^2 . 1), bit for bit, in a third of its time
+        # delta = x[d i + c] - x[d j + c], L = sqrt(delta^2 . 1), bit for bit, in 60 % of its time
         m, d = self.spring_count, self.dim
         delta, length, stretch, tension = np.empty((m, d)), np.empty(m), np.empty(m), np.empty(m)
         kernels.spring_geometry(np.ascontiguousarray(x, dtype=float), self.first, self.second, self.stiffness,
