@@ -226,6 +226,7 @@ def rows() -> list[tuple[str, float, str, str]]:
         table.append((f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}: 1 thread / 2 threads", one / times[2],
                       f">= {THREADS_TARGET:g}", f"{times[2] * 1e3:.2f} ms per sweep at 2 threads"))
     table.append(_xpbd_row(system))
+    table.extend(_collider_rows())
     table.extend(_fem_rows())
     table.extend(_newton_rows())
     library = _compiled_c()
@@ -264,6 +265,37 @@ def rows() -> list[tuple[str, float, str, str]]:
     table.append((f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}: simrun 1 thread / C loop", one / c_time,
                   f"<= {C_RATIO_TARGET:g}", f"C {c_time / vertices * 1e6:.3f} us per vertex ({c_time * 1e3:.2f} ms), "
                   f"swept positions within {difference:.1e} m"))
+    return table
+
+
+def _collider_rows() -> list[tuple[str, float, str, str]]:
+    """The same cloth's sweep with a sphere under its middle (r = 0.3 m), penalty (k = 1e4 N/m, the cloth's middle 5 cm
+    inside) and IPC (dhat = 1 cm, 5 mm below): compiled (contact/point_kernels.py in the sweep), 1 thread, and the
+    numpy sweep it replaced / the compiled one. The numpy sweep is timed over 4 sweeps, not 40 (it takes 20-40 ms)."""
+    import numba
+
+    table = []
+    for method, contact in (("penalty", {"sphere": {"center": [0.5, 0.5, -0.25], "radius": 0.3, "stiffness": 1.0e4}}),
+                            ("ipc", {"method": "ipc", "dhat": 0.01,
+                                     "sphere": {"center": [0.5, 0.5, -0.305], "radius": 0.3}})):
+        system, problem, start = _problem("realtime_solvers.yaml", resolution=[RESOLUTION, RESOLUTION],
+                                          contact=contact)
+        _, _, plans, vertices, _, times = _timed_sweeps(system, problem, start)
+        solver, y = VertexBlockDescent(), start.copy()
+        available = numba.config.NUMBA_NUM_THREADS
+        numba.set_num_threads(1)
+        numpy_time = np.inf
+        for _ in range(REPEATS):
+            began = time.perf_counter()
+            for _ in range(4):
+                y = solver._sweep(problem, y, plans)[0]
+            numpy_time = min(numpy_time, (time.perf_counter() - began) / 4)
+        numba.set_num_threads(available)
+        touching = system.contact.active_count(y)
+        table.append((f"vbd sweep cloth {RESOLUTION}x{RESOLUTION} on a sphere ({method}), 1 thread: us per vertex",
+                      times[1] / vertices * 1e6, "information",
+                      f"{touching} vertices in contact; the numpy sweep: {numpy_time / vertices * 1e6:.2f} us per vertex "
+                      f"({numpy_time / times[1]:.1f}x)"))
     return table
 
 

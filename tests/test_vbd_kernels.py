@@ -136,14 +136,6 @@ def test_the_solver_takes_the_compiled_sweep_and_the_energy_never_increases(monk
     assert energies[-1] < energies[0]
 
 
-def test_colliders_keep_the_numpy_sweep():
-    """Penalty colliders have no compiled per-vertex form yet: the system offers no compiled sweep, so the solver
-    sweeps with the numpy blocks."""
-    system = ClothParams(resolution=(5, 5), pinned=[], contact={"sphere": {"center": [0.5, 0.5, -0.6], "radius": 0.3,
-                                                                          "stiffness": 1e4}}).build()
-    assert system.vertex_sweep() is None
-
-
 def _threaded_run(threads: int):
     from simrun.execution.simulate import simulate
     from simrun.experiment.config import load_experiment

@@ -427,9 +427,11 @@ class Fem(ContactHooks, System):
         return sweep.changes(x, vertices, steps)[1]
 
     def vertex_sweep(self):
-        """The elements for vertex block descent's compiled colour sweep; None with colliders (the numpy sweep takes
-        their blocks) and where ``_element_sweep`` is None."""
-        return None if self.contact is not None else self._element_sweep()
+        """The elements and the colliders, where they stand now, for vertex block descent's compiled colour sweep;
+        None where ``_element_sweep`` is None or a collider has no compiled form (contact/point_kernels.py)."""
+        from ..contact.point_kernels import placed
+
+        return placed(self._element_sweep(), self.contact, self.dim)
 
     # -- vertices on prescribed paths -----------------------------------------------------------
     def acceleration(self, x, v):

@@ -39,6 +39,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
 from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
 from .energies import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, WORK_SLOTS, _cofactor, material_terms
 from .linalg import _determinant, _symmetric_eigen
@@ -461,10 +462,12 @@ def _kept_fraction(i, u, d, indptr, kept_volume, scratch):
 @numba.njit(cache=True, error_model="numpy")
 def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
            elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force, kept_volume, damping_indptr,
-           damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor, max_halvings,
-           halvings):
+           damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor,
+           max_halvings, halvings):
     """The vertices first_vertex:last_vertex of one colour; d a constant at each call site."""
     scratch = _scratch(d, max_degree)
+    contact = point_scratch(d, colliders)
+    touching = colliders[0].size > 0  # the colliders' functions only where there are any: their tuples cost a call
     g = np.empty(d)
     H = np.empty((d, d))
     rate = np.empty(d)
@@ -479,6 +482,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
                      g, H, scratch)
         for a in range(d):
             g[a] -= gravity_force[i, a]
+        clearance = add_vertex_terms(i, y, d, colliders, projection, g, H, contact) if touching else math.inf
         finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
                       velocity_origin, g, H, rate, D)
         newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
@@ -492,6 +496,8 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
                                         scratch)
             for a in range(d):
                 potential -= gravity_force[i, a] * u[a]
+            if not beyond_reach(u, d, clearance):  # a step that reaches a collider
+                potential += vertex_change(u, d, colliders, contact)
             change = inertia_change(i, u, y, d, y_tilde, mass) + scale * potential
             change += damping_change(u, d, damping_weight, rate, D)
             if change <= 0.0 or rounds >= max_halvings:  # NaN halves too
@@ -506,17 +512,18 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
 @numba.njit(parallel=True, cache=True, error_model="numpy")
 def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, max_degree,
                  elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force, kept_volume, damping_indptr,
-                 damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
+                 damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor,
                  max_halvings, halvings):
     """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
-    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding)."""
+    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders:
+    contact/point_kernels.py ``colliders_of``."""
     dim = projectors.shape[1]
     count = vertices.size
     for chunk in prange((count + CHUNK - 1) // CHUNK):
         _chunk(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK), dim, max_degree, y, vertices, constrained, projectors,
                y_tilde, mass, scale, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force,
-               kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection,
-               determinant_floor, max_halvings, halvings)
+               kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, colliders,
+               projection, determinant_floor, max_halvings, halvings)
 
 
 # -- the same terms for given vertices, each at x with the others held (what the numpy sweep and contact take) --------

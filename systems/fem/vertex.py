@@ -30,9 +30,12 @@ class FemSweep:
     kept_volume: float
     source_mu: np.ndarray  # the system's arrays these were taken from (a calibration's new system has new ones)
     source_lam: np.ndarray
+    colliders: tuple  # where they stand for this solve (contact/point_kernels.py ``colliders_of``; none by default)
 
     @classmethod
     def of(cls, system, kept_volume: float) -> "FemSweep":
+        from ..contact.point_kernels import empty_colliders
+
         elements = system.elements
         count, corners = elements.shape
         owner = elements.ravel()
@@ -50,7 +53,7 @@ class FemSweep:
                    np.ascontiguousarray(system.shape_gradients[element[:, None], turned]),
                    system.volumes[element], mu, lam, alpha, system._model,
                    np.ascontiguousarray(system.vertex_masses[:, None] * system.gravity, dtype=float),
-                   float(kept_volume), system.mu, system.lam)
+                   float(kept_volume), system.mu, system.lam, empty_colliders(system.dim))
 
     @property
     def _elements(self) -> tuple:
@@ -67,7 +70,8 @@ class FemSweep:
         sweep_colour(y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
                      *self._elements, self.gravity_force, self.kept_volume, potential.damping_indptr,
                      potential.damping_indices, potential.damping_data, potential.damping_weight,
-                     potential.velocity_origin, PROJECTION_CODES[projection], determinant_floor, max_halvings, halvings)
+                     potential.velocity_origin, self.colliders, PROJECTION_CODES[projection], determinant_floor,
+                     max_halvings, halvings)
 
     def blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd) -> tuple[np.ndarray, np.ndarray]:
         """(dP/dx_i (k, d), the projected sum of the elements' blocks (k, d, d)) of the elements and gravity."""

@@ -149,7 +149,8 @@ class VertexBlocks:
 class SpringSweep:
     """The springs at every vertex for the compiled colour sweep (vbd_kernels.py): vertex i's incidences are
     indptr[i]:indptr[i + 1] of ``other`` (the spring's other end) and ``springs`` (its index), in the numpy form's
-    order, all unsigned; the springs' constants; the law's code; gravity_force (n, d): m_i g (N)."""
+    order, all unsigned; the springs' constants; the law's code; gravity_force (n, d): m_i g (N); the colliders where
+    they stand for this solve (contact/point_kernels.py ``colliders_of``; none by default)."""
 
     indptr: np.ndarray
     other: np.ndarray
@@ -160,9 +161,12 @@ class SpringSweep:
     rest_length_squared: np.ndarray
     law: int
     gravity_force: np.ndarray
+    colliders: tuple
 
     @classmethod
     def of(cls, system) -> "SpringSweep":
+        from ..contact.point_kernels import empty_colliders
+
         from .kernels import LAW_CODES
 
         count = system.spring_count
@@ -175,7 +179,8 @@ class SpringSweep:
                    int(np.diff(indptr).max(initial=0)),
                    np.ascontiguousarray(system.stiffness, dtype=float), np.ascontiguousarray(system.rest_length, dtype=float),
                    np.ascontiguousarray(system.rest_length_squared, dtype=float), LAW_CODES[system.law.name],
-                   np.ascontiguousarray(system.vertex_masses[:, None] * system.gravity, dtype=float))
+                   np.ascontiguousarray(system.vertex_masses[:, None] * system.gravity, dtype=float),
+                   empty_colliders(system.dim))
 
     def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
               halvings) -> None:
@@ -186,5 +191,5 @@ class SpringSweep:
         sweep_colour(y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
                      self.indptr, self.other, self.springs, self.max_degree, self.stiffness, self.rest_length,
                      self.rest_length_squared, self.law, self.gravity_force, potential.damping_indptr, potential.damping_indices,
-                     potential.damping_data, potential.damping_weight, potential.velocity_origin,
+                     potential.damping_data, potential.damping_weight, potential.velocity_origin, self.colliders,
                      PROJECTION_CODES[projection], determinant_floor, max_halvings, halvings)

@@ -357,14 +357,15 @@ class MassSpring(ContactHooks, System):
         return self._vertex_blocks.colouring()
 
     def vertex_sweep(self):
-        """The springs for vertex block descent's compiled colour sweep (blocks.py ``SpringSweep``); None with
-        colliders, whose per-vertex terms have no compiled form yet (the numpy blocks take them)."""
-        if self.contact is not None:
-            return None
+        """The springs (blocks.py ``SpringSweep``) and the colliders, where they stand now, for vertex block descent's
+        compiled colour sweep; None where a collider has no compiled form (contact/point_kernels.py ``placed``: the
+        numpy blocks take them)."""
+        from ..contact.point_kernels import placed
+
         cached = self.__dict__.get("_vertex_sweep")
         if cached is None or cached.stiffness is not self.stiffness:
             cached = self.__dict__["_vertex_sweep"] = SpringSweep.of(self)
-        return cached
+        return placed(cached, self.contact, self.dim)
 
     def parameter_derivative(self, changed, change):
         return derivatives.parameter_derivative(self, changed, change)

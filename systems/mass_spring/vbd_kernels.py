@@ -26,6 +26,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
 from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
 from .kernels import SQUARED_LENGTH, gradient_factor
 
@@ -102,24 +103,10 @@ def _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_lengt
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, rest_length, rest_length_squared, law,
-            gravity_force, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, projection,
-            g, H, rate, D, deltas, lengths):
-    """g_i and H_i of E at y (into g, H), the damping's rates (D (y - a))_i and block D_ii (into rate, D), and each
-    incident spring's y_i - y_j and length (into deltas, lengths: what ``_change`` reads)."""
-    _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
-             deltas, lengths)
-    for a in range(d):
-        g[a] -= gravity_force[i, a]
-    finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
-                  velocity_origin, g, H, rate, D)
-
-
-@numba.njit(cache=True, error_model="numpy")
 def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, rest_length_squared, law,
-            gravity_force, damping_weight, rate, D, deltas, lengths):
+            gravity_force, damping_weight, rate, D, deltas, lengths, contact_change):
     """The change of E when vertex i alone moves by u, each term formed without cancellation, from the incident
-    springs' deltas and lengths at y (``_vertex``)."""
+    springs' deltas and lengths at y (``_springs``); contact_change: the colliders' (J, unscaled)."""
     potential = 0.0
     for p in range(indptr[i], indptr[i + 1]):
         e, slot = springs[p], p - indptr[i]
@@ -133,6 +120,7 @@ def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_l
                                     math.sqrt(moved), squared_change)
     for a in range(d):
         potential -= gravity_force[i, a] * u[a]
+    potential += contact_change
     change = inertia_change(i, u, y, d, y_tilde, mass) + scale * potential
     return change + damping_change(u, d, damping_weight, rate, D)
 
@@ -140,9 +128,13 @@ def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_l
 @numba.njit(cache=True, error_model="numpy")
 def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, other,
            springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr, damping_indices,
-           damping_data, damping_weight, velocity_origin, projection, determinant_floor, max_halvings, halvings):
+           damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings):
     """The vertices first_vertex:last_vertex of one colour; d a constant at each call site, so that the d x d loops
-    unroll."""
+    unroll. Each vertex: g_i and H_i of E at y, the damping's rates (D (y - a))_i and block D_ii, and each incident
+    spring's y_i - y_j and length (what ``_change`` reads), the Newton step and its backtracking. The colliders'
+    functions are called only where there are colliders, their change only for a step that reaches one, and from
+    here, not from ``_change``: passing their two tuples of arrays to a function called per vertex and halving cost
+    as much as the springs."""
     g = np.empty(d)
     H = np.empty((d, d))
     rate = np.empty(d)
@@ -153,20 +145,28 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
     filtered = np.empty((d, d))
     deltas = np.empty((max_degree, d))
     lengths = np.empty(max_degree)
+    contact = point_scratch(d, colliders)
+    touching = colliders[0].size > 0
     for k in range(first_vertex, last_vertex):
         i = vertices[k]
-        _vertex(i, y, d, y_tilde, mass, scale, indptr, other, springs, stiffness, rest_length,
-                rest_length_squared, law, gravity_force, damping_indptr, damping_indices, damping_data,
-                damping_weight, velocity_origin, projection, g, H, rate, D, deltas, lengths)
+        _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_length_squared, law, projection, g, H,
+                 deltas, lengths)
+        for a in range(d):
+            g[a] -= gravity_force[i, a]
+        clearance = add_vertex_terms(i, y, d, colliders, projection, g, H, contact) if touching else math.inf
+        finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
+                      velocity_origin, g, H, rate, D)
         newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
         rounds = 0
-        change = _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, rest_length_squared,
-                         law, gravity_force, damping_weight, rate, D, deltas, lengths)
-        while not change <= 0.0 and rounds < max_halvings:  # NaN too
+        while True:
+            contact_change = 0.0 if beyond_reach(u, d, clearance) else vertex_change(u, d, colliders, contact)
+            change = _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length,
+                             rest_length_squared, law, gravity_force, damping_weight, rate, D, deltas, lengths,
+                             contact_change)
+            if change <= 0.0 or rounds >= max_halvings:  # NaN halves too
+                break
             for a in range(d):
                 u[a] *= 0.5
-            change = _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_length,
-                             rest_length_squared, law, gravity_force, damping_weight, rate, D, deltas, lengths)
             rounds += 1
         take_step(y, i, u, d, change)
         halvings[k] = rounds
@@ -175,9 +175,11 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
 @numba.njit(parallel=True, cache=True, error_model="numpy")
 def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, other, springs, max_degree,
                  stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr, damping_indices,
-                 damping_data, damping_weight, velocity_origin, projection, determinant_floor, max_halvings, halvings):
+                 damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings,
+                 halvings):
     """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
-    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding)."""
+    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders:
+    contact/point_kernels.py ``colliders_of``."""
     dim = projectors.shape[1]
     count = vertices.size
     chunks = (count + CHUNK - 1) // CHUNK
@@ -186,10 +188,10 @@ def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, ind
         if dim == 3:
             _chunk(first_vertex, last_vertex, 3, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
                    other, springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr,
-                   damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
-                   max_halvings, halvings)
+                   damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection,
+                   determinant_floor, max_halvings, halvings)
         else:
             _chunk(first_vertex, last_vertex, 2, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
                    other, springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr,
-                   damping_indices, damping_data, damping_weight, velocity_origin, projection, determinant_floor,
-                   max_halvings, halvings)
+                   damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection,
+                   determinant_floor, max_halvings, halvings)

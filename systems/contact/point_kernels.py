@@ -1,0 +1,352 @@
+"""The colliders' per-vertex terms, compiled, for vertex block descent's colour sweeps (issue 29): the penalty and the
+IPC barrier of the plane, sphere, box and capsule (colliders.py) at one point, moving and spinning (pose.py), as
+model.py's ``point_terms`` and ``point_energy_changes`` give them in numpy (the reference in the tests).
+
+Each of these shapes has, where it is smooth, grad phi = n and hess phi = P / rho with P a projector and rho > 0 the
+distance to the shape's core (the point, segment or box it is a rounding of): P = I - n n^T for the sphere,
+(I - e e^T) - n n^T along the capsule's side (I - n n^T at its ends), diag(past) - n n^T outside the box (the axes
+along which the point lies past a face), and 0 for the plane and inside the box. So the curvature term s hess phi of a
+potential f(phi) (s = f'(phi)) has the one eigenvalue s / rho on range(P), and its projection (clamp or mirror, as
+``Collider.scaled_hessian`` takes it with eigh) is filter(s / rho) P. A spinning collider's point is mapped into its
+t = 0 frame, q = M^T (p - c(t)) + c0, and its derivatives back (grad -> M grad, P -> M P M^T), as pose.py does.
+
+``colliders_of`` packs a ContactModel's colliders, where they stand at the model's time, into the arrays the kernels
+read (one tuple, the sweeps' ``colliders``); None where a collider has no compiled form here (torus, grid SDF).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numba
+import numpy as np
+from numba import prange
+
+from .sdf import _perpendicular
+
+PLANE, SPHERE, BOX, CAPSULE = 0, 1, 2, 3
+SHAPE_CODES = {"plane": PLANE, "sphere": SPHERE, "box": BOX, "capsule": CAPSULE}
+PENALTY, IPC = 0, 1
+# per collider, the shape's numbers: plane (normal, point), sphere (center, radius), box (center, half_extents),
+# capsule (a, b, radius, a fixed unit normal to b - a: its gradient on the segment); 3 d + 1 holds the longest
+PARAMETER_SLOTS = 10
+
+
+def colliders_of(contact, dim: int) -> tuple | None:
+    """(shapes (c,), parameters (c, 10), frames M (c, d, d), moved centres c(t) (c, d), rest centres c0 (c, d),
+    stiffnesses (c,), method, kappa, dhat) of the contact model's colliders at its time; None where one has no compiled
+    form (or the model has mesh contact, which couples vertices). No contact: the same tuple with c = 0."""
+    if contact is None:
+        return empty_colliders(dim)
+    if contact.mesh is not None:
+        return None
+    count = len(contact.colliders)
+    shapes = np.zeros(count, dtype=np.int64)
+    parameters = np.zeros((count, PARAMETER_SLOTS))
+    frames = np.zeros((count, dim, dim))
+    moved, rest = np.zeros((count, dim)), np.zeros((count, dim))
+    stiffness = np.zeros(count)
+    time = contact.time
+    for number, placed in enumerate(contact.colliders):
+        collider = placed.collider
+        code = SHAPE_CODES.get(collider.shape)
+        if code is None:
+            return None
+        shapes[number] = code
+        if code == PLANE:
+            values = [collider.normal, collider.point]
+        elif code == SPHERE:
+            values = [collider.center, [collider.radius]]
+        elif code == BOX:
+            values = [collider.center, collider.half_extents]
+        else:
+            values = [collider.a, collider.b, [collider.radius], _perpendicular((collider.b - collider.a)
+                                                                                / np.linalg.norm(collider.b - collider.a))]
+        packed = np.concatenate(values)
+        parameters[number, :packed.size] = packed
+        if placed.spin is None:  # q = p - v t: M = I, c0 = 0
+            frames[number] = np.eye(dim)
+            moved[number] = collider.velocity * time
+        else:
+            frames[number] = placed._rotation(time)
+            moved[number] = placed.spin[0] + collider.velocity * time
+            rest[number] = placed.spin[0]
+        stiffness[number] = 0.0 if placed.stiffness is None else placed.stiffness
+    method = IPC if contact.method == "ipc" else PENALTY
+    kappa = 0.0 if contact.kappa is None else float(contact.kappa)  # None: a penalty, whose stiffnesses are per collider
+    return (shapes, parameters, frames, moved, rest, stiffness, method, kappa, float(contact.dhat))
+
+
+def placed(sweep, contact, dim: int):
+    """A system's compiled sweep (a dataclass with a ``colliders`` field) with its contact's colliders where they stand
+    now: the sweep itself without contact, None where a collider has no compiled form (the numpy sweep then takes
+    them)."""
+    if sweep is None or contact is None:
+        return sweep
+    colliders = colliders_of(contact, dim)
+    return None if colliders is None else dataclasses.replace(sweep, colliders=colliders)
+
+
+def empty_colliders(dim: int) -> tuple:
+    return (np.zeros(0, dtype=np.int64), np.zeros((0, PARAMETER_SLOTS)), np.zeros((0, dim, dim)), np.zeros((0, dim)),
+            np.zeros((0, dim)), np.zeros(0), PENALTY, 1.0, 1.0)
+
+
+@numba.njit(cache=True)
+def point_scratch(d, colliders):
+    """One thread's arrays: q, the local normal, P, the world normal, M P M^T, each collider's phi at the vertex, the
+    vertex's position and its moved position."""
+    return (np.empty(d), np.empty(d), np.empty((d, d)), np.empty(d), np.empty((d, d)), np.empty(max(colliders[0].size, 1)),
+            np.empty(d), np.empty(d))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _filtered(value, projection):
+    if projection == 1:
+        return max(value, 0.0)
+    if projection == 2:
+        return abs(value)
+    return value
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _shape(code, parameters, c, q, d, normal, P, with_derivatives):
+    """phi(q) of collider c in its t = 0 frame and, ``with_derivatives``, its normal (into normal) and 1 / rho with P
+    (into P; 0 where the shape is flat there)."""
+    if code == PLANE:
+        phi = 0.0
+        for a in range(d):
+            phi += (q[a] - parameters[c, d + a]) * parameters[c, a]
+            normal[a] = parameters[c, a]
+        return phi, 0.0
+    if code == BOX:
+        out = 0.0
+        largest = -math.inf
+        nearest = 0
+        for a in range(d):
+            local = q[a] - parameters[c, a]
+            gap = abs(local) - parameters[c, d + a]
+            if gap > 0.0:
+                out += gap * gap
+            if gap > largest:  # the first of a tie, as argmax
+                largest, nearest = gap, a
+        out = math.sqrt(out)
+        phi = out + min(largest, 0.0)
+        if not with_derivatives:
+            return phi, 0.0
+        if out > 0.0:
+            for a in range(d):
+                local = q[a] - parameters[c, a]
+                gap = abs(local) - parameters[c, d + a]
+                normal[a] = (1.0 if local >= 0.0 else -1.0) * max(gap, 0.0) / out
+            for a in range(d):
+                gap = abs(q[a] - parameters[c, a]) - parameters[c, d + a]
+                for b in range(d):
+                    P[a, b] = (1.0 if a == b and gap > 0.0 else 0.0) - normal[a] * normal[b]
+            return phi, 1.0 / out
+        for a in range(d):
+            normal[a] = 0.0
+        normal[nearest] = 1.0 if q[nearest] - parameters[c, nearest] >= 0.0 else -1.0
+        return phi, 0.0
+    # sphere and capsule: the offset r from the nearest core point, phi = |r| - radius
+    slides = False
+    axis_squared = 0.0
+    if code == SPHERE:
+        radius = parameters[c, d]
+        for a in range(d):
+            normal[a] = q[a] - parameters[c, a]
+    else:
+        radius = parameters[c, 2 * d]
+        along = 0.0
+        for a in range(d):
+            axis = parameters[c, d + a] - parameters[c, a]
+            along += (q[a] - parameters[c, a]) * axis
+            axis_squared += axis * axis
+        t = along / axis_squared
+        slides = 0.0 < t < 1.0
+        t = min(max(t, 0.0), 1.0)
+        for a in range(d):
+            normal[a] = q[a] - parameters[c, a] - t * (parameters[c, d + a] - parameters[c, a])
+    rho = 0.0
+    for a in range(d):
+        rho += normal[a] * normal[a]
+    rho = math.sqrt(rho)
+    if not with_derivatives:
+        return rho - radius, 0.0
+    if rho == 0.0:  # on the core: a fixed normal, no curvature
+        for a in range(d):
+            normal[a] = (1.0 if a == 0 else 0.0) if code == SPHERE else parameters[c, 2 * d + 1 + a]
+        return rho - radius, 0.0
+    for a in range(d):
+        normal[a] /= rho
+    for a in range(d):
+        for b in range(d):
+            across = 1.0 if a == b else 0.0
+            if slides:
+                across -= ((parameters[c, d + a] - parameters[c, a]) * (parameters[c, d + b] - parameters[c, b])
+                           / axis_squared)
+            P[a, b] = across - normal[a] * normal[b]
+    return rho - radius, 1.0 / rho
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _local(c, p, d, frames, moved, rest, q):
+    """q = M^T (p - c(t)) + c0: the point in collider c's t = 0 frame."""
+    for a in range(d):
+        total = 0.0
+        for b in range(d):
+            total += frames[c, b, a] * (p[b] - moved[c, b])
+        q[a] = total + rest[c, a]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def signed_distance(c, p, d, colliders, q, normal, P):
+    shapes, parameters, frames, moved, rest = colliders[0], colliders[1], colliders[2], colliders[3], colliders[4]
+    _local(c, p, d, frames, moved, rest, q)
+    return _shape(shapes[c], parameters, c, q, d, normal, P, False)[0]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def barrier(phi, dhat):
+    """(B, dB/dphi, d^2B/dphi^2) of the physical IPC barrier at 0 < phi < dhat (model.py ``barrier``)."""
+    s = phi * phi
+    s_hat = dhat * dhat
+    r = s - s_hat
+    log = math.log(s / s_hat)
+    first = -2.0 * r * log - r * r / s
+    second = -2.0 * log - 4.0 * r / s + (r / s) * (r / s)
+    scale = 1.0 / (dhat * dhat * dhat)
+    return scale * (-r * r * log), scale * 2.0 * phi * first, scale * (4.0 * s * second + 2.0 * first)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _barrier_value(phi, dhat):
+    if phi <= 0.0:
+        return math.inf
+    if phi < dhat:
+        return barrier(phi, dhat)[0]
+    return 0.0
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def add_point_terms(p, d, colliders, projection, g, H, scratch):
+    """The colliders' dP/dp into g and d^2P/dp^2 (its curvature term filtered by ``projection``) into H, at point p;
+    each collider's phi at p into scratch's last array (what ``point_change`` starts from). A point on or inside a
+    collider under IPC gets no term from it (numpy's ``point_terms`` gives such a state infinite energy). Returns the
+    clearance: the least phi less the reach (0 for the penalty, dhat for IPC). A move shorter than it changes no
+    collider's potential (each phi is 1-Lipschitz: these are exact distances), so ``point_change`` is 0 there."""
+    shapes, parameters, frames, moved, rest, stiffness, method, kappa, dhat = colliders
+    reach = dhat if method == IPC else 0.0
+    clearance = math.inf
+    q, normal, P, world, turned, distances = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
+    for c in range(shapes.size):
+        _local(c, p, d, frames, moved, rest, q)
+        phi, curvature = _shape(shapes[c], parameters, c, q, d, normal, P, True)
+        distances[c] = phi
+        clearance = min(clearance, phi - reach)
+        if method == PENALTY:
+            if not phi < 0.0:
+                continue
+            depth = -phi
+            slope, bend = -stiffness[c] * depth, stiffness[c]  # k/2 phi^2: f' = k phi, f'' = k
+        else:
+            if not (0.0 < phi < dhat):
+                continue
+            _, first, second = barrier(phi, dhat)
+            slope, bend = kappa * first, kappa * second
+        for a in range(d):
+            total = 0.0
+            for b in range(d):
+                total += frames[c, a, b] * normal[b]
+            world[a] = total
+        for a in range(d):
+            g[a] += slope * world[a]
+            for b in range(d):
+                H[a, b] += bend * world[a] * world[b]
+        if curvature != 0.0:
+            factor = _filtered(slope * curvature, projection)
+            if factor != 0.0:
+                _turn(c, P, d, frames, turned)
+                for a in range(d):
+                    for b in range(d):
+                        H[a, b] += factor * turned[a, b]
+    return clearance
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _turn(c, P, d, frames, turned):
+    """M P M^T into turned."""
+    for a in range(d):
+        for b in range(d):
+            total = 0.0
+            for k in range(d):
+                for m in range(d):
+                    total += frames[c, a, k] * P[k, m] * frames[c, b, m]
+            turned[a, b] = total
+
+
+@numba.njit(cache=True, error_model="numpy")
+def point_change(p, u, d, colliders, scratch):
+    """The change of the colliders' potential when point p moves by u, from the distances ``add_point_terms`` left:
+    the penalty's k/2 (d' - d)(d' + d) (depths d), the barrier's kappa (B(phi') - B(phi))."""
+    shapes, stiffness, method, kappa, dhat = colliders[0], colliders[5], colliders[6], colliders[7], colliders[8]
+    q, normal, P, distances, moved_point = scratch[0], scratch[1], scratch[2], scratch[5], scratch[7]
+    for a in range(d):
+        moved_point[a] = p[a] + u[a]
+    change = 0.0
+    for c in range(shapes.size):
+        after = signed_distance(c, moved_point, d, colliders, q, normal, P)
+        before = distances[c]
+        if method == PENALTY:
+            depth, moved_depth = max(-before, 0.0), max(-after, 0.0)
+            change += 0.5 * stiffness[c] * (moved_depth - depth) * (moved_depth + depth)
+        else:
+            change += kappa * (_barrier_value(after, dhat) - _barrier_value(before, dhat))
+    return change
+
+
+# -- the same terms at given points (the tests' and the numpy sweep's view) ---------------------------------------------
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def point_blocks(positions, colliders, projection, gradient, hessian):
+    """gradient[k], hessian[k] += the colliders' terms at positions[k] (k points, each on its own)."""
+    d = positions.shape[1]
+    for k in prange(positions.shape[0]):
+        scratch = point_scratch(d, colliders)
+        add_point_terms(positions[k], d, colliders, projection, gradient[k], hessian[k], scratch)
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def point_changes(positions, steps, colliders, changes):
+    """changes[k] = the change of the colliders' potential when point k alone moves by steps[k]."""
+    d = positions.shape[1]
+    for k in prange(positions.shape[0]):
+        scratch = point_scratch(d, colliders)
+        g, H = np.zeros(d), np.zeros((d, d))
+        add_point_terms(positions[k], d, colliders, 0, g, H, scratch)
+        changes[k] = point_change(positions[k], steps[k], d, colliders, scratch)
+
+
+# -- at vertex i of a sweep's flat positions y ---------------------------------------------------------------------
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def add_vertex_terms(i, y, d, colliders, projection, g, H, scratch):
+    """``add_point_terms`` at y_i, which it keeps in scratch for ``vertex_change``; returns its clearance."""
+    point = scratch[6]
+    for a in range(d):
+        point[a] = y[d * i + a]
+    return add_point_terms(point, d, colliders, projection, g, H, scratch)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def vertex_change(u, d, colliders, scratch):
+    """``point_change`` of the vertex ``add_vertex_terms`` last saw, moved by u."""
+    return point_change(scratch[6], u, d, colliders, scratch)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def beyond_reach(u, d, clearance):
+    """|u| < clearance (``add_point_terms``): the move changes no collider's potential, exactly (0 in numpy's form too)."""
+    squared = 0.0
+    for a in range(d):
+        squared += u[a] * u[a]
+    return math.sqrt(squared) < clearance
