@@ -306,7 +306,7 @@ def point_change(p, u, d, colliders, scratch):
     return change
 
 
-# -- the same terms at given points (the tests' and the numpy sweep's view) ---------------------------------------------
+# -- the same terms at given points, vectorised over them (what the tests compare with numpy's) ---------------------
 @numba.njit(parallel=True, cache=True, error_model="numpy")
 def point_blocks(positions, colliders, projection, gradient, hessian):
     """gradient[k], hessian[k] += the colliders' terms at positions[k] (k points, each on its own)."""
