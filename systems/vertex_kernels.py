@@ -19,6 +19,16 @@ from .constraints import filter_in_place
 
 
 @numba.njit(cache=True, error_model="numpy")
+def filtered_eigenvalue(value, projection):
+    """An eigenvalue of a term's block as the projection code asks: as it is (0), clamped at 0 (1), mirrored (2)."""
+    if projection == 1:
+        return max(value, 0.0)
+    if projection == 2:
+        return abs(value)
+    return value
+
+
+@numba.njit(cache=True, error_model="numpy")
 def block_determinant(H, d):
     if d == 1:
         return H[0, 0]

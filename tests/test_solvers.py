@@ -743,3 +743,31 @@ def test_a_stationary_iteration_that_cannot_converge_stops_within_a_few_windows(
     with pytest.raises(np.linalg.LinAlgError, match=outcome):
         solver._solve(counting, rhs, spd=True)
     assert _CountingMatrix.products <= 100
+
+
+def test_lbfgs_two_loop_recursion_runs_on_one_blas_thread_and_gives_the_threads_back(monkeypatch):
+    """The recursion's ddot and daxpy on long vectors make OpenBLAS wake its other threads for each (3-5x slower on two
+    cores, docs/performance.md): they run on one BLAS thread, and the solve leaves the thread counts as it found them."""
+    import threadpoolctl
+
+    from simrun.solvers import descent
+
+    def blas_threads():
+        return [library["num_threads"] for library in threadpoolctl.threadpool_info() if library["user_api"] == "blas"]
+
+    seen = []
+    original = descent.ddot
+
+    def counting_ddot(*args, **options):
+        seen.append(max(blas_threads()))
+        return original(*args, **options)
+
+    monkeypatch.setattr(descent, "ddot", counting_ddot)
+    system = ClothParams(resolution=(6, 6), stretch_stiffness=300.0, pinned=["top_left", "top_right"]).build()
+    problem, start = step_problem(system, dt=0.02)
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        SOLVERS["lbfgs"](tolerance=1e-12, max_iterations=12, history=4).minimize(problem, start)
+        after = blas_threads()
+    assert len(seen) > 20 and set(seen) == {1}
+    assert after == before

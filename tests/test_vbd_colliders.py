@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import step_problem
+from conftest import agreeing_sweeps, step_problem
 from simrun.solvers import VertexBlockDescent
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
@@ -194,16 +194,8 @@ def test_the_compiled_sweep_with_colliders_is_the_numpy_sweep(case, projection):
     plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
                          system.dim)
     solver = VertexBlockDescent(spd_projection=projection)
-    y = start.copy()
     touched = 0
-    for _ in range(5):
-        numpy_y, numpy_halvings = solver._sweep(problem, y, plans)
-        compiled_y, compiled_halvings = solver._compiled_sweep(y, plans, sweep, parts)
-        scale = np.max(np.abs(numpy_y - y))
-        assert scale > 0.0
-        np.testing.assert_allclose(compiled_y, numpy_y, rtol=0.0, atol=1e-12 * scale)
-        assert compiled_halvings == numpy_halvings
-        y = numpy_y
+    for _, y, _ in agreeing_sweeps(solver, problem, start, plans, sweep, parts, 5):
         touched = max(touched, in_contact(system, y))
     assert touched > 3, "the sweeps must reach the colliders"
     if system.contact.method == "ipc":

@@ -23,6 +23,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from ..vertex_kernels import filtered_eigenvalue
 from .sdf import _perpendicular
 
 PLANE, SPHERE, BOX, CAPSULE = 0, 1, 2, 3
@@ -99,15 +100,6 @@ def point_scratch(d, colliders):
     vertex's position and its moved position."""
     return (np.empty(d), np.empty(d), np.empty((d, d)), np.empty(d), np.empty((d, d)), np.empty(max(colliders[0].size, 1)),
             np.empty(d), np.empty(d))
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _filtered(value, projection):
-    if projection == 1:
-        return max(value, 0.0)
-    if projection == 2:
-        return abs(value)
-    return value
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -265,7 +257,7 @@ def add_point_terms(p, d, colliders, projection, g, H, scratch):
             for b in range(d):
                 H[a, b] += bend * world[a] * world[b]
         if curvature != 0.0:
-            factor = _filtered(slope * curvature, projection)
+            factor = filtered_eigenvalue(slope * curvature, projection)
             if factor != 0.0:
                 _turn(c, P, d, frames, turned)
                 for a in range(d):

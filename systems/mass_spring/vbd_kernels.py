@@ -27,7 +27,8 @@ import numpy as np
 from numba import prange
 
 from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
-from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
+from ..vertex_kernels import (damping_change, filtered_eigenvalue, finish_blocks, inertia_change, newton_step,
+                              take_step)
 from .kernels import SQUARED_LENGTH, gradient_factor
 
 # a colour's vertices as unsigned indices, by the identity of the colour's array (the solver keeps its colours for
@@ -49,15 +50,6 @@ def unsigned(vertices: np.ndarray) -> np.ndarray:
 PROJECTION_CODES = {False: 0, "clamp": 1, True: 1, "abs": 2}
 # vertices per chunk of the parallel loop: the scratch arrays are made once per chunk, not per vertex
 CHUNK = 64
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _filtered(value, projection):
-    if projection == 1:
-        return max(value, 0.0)
-    if projection == 2:
-        return abs(value)
-    return value
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -88,11 +80,11 @@ def _springs(i, y, d, indptr, other, springs, stiffness, rest_length, rest_lengt
         factor = gradient_factor(law, stiffness[e], length, rest_length[e], rest_length_squared[e])
         if law == SQUARED_LENGTH:
             ratio = length * length / rest_length_squared[e]
-            along = 2.0 * stiffness[e] * _filtered(3.0 * ratio - 1.0, projection)
-            transverse = 2.0 * stiffness[e] * _filtered(ratio - 1.0, projection)
+            along = 2.0 * stiffness[e] * filtered_eigenvalue(3.0 * ratio - 1.0, projection)
+            transverse = 2.0 * stiffness[e] * filtered_eigenvalue(ratio - 1.0, projection)
         else:
             along = stiffness[e]
-            transverse = stiffness[e] * _filtered(1.0 - rest_length[e] / length, projection)
+            transverse = stiffness[e] * filtered_eigenvalue(1.0 - rest_length[e] / length, projection)
         # B_e = along u u^T + transverse (I - u u^T) = (along - transverse) u u^T + transverse I, with u = delta / L
         outer_scale = (along - transverse) / squared
         for a in range(d):
