@@ -19,6 +19,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from simrun.systems.compiled_cache import keep_fresh
 from simrun.systems.constraints import filter_in_place
 
 # springs per chunk of the parallel loop: the scratch arrays are made once per chunk, not per spring
@@ -91,3 +92,6 @@ def project_distance(start, moves, multiplier, first, second, anchor, rest_lengt
             _project_chunk(first_spring, last_spring, 2, start, moves, multiplier, first, second, anchor, rest_length,
                            stiffness_h2, damping_h, first_weight, second_weight, first_slides, first_projector,
                            second_slides, second_projector, damped)
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

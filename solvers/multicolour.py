@@ -14,6 +14,8 @@ import numpy as np
 import scipy.sparse
 from numba import prange
 
+from ..systems.compiled_cache import keep_fresh
+
 
 @numba.njit(cache=True)
 def greedy_colours(indptr, indices, count):
@@ -89,3 +91,6 @@ class Colouring:
         forward_substitution(ordered.indptr, ordered.indices, ordered.data, diagonal, self.starts,
                              np.ascontiguousarray(residual, dtype=float), out)
         return out
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -24,6 +24,8 @@ import numba
 import numpy as np
 import scipy.sparse
 
+from .compiled_cache import keep_fresh
+
 
 @numba.njit(cache=True, error_model="numpy")
 def filter_in_place(projector, vector, scratch, d):
@@ -243,3 +245,6 @@ class VertexConstraints:
 
     def path_accelerations(self, t: float) -> np.ndarray:
         return np.concatenate([motion.accelerations(t) for motion in self.prescribed]).ravel()
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -15,6 +15,7 @@ import math
 
 import numba
 
+from .compiled_cache import keep_fresh
 from .constraints import filter_in_place
 
 
@@ -167,3 +168,6 @@ def take_step(y, i, u, d, change):
     if change <= 0.0:
         for a in range(d):
             y[d * i + a] += u[a]
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -1,17 +1,18 @@
 """The colliders' per-vertex terms, compiled, for vertex block descent's colour sweeps (issue 29): the penalty and the
-IPC barrier of the plane, sphere, box and capsule (colliders.py) at one point, moving and spinning (pose.py), as
+IPC barrier of the plane, sphere, box, capsule and torus (colliders.py) at one point, moving and spinning (pose.py), as
 model.py's ``point_terms`` and ``point_energy_changes`` give them in numpy (the reference in the tests).
 
 Each of these shapes has, where it is smooth, grad phi = n and hess phi = P / rho with P a projector and rho > 0 the
 distance to the shape's core (the point, segment or box it is a rounding of): P = I - n n^T for the sphere,
 (I - e e^T) - n n^T along the capsule's side (I - n n^T at its ends), diag(past) - n n^T outside the box (the axes
-along which the point lies past a face), and 0 for the plane and inside the box. So the curvature term s hess phi of a
+along which the point lies past a face), and 0 for the plane and inside the box; the torus has two such terms (its
+``_torus``). So the curvature term s hess phi of a
 potential f(phi) (s = f'(phi)) has the one eigenvalue s / rho on range(P), and its projection (clamp or mirror, as
 ``Collider.scaled_hessian`` takes it with eigh) is filter(s / rho) P. A spinning collider's point is mapped into its
 t = 0 frame, q = M^T (p - c(t)) + c0, and its derivatives back (grad -> M grad, P -> M P M^T), as pose.py does.
 
 ``colliders_of`` packs a ContactModel's colliders, where they stand at the model's time, into the arrays the kernels
-read (one tuple, the sweeps' ``colliders``); None where a collider has no compiled form here (torus, grid SDF).
+read (one tuple, the sweeps' ``colliders``); None where a collider has no compiled form here (a grid SDF).
 """
 
 from __future__ import annotations
@@ -23,15 +24,17 @@ import numba
 import numpy as np
 from numba import prange
 
+from ..compiled_cache import keep_fresh
 from ..vertex_kernels import filtered_eigenvalue
 from .sdf import _perpendicular
 
-PLANE, SPHERE, BOX, CAPSULE = 0, 1, 2, 3
-SHAPE_CODES = {"plane": PLANE, "sphere": SPHERE, "box": BOX, "capsule": CAPSULE}
+PLANE, SPHERE, BOX, CAPSULE, TORUS = 0, 1, 2, 3, 4
+SHAPE_CODES = {"plane": PLANE, "sphere": SPHERE, "box": BOX, "capsule": CAPSULE, "torus": TORUS}
 PENALTY, IPC = 0, 1
 # per collider, the shape's numbers: plane (normal, point), sphere (center, radius), box (center, half_extents),
-# capsule (a, b, radius, a fixed unit normal to b - a: its gradient on the segment); 3 d + 1 holds the longest
-PARAMETER_SLOTS = 10
+# capsule (a, b, radius, a fixed unit normal to b - a: its gradient on the segment), torus (center, axis, R, r, a fixed
+# unit normal to the axis: e on the axis); the torus's 11 are the most
+PARAMETER_SLOTS = 11
 
 
 def colliders_of(contact, dim: int) -> tuple | None:
@@ -61,6 +64,9 @@ def colliders_of(contact, dim: int) -> tuple | None:
             values = [collider.center, [collider.radius]]
         elif code == BOX:
             values = [collider.center, collider.half_extents]
+        elif code == TORUS:
+            values = [collider.center, collider.axis, [collider.major_radius, collider.minor_radius],
+                      _perpendicular(collider.axis)]
         else:
             values = [collider.a, collider.b, [collider.radius], _perpendicular((collider.b - collider.a)
                                                                                 / np.linalg.norm(collider.b - collider.a))]
@@ -97,21 +103,23 @@ def empty_colliders(dim: int) -> tuple:
 @numba.njit(cache=True)
 def point_scratch(d, colliders):
     """One thread's arrays: q, the local normal, P, the world normal, M P M^T, each collider's phi at the vertex, the
-    vertex's position and its moved position."""
+    vertex's position and its moved position, and Q (the torus's second projector)."""
     return (np.empty(d), np.empty(d), np.empty((d, d)), np.empty(d), np.empty((d, d)), np.empty(max(colliders[0].size, 1)),
-            np.empty(d), np.empty(d))
+            np.empty(d), np.empty(d), np.empty((d, d)))
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _shape(code, parameters, c, q, d, normal, P, with_derivatives):
-    """phi(q) of collider c in its t = 0 frame and, ``with_derivatives``, its normal (into normal) and 1 / rho with P
-    (into P; 0 where the shape is flat there)."""
+def _shape(code, parameters, c, q, d, normal, P, Q, with_derivatives):
+    """phi(q) of collider c in its t = 0 frame and, ``with_derivatives``, its normal (into normal), 1 / rho with P
+    (into P; 0 where the shape is flat there) and the torus's second curvature with Q (0 for the other shapes)."""
     if code == PLANE:
         phi = 0.0
         for a in range(d):
             phi += (q[a] - parameters[c, d + a]) * parameters[c, a]
             normal[a] = parameters[c, a]
-        return phi, 0.0
+        return phi, 0.0, 0.0
+    if code == TORUS:
+        return _torus(parameters, c, q, normal, P, Q, with_derivatives)
     if code == BOX:
         out = 0.0
         largest = -math.inf
@@ -126,7 +134,7 @@ def _shape(code, parameters, c, q, d, normal, P, with_derivatives):
         out = math.sqrt(out)
         phi = out + min(largest, 0.0)
         if not with_derivatives:
-            return phi, 0.0
+            return phi, 0.0, 0.0
         if out > 0.0:
             for a in range(d):
                 local = q[a] - parameters[c, a]
@@ -136,11 +144,11 @@ def _shape(code, parameters, c, q, d, normal, P, with_derivatives):
                 gap = abs(q[a] - parameters[c, a]) - parameters[c, d + a]
                 for b in range(d):
                     P[a, b] = (1.0 if a == b and gap > 0.0 else 0.0) - normal[a] * normal[b]
-            return phi, 1.0 / out
+            return phi, 1.0 / out, 0.0
         for a in range(d):
             normal[a] = 0.0
         normal[nearest] = 1.0 if q[nearest] - parameters[c, nearest] >= 0.0 else -1.0
-        return phi, 0.0
+        return phi, 0.0, 0.0
     # sphere and capsule: the offset r from the nearest core point, phi = |r| - radius
     slides = False
     axis_squared = 0.0
@@ -165,11 +173,11 @@ def _shape(code, parameters, c, q, d, normal, P, with_derivatives):
         rho += normal[a] * normal[a]
     rho = math.sqrt(rho)
     if not with_derivatives:
-        return rho - radius, 0.0
+        return rho - radius, 0.0, 0.0
     if rho == 0.0:  # on the core: a fixed normal, no curvature
         for a in range(d):
             normal[a] = (1.0 if a == 0 else 0.0) if code == SPHERE else parameters[c, 2 * d + 1 + a]
-        return rho - radius, 0.0
+        return rho - radius, 0.0, 0.0
     for a in range(d):
         normal[a] /= rho
     for a in range(d):
@@ -179,7 +187,50 @@ def _shape(code, parameters, c, q, d, normal, P, with_derivatives):
                 across -= ((parameters[c, d + a] - parameters[c, a]) * (parameters[c, d + b] - parameters[c, b])
                            / axis_squared)
             P[a, b] = across - normal[a] * normal[b]
-    return rho - radius, 1.0 / rho
+    return rho - radius, 1.0 / rho, 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _torus(parameters, c, q, normal, P, Q, with_derivatives):
+    """The torus (3-D; colliders.py ``Torus``): with z = q.axis, e the unit radial direction at distance rho from the
+    axis and D = |(rho - R, z)|, hess phi = (e e^T + a a^T + (rho - R)/rho b b^T - n n^T) / D (b = a x e), which is
+    t t^T / D + (rho - R) / (rho D) b b^T with t = (z e - (rho - R) a) / D the tangent of the tube's circle: P = t t^T
+    and Q = b b^T, curvatures 1 / D and (rho - R) / (rho D) (negative in the hole). On the axis e is a fixed normal to
+    it, on the core circle n = e, and hess phi = 0 on both."""
+    height = 0.0
+    for a in range(3):
+        height += (q[a] - parameters[c, a]) * parameters[c, 3 + a]
+    rho = 0.0
+    for a in range(3):
+        normal[a] = q[a] - parameters[c, a] - height * parameters[c, 3 + a]  # the radial part, for now
+        rho += normal[a] * normal[a]
+    rho = math.sqrt(rho)
+    major = parameters[c, 6]
+    core = math.hypot(rho - major, height)
+    phi = core - parameters[c, 7]
+    if not with_derivatives:
+        return phi, 0.0, 0.0
+    e0, e1, e2 = parameters[c, 8], parameters[c, 9], parameters[c, 10]
+    if rho != 0.0:
+        e0, e1, e2 = normal[0] / rho, normal[1] / rho, normal[2] / rho
+    if core == 0.0:
+        normal[0], normal[1], normal[2] = e0, e1, e2
+        return phi, 0.0, 0.0
+    a0, a1, a2 = parameters[c, 3], parameters[c, 4], parameters[c, 5]
+    out = rho - major
+    normal[0], normal[1], normal[2] = (out * e0 + height * a0) / core, (out * e1 + height * a1) / core, (
+        out * e2 + height * a2) / core
+    if rho == 0.0:
+        return phi, 0.0, 0.0
+    t0, t1, t2 = (height * e0 - out * a0) / core, (height * e1 - out * a1) / core, (height * e2 - out * a2) / core
+    b0, b1, b2 = a1 * e2 - a2 * e1, a2 * e0 - a0 * e2, a0 * e1 - a1 * e0
+    P[0, 0], P[0, 1], P[0, 2] = t0 * t0, t0 * t1, t0 * t2
+    P[1, 0], P[1, 1], P[1, 2] = t1 * t0, t1 * t1, t1 * t2
+    P[2, 0], P[2, 1], P[2, 2] = t2 * t0, t2 * t1, t2 * t2
+    Q[0, 0], Q[0, 1], Q[0, 2] = b0 * b0, b0 * b1, b0 * b2
+    Q[1, 0], Q[1, 1], Q[1, 2] = b1 * b0, b1 * b1, b1 * b2
+    Q[2, 0], Q[2, 1], Q[2, 2] = b2 * b0, b2 * b1, b2 * b2
+    return phi, 1.0 / core, out / (rho * core)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -193,10 +244,10 @@ def _local(c, p, d, frames, moved, rest, q):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def signed_distance(c, p, d, colliders, q, normal, P):
+def signed_distance(c, p, d, colliders, q, normal, P, Q):
     shapes, parameters, frames, moved, rest = colliders[0], colliders[1], colliders[2], colliders[3], colliders[4]
     _local(c, p, d, frames, moved, rest, q)
-    return _shape(shapes[c], parameters, c, q, d, normal, P, False)[0]
+    return _shape(shapes[c], parameters, c, q, d, normal, P, Q, False)[0]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -232,9 +283,10 @@ def add_point_terms(p, d, colliders, projection, g, H, scratch):
     reach = dhat if method == IPC else 0.0
     clearance = math.inf
     q, normal, P, world, turned, distances = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
+    Q = scratch[8]
     for c in range(shapes.size):
         _local(c, p, d, frames, moved, rest, q)
-        phi, curvature = _shape(shapes[c], parameters, c, q, d, normal, P, True)
+        phi, curvature, twist = _shape(shapes[c], parameters, c, q, d, normal, P, Q, True)
         distances[c] = phi
         clearance = min(clearance, phi - reach)
         if method == PENALTY:
@@ -263,6 +315,13 @@ def add_point_terms(p, d, colliders, projection, g, H, scratch):
                 for a in range(d):
                     for b in range(d):
                         H[a, b] += factor * turned[a, b]
+        if twist != 0.0:  # the torus's second curvature
+            factor = filtered_eigenvalue(slope * twist, projection)
+            if factor != 0.0:
+                _turn(c, Q, d, frames, turned)
+                for a in range(d):
+                    for b in range(d):
+                        H[a, b] += factor * turned[a, b]
     return clearance
 
 
@@ -283,12 +342,12 @@ def point_change(p, u, d, colliders, scratch):
     """The change of the colliders' potential when point p moves by u, from the distances ``add_point_terms`` left:
     the penalty's k/2 (d' - d)(d' + d) (depths d), the barrier's kappa (B(phi') - B(phi))."""
     shapes, stiffness, method, kappa, dhat = colliders[0], colliders[5], colliders[6], colliders[7], colliders[8]
-    q, normal, P, distances, moved_point = scratch[0], scratch[1], scratch[2], scratch[5], scratch[7]
+    q, normal, P, distances, moved_point, Q = scratch[0], scratch[1], scratch[2], scratch[5], scratch[7], scratch[8]
     for a in range(d):
         moved_point[a] = p[a] + u[a]
     change = 0.0
     for c in range(shapes.size):
-        after = signed_distance(c, moved_point, d, colliders, q, normal, P)
+        after = signed_distance(c, moved_point, d, colliders, q, normal, P, Q)
         before = distances[c]
         if method == PENALTY:
             depth, moved_depth = max(-before, 0.0), max(-after, 0.0)
@@ -342,3 +401,6 @@ def beyond_reach(u, d, clearance):
     for a in range(d):
         squared += u[a] * u[a]
     return math.sqrt(squared) < clearance
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

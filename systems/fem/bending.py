@@ -22,6 +22,7 @@ import math
 import numba
 import numpy as np
 
+from ..compiled_cache import keep_fresh
 from .linalg import project_dense
 
 PSD_SHIFT = 1e-12
@@ -265,3 +266,6 @@ def hinge_hessians(x, hinges, stiffness, rest_angle, projection, blocks):
                 for j in range(i + 1, 3):
                     mean = 0.5 * (block_matrix[i, j] + block_matrix[j, i])
                     block_matrix[i, j] = block_matrix[j, i] = mean
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -17,6 +17,7 @@ import math
 
 import numba
 
+from ..compiled_cache import keep_fresh
 from .linalg import _determinant, _signed_svd
 
 LINEAR, COROTATED, STVK, NEO_HOOKEAN, STABLE_NEO_HOOKEAN = range(5)
@@ -230,3 +231,6 @@ def material_terms(model, F, d, mu, lam, P, A, want_tangent, work):
                             value += mu - shrink
                         A[i * d + j, k * d + l] = value
     return psi
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -25,6 +25,7 @@ import math
 import numba
 import numpy as np
 
+from ..compiled_cache import keep_fresh
 from .energies import WORK_SLOTS, _cofactor, material_terms
 from .linalg import _determinant
 from .projection import project_tangent, projection_scratch
@@ -256,3 +257,6 @@ def inversion_free_step(x, direction, elements, fraction):
     for e in range(count):
         smallest = min(smallest, limits[e])
     return smallest
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -8,6 +8,8 @@ import math
 
 import numba
 
+from ..compiled_cache import keep_fresh
+
 # a column F v_a of the SVD shorter than this fraction of the largest singular value is F's null space: U's column is
 # then chosen orthogonal to the others instead of normalising round-off
 RANK_FLOOR = 1e-14
@@ -373,3 +375,6 @@ def project_dense(M, n, mode, shift, scratch, values, vectors):
         changed = True
         rank_one_update(M, n, -values[k] if mode == 1 else -2.0 * values[k], vectors[:, k])
     return changed
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -31,6 +31,7 @@ import math
 import numba
 import numpy as np
 
+from ..compiled_cache import keep_fresh
 from .energies import COROTATED, NEO_HOOKEAN, STVK
 from .kernels import cubic_crossings
 from .linalg import project_dense
@@ -282,3 +283,6 @@ def area_keeping_step(x, direction, elements, fraction):
     for e in range(count):
         smallest = min(smallest, limits[e])
     return smallest
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -11,6 +11,7 @@ import numba
 import numpy as np
 
 from .energies import COROTATED, LINEAR, NEO_HOOKEAN, ROTATION_FLOOR, STABLE_NEO_HOOKEAN
+from ..compiled_cache import keep_fresh
 from .linalg import (_closed_form_eigenvalues, _positive_definite_small, _signed_svd, _singular_values, _symmetric_eigen,
                      largest_magnitude, rank_one_update)
 
@@ -188,3 +189,6 @@ def project_tangent(model, F, d, mu, lam, A, mode, scratch):
                     vector[i * d + j] = math.sqrt(0.5) * (U[i, a] * V[j, b] + sign * U[i, b] * V[j, a])
         rank_one_update(A, size, -values[k] if mode == 1 else -2.0 * values[k], vector)  # to 0, or to -lambda
     return changed
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

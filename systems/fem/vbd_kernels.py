@@ -39,6 +39,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from ..compiled_cache import keep_fresh
 from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
 from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
 from .energies import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, WORK_SLOTS, _cofactor, material_terms
@@ -559,3 +560,6 @@ def vertex_changes(x, vertices, steps, indptr, max_degree, elements, shape_gradi
             changes[k] = _elastic_change(i, steps[k], d, indptr, shape_gradients, volumes, mu, lam, alpha, model,
                                          scratch)
             fractions[k] = _kept_fraction(i, steps[k], d, indptr, kept_volume, scratch)
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

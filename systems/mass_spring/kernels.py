@@ -22,6 +22,8 @@ import math
 import numba
 import numpy as np
 
+from ..compiled_cache import keep_fresh
+
 
 # the spring laws' codes in the compiled loops (the finite elements' materials are numbered the same way)
 HOOKEAN, SQUARED_LENGTH = 0, 1
@@ -97,3 +99,6 @@ def gather_spring_gradient(indptr, springs, signs, delta, factor, dim, out):
         if dim == 3:
             out[dim * v + 2] = z_total
     return out
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)

@@ -26,6 +26,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from ..compiled_cache import keep_fresh
 from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
 from ..vertex_kernels import (damping_change, filtered_eigenvalue, finish_blocks, inertia_change, newton_step,
                               take_step)
@@ -187,3 +188,6 @@ def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, ind
                    other, springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr,
                    damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection,
                    determinant_floor, max_halvings, halvings)
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)
