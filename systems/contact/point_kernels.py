@@ -102,10 +102,10 @@ def empty_colliders(dim: int) -> tuple:
 
 @numba.njit(cache=True)
 def point_scratch(d, colliders):
-    """One thread's arrays: q, the local normal, P, the world normal, M P M^T, each collider's phi at the vertex, the
-    vertex's position and its moved position, and Q (the torus's second projector)."""
-    return (np.empty(d), np.empty(d), np.empty((d, d)), np.empty(d), np.empty((d, d)), np.empty(max(colliders[0].size, 1)),
-            np.empty(d), np.empty(d), np.empty((d, d)))
+    """One thread's arrays: q, the local normal, P, the world normal, each collider's phi at the vertex, the vertex's
+    position and its moved position, and Q (the torus's second projector)."""
+    return (np.empty(d), np.empty(d), np.empty((d, d)), np.empty(d), np.empty(max(colliders[0].size, 1)), np.empty(d),
+            np.empty(d), np.empty((d, d)))
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -275,15 +275,14 @@ def _barrier_value(phi, dhat):
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def add_point_terms(p, d, colliders, projection, g, H, scratch):
     """The colliders' dP/dp into g and d^2P/dp^2 (its curvature term filtered by ``projection``) into H, at point p;
-    each collider's phi at p into scratch's last array (what ``point_change`` starts from). A point on or inside a
+    each collider's phi at p into scratch's distances (what ``point_change`` starts from). A point on or inside a
     collider under IPC gets no term from it (numpy's ``point_terms`` gives such a state infinite energy). Returns the
     clearance: the least phi less the reach (0 for the penalty, dhat for IPC). A move shorter than it changes no
     collider's potential (each phi is 1-Lipschitz: these are exact distances), so ``point_change`` is 0 there."""
     shapes, parameters, frames, moved, rest, stiffness, method, kappa, dhat = colliders
     reach = dhat if method == IPC else 0.0
     clearance = math.inf
-    q, normal, P, world, turned, distances = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
-    Q = scratch[8]
+    q, normal, P, world, distances, Q = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[7]
     for c in range(shapes.size):
         _local(c, p, d, frames, moved, rest, q)
         phi, curvature, twist = _shape(shapes[c], parameters, c, q, d, normal, P, Q, True)
@@ -308,33 +307,24 @@ def add_point_terms(p, d, colliders, projection, g, H, scratch):
             g[a] += slope * world[a]
             for b in range(d):
                 H[a, b] += bend * world[a] * world[b]
-        if curvature != 0.0:
-            factor = filtered_eigenvalue(slope * curvature, projection)
-            if factor != 0.0:
-                _turn(c, P, d, frames, turned)
-                for a in range(d):
-                    for b in range(d):
-                        H[a, b] += factor * turned[a, b]
-        if twist != 0.0:  # the torus's second curvature
-            factor = filtered_eigenvalue(slope * twist, projection)
-            if factor != 0.0:
-                _turn(c, Q, d, frames, turned)
-                for a in range(d):
-                    for b in range(d):
-                        H[a, b] += factor * turned[a, b]
+        _add_curvature(H, slope * curvature, projection, c, P, d, frames)
+        _add_curvature(H, slope * twist, projection, c, Q, d, frames)  # the torus's second curvature (0 elsewhere)
     return clearance
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _turn(c, P, d, frames, turned):
-    """M P M^T into turned."""
+def _add_curvature(H, value, projection, c, P, d, frames):
+    """H += filter(value) M P M^T: one curvature term in the world frame (nothing where the filtered value is 0)."""
+    factor = filtered_eigenvalue(value, projection)
+    if factor == 0.0:
+        return
     for a in range(d):
         for b in range(d):
             total = 0.0
             for k in range(d):
                 for m in range(d):
                     total += frames[c, a, k] * P[k, m] * frames[c, b, m]
-            turned[a, b] = total
+            H[a, b] += factor * total
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -342,7 +332,7 @@ def point_change(p, u, d, colliders, scratch):
     """The change of the colliders' potential when point p moves by u, from the distances ``add_point_terms`` left:
     the penalty's k/2 (d' - d)(d' + d) (depths d), the barrier's kappa (B(phi') - B(phi))."""
     shapes, stiffness, method, kappa, dhat = colliders[0], colliders[5], colliders[6], colliders[7], colliders[8]
-    q, normal, P, distances, moved_point, Q = scratch[0], scratch[1], scratch[2], scratch[5], scratch[7], scratch[8]
+    q, normal, P, distances, moved_point, Q = scratch[0], scratch[1], scratch[2], scratch[4], scratch[6], scratch[7]
     for a in range(d):
         moved_point[a] = p[a] + u[a]
     change = 0.0
@@ -382,7 +372,7 @@ def point_changes(positions, steps, colliders, changes):
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def add_vertex_terms(i, y, d, colliders, projection, g, H, scratch):
     """``add_point_terms`` at y_i, which it keeps in scratch for ``vertex_change``; returns its clearance."""
-    point = scratch[6]
+    point = scratch[5]
     for a in range(d):
         point[a] = y[d * i + a]
     return add_point_terms(point, d, colliders, projection, g, H, scratch)
@@ -391,7 +381,7 @@ def add_vertex_terms(i, y, d, colliders, projection, g, H, scratch):
 @numba.njit(cache=True, error_model="numpy")
 def vertex_change(u, d, colliders, scratch):
     """``point_change`` of the vertex ``add_vertex_terms`` last saw, moved by u."""
-    return point_change(scratch[6], u, d, colliders, scratch)
+    return point_change(scratch[5], u, d, colliders, scratch)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")

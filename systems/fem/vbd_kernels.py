@@ -27,7 +27,8 @@ and linear elasticity from the strain's change; the co-rotated energy's is the d
 J' = J + t c . u also gives the exact largest fraction t of the step that keeps every element at the vertex above
 ``kept_volume`` of its volume (the step filter, systems/fem/system.py ``max_step``).
 
-The parallel loops run over chunks of vertices (one colour's, or the asked ones); every vertex's numbers are its own,
+The colliders' terms (penalty or IPC barrier) are those of systems/contact/point_kernels.py, added at each vertex with
+its elements' before the step. The parallel loops run over chunks of vertices (one colour's, or the asked ones); every vertex's numbers are its own,
 in a fixed order, so the result does not depend on the thread count.
 """
 

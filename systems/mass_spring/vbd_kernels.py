@@ -12,7 +12,8 @@ the filter of a constrained vertex (S H S + c (I - S), S g), the determinant flo
 with partial pivoting, as LAPACK's), and the per-vertex backtracking: u halved until the change of E it causes,
 formed without cancellation, is <= 0, dropped after ``max_halvings``. The result does not depend on the thread
 count: every vertex's numbers are its own, in a fixed order. The inertia, damping, filter and solve are the shared
-ones of systems/vertex_kernels.py; the springs' blocks and changes are this module's.
+ones of systems/vertex_kernels.py, the colliders' terms those of systems/contact/point_kernels.py; the springs' blocks
+and changes are this module's.
 
 The incidences of a vertex are in the order of the numpy form (the springs at which it is the first end, then those
 at which it is the second, each in spring order), so the sums match it to round-off.
