@@ -192,7 +192,7 @@ def soft_box(method: str):
 
 # (the system, how far its start is lowered (m))
 CASES = {
-    "cloth-penalty": (lambda: draped_cloth("penalty"), 0.0),
+    "cloth-penalty": (lambda: draped_cloth("penalty"), 0.05),  # in the colliders at x_n: contact damping in D
     "cloth-ipc": (lambda: draped_cloth("ipc"), 0.0),
     "cloth-ipc-moving": (lambda: draped_cloth("ipc", spinning=True), 0.0),
     "cloth-torus-ipc": (cloth_on_a_torus, 0.0),
@@ -213,8 +213,8 @@ def test_the_compiled_sweep_with_colliders_is_the_numpy_sweep(case, projection):
     problem, start = dropped(system, lowered)
     sweep, parts = system.vertex_sweep(), IncrementalParts.of(problem)
     assert sweep is not None and sweep.colliders[0].size == len(system.contact.colliders)
-    if case == "cloth-penalty":
-        assert parts.damping_weight > 0.0  # contact damping, once the cloth is in
+    if case == "cloth-penalty":  # the contact damping k_d n n^T of the vertices inside at x_n
+        assert parts.damping_weight > 0.0 and np.any(parts.damping_data != 0.0)
     plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
                          system.dim)
     solver = VertexBlockDescent(spd_projection=projection)
