@@ -58,4 +58,4 @@ def keep_fresh(namespace: dict) -> None:
         folder.mkdir(parents=True, exist_ok=True)
         stamp.write_text(digest)
     except OSError:
-        return
+        pass  # the folder cannot be written: numba cannot cache there either
