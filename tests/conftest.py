@@ -93,17 +93,18 @@ def step_problem(system, x=None, v=None, dt=0.01, integrator="backward_euler"):
     return capture.problem, capture.start
 
 
-def agreeing_sweeps(solver, problem, start, plans, sweep, parts, count: int):
+def agreeing_sweeps(solver, problem, start, plans, sweep, parts, count: int, tolerance: float = 1e-12):
     """``count`` VBD sweeps from start, each by the numpy sweep (solvers/vbd.py ``_sweep``, the reference) and by the
-    system's compiled one from the same iterate, asserted to land on the same positions (to 1e-12 of the largest move)
-    with the same backtracking rounds; yields (the iterate, numpy's result, its rounds), the next from numpy's result."""
+    system's compiled one from the same iterate, asserted to land on the same positions (to ``tolerance`` of the largest
+    move) with the same backtracking rounds; yields (the iterate, numpy's result, its rounds), the next from numpy's
+    result."""
     y = start.copy()
     for _ in range(count):
         numpy_y, numpy_halvings = solver._sweep(problem, y, plans)
         compiled_y, compiled_halvings = solver._compiled_sweep(y, plans, sweep, parts)
         scale = np.max(np.abs(numpy_y - y))
         assert scale > 0.0
-        np.testing.assert_allclose(compiled_y, numpy_y, rtol=0.0, atol=1e-12 * scale)
+        np.testing.assert_allclose(compiled_y, numpy_y, rtol=0.0, atol=tolerance * scale)
         assert compiled_halvings == numpy_halvings
         yield y, numpy_y, numpy_halvings
         y = numpy_y

@@ -24,7 +24,7 @@ from ..contact.model import ContactModel
 from . import bending, kernels, membrane, split
 from .materials import MATERIALS
 from .mesh import SimplexMesh
-from .vertex import FemSweep
+from .vertex import FemSweep, ShellSweep
 
 # Every line search keeps each element above this fraction of its volume at the search's start, as the course code's
 # init_step_size does: the neo-Hookean energy is infinite at J <= 0, and an element pushed through zero volume
@@ -47,6 +47,7 @@ class Fem(ContactHooks, System):
 
     records_state_per_sample = False  # positions go to `frames`
     requires_step_filter = True  # every line search keeps the elements' volumes (max_step)
+    derived_caches = ("_fem_sweep",)  # the vertex sweep of the whole (split_parts.fresh_copy drops it in a part)
 
     def __init__(self, *, mesh: SimplexMesh, material: str, mu: np.ndarray, lam: np.ndarray,
                  youngs_modulus: np.ndarray, poisson_ratio: np.ndarray, masses: np.ndarray, gravity: np.ndarray,
@@ -389,13 +390,14 @@ class Fem(ContactHooks, System):
 
     # -- for vertex block descent: only the elements at each vertex (vertex.py, vbd_kernels.py) --------------
     def _element_sweep(self):
-        """The elements at each vertex (vertex.py ``FemSweep``), or None where the generic blocks serve: a shell (its
-        membrane's F is 3 x 2, and its hinges couple four vertices), or an IMEX part without the elements."""
-        if self.is_shell or not self.includes_elements or len(self.hinges):
+        """The elements at each vertex (vertex.py: ``FemSweep`` of a solid, ``ShellSweep`` of a shell's triangles and
+        hinges), or None where the generic blocks serve: a solid's IMEX part without its elements."""
+        if not (self.is_shell or self.includes_elements):
             return None
         cached = self.__dict__.get("_fem_sweep")
         if cached is None or cached.source_mu is not self.mu or cached.source_lam is not self.lam:
-            cached = self.__dict__["_fem_sweep"] = FemSweep.of(self, KEPT_VOLUME)
+            sweep = ShellSweep if self.is_shell else FemSweep
+            cached = self.__dict__["_fem_sweep"] = sweep.of(self, KEPT_VOLUME)
         return cached
 
     def vertex_blocks(self, x, vertices, project_spd=False):

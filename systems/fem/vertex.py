@@ -1,5 +1,6 @@
-"""A finite-element solid vertex by vertex, for vertex block descent (solvers/vbd.py): the elements around each vertex,
-found once per system, and the compiled terms of vbd_kernels.py over them."""
+"""A finite-element solid or shell vertex by vertex, for vertex block descent (solvers/vbd.py): the elements (and a
+shell's hinges) around each vertex, found once per system, and the compiled terms of vbd_kernels.py (solids) and
+shell_vbd_kernels.py (shells) over them."""
 
 from __future__ import annotations
 
@@ -37,12 +38,9 @@ class FemSweep:
         from ..contact.point_kernels import empty_colliders
 
         elements = system.elements
-        count, corners = elements.shape
-        owner = elements.ravel()
-        order = np.argsort(owner, kind="stable")  # each vertex's elements in element order
-        element, corner = np.divmod(order, corners)
+        corners = elements.shape[1]
+        indptr, element, corner = _incidences(elements, system.vertex_count)  # each vertex's elements in element order
         turned = (corner[:, None] + np.arange(corners)) % corners  # the vertex's corner first, the others in turn
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=system.vertex_count))]).astype(np.uint64)
         mu, lam, d = system.mu[element], system.lam[element], system.dim
         alpha = np.zeros_like(mu)
         if system.material == "stable_neo_hookean":
@@ -97,3 +95,106 @@ class FemSweep:
                        changes, fractions)
         changes -= np.einsum("ij,ij->i", self.gravity_force[vertices], steps)
         return changes, fractions
+
+
+@dataclass(frozen=True, eq=False)
+class ShellSweep:
+    """A shell's membrane triangles and discrete-shell hinges at every vertex (shell_vbd_kernels.py). The triangles as
+    ``FemSweep``'s elements: vertex i's are p in indptr[i]:indptr[i + 1], each its triangle's corners turned so that
+    vertex i comes first (a cyclic turn: the normal keeps its sign), their shape gradients (p, 3, 2), weights (rest
+    area times thickness), mu and lambda. ``membrane`` 0 where the system leaves the triangles' energy out (an IMEX part
+    with the hinges alone), whose rows still bound the step (its area filter is the whole's). The hinges: vertex i's are
+    q in hinge_indptr[i]:hinge_indptr[i + 1], each the hinge's four vertices in its own order (the angle's sign is
+    that order's), vertex i's corner in it (0-3), its stiffness k_h (N m) and rest angle (rad)."""
+
+    indptr: np.ndarray
+    max_degree: int
+    elements: np.ndarray
+    shape_gradients: np.ndarray
+    weights: np.ndarray
+    mu: np.ndarray
+    lam: np.ndarray
+    model: int
+    membrane: int
+    hinge_indptr: np.ndarray
+    max_hinges: int
+    hinges: np.ndarray
+    corners: np.ndarray
+    hinge_stiffness: np.ndarray
+    rest_angles: np.ndarray
+    gravity_force: np.ndarray
+    kept_area: float
+    source_mu: np.ndarray
+    source_lam: np.ndarray
+    colliders: tuple
+
+    @classmethod
+    def of(cls, system, kept_area: float) -> "ShellSweep":
+        from ..contact.point_kernels import empty_colliders
+
+        count = system.vertex_count
+        indptr, element, corner = _incidences(system.elements, count)
+        turned = (corner[:, None] + np.arange(3)) % 3
+        hinge_indptr, hinge, hinge_corner = _incidences(system.hinges, count)
+        return cls(indptr, int(np.diff(indptr).max(initial=0)),
+                   np.ascontiguousarray(system.elements[element[:, None], turned], dtype=np.uint64),
+                   np.ascontiguousarray(system.shape_gradients[element[:, None], turned]),
+                   np.ascontiguousarray(system.volumes[element]), np.ascontiguousarray(system.mu[element]),
+                   np.ascontiguousarray(system.lam[element]), system._model, int(system.includes_elements),
+                   hinge_indptr, int(np.diff(hinge_indptr).max(initial=0)),
+                   np.ascontiguousarray(system.hinges[hinge], dtype=np.uint64), hinge_corner.astype(np.int64),
+                   np.ascontiguousarray(system.hinge_stiffness[hinge]), np.ascontiguousarray(system.rest_angles[hinge]),
+                   np.ascontiguousarray(system.vertex_masses[:, None] * system.gravity, dtype=float),
+                   float(kept_area), system.mu, system.lam, empty_colliders(3))
+
+    @property
+    def _terms(self) -> tuple:
+        return (self.indptr, self.max_degree, self.elements, self.shape_gradients, self.weights, self.mu, self.lam,
+                self.model, self.membrane, self.hinge_indptr, self.max_hinges, self.hinges, self.corners,
+                self.hinge_stiffness, self.rest_angles)
+
+    def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
+              halvings) -> None:
+        """One colour's steps in place in y (shell_vbd_kernels.sweep_colour), as ``FemSweep.sweep``."""
+        from ..mass_spring.vbd_kernels import PROJECTION_CODES, unsigned
+        from .shell_vbd_kernels import sweep_colour
+
+        sweep_colour(y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
+                     *self._terms, self.gravity_force, self.kept_area, potential.damping_indptr,
+                     potential.damping_indices, potential.damping_data, potential.damping_weight,
+                     potential.velocity_origin, self.colliders, PROJECTION_CODES[projection], determinant_floor,
+                     max_halvings, halvings)
+
+    def blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd) -> tuple[np.ndarray, np.ndarray]:
+        """(dP/dx_i (k, 3), the projected sum of the triangles' and hinges' blocks (k, 3, 3)) with gravity's."""
+        from ..mass_spring.vbd_kernels import PROJECTION_CODES
+        from .shell_vbd_kernels import vertex_blocks
+
+        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
+        gradient, hessian = np.empty((vertices.size, 3)), np.empty((vertices.size, 3, 3))
+        vertex_blocks(np.ascontiguousarray(x, dtype=float), vertices, *self._terms, PROJECTION_CODES[project_spd],
+                      gradient, hessian)
+        gradient -= self.gravity_force[vertices]
+        return gradient, hessian
+
+    def changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the change of the shell's energy and gravity's (k,) J, the kept fraction of each step (k,))."""
+        from .shell_vbd_kernels import vertex_changes
+
+        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
+        steps = np.ascontiguousarray(steps, dtype=float)
+        changes, fractions = np.empty(vertices.size), np.empty(vertices.size)
+        vertex_changes(np.ascontiguousarray(x, dtype=float), vertices, steps, *self._terms, self.kept_area, changes,
+                       fractions)
+        changes -= np.einsum("ij,ij->i", self.gravity_force[vertices], steps)
+        return changes, fractions
+
+
+def _incidences(groups: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indptr (n + 1,) uint64, group, corner): vertex i's incidences are rows indptr[i]:indptr[i + 1] of (group,
+    corner), in group order; ``groups`` (m, c) the vertices of each element or hinge."""
+    owner = groups.ravel()
+    order = np.argsort(owner, kind="stable")
+    group, corner = np.divmod(order, groups.shape[1])
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=vertex_count))]).astype(np.uint64)
+    return indptr, group, corner

@@ -41,6 +41,7 @@ class MassSpring(ContactHooks, System):
     """
 
     records_state_per_sample = False  # positions go to `frames`, at their own cadence
+    derived_caches = ("_vertex_sweep",)  # the vertex sweep of the whole (split_parts.fresh_copy drops it in a part)
 
     def __init__(self, *, rest: np.ndarray, x0: np.ndarray, v0: np.ndarray, springs: np.ndarray, stiffness: np.ndarray,
                  rest_length: np.ndarray, masses: np.ndarray, gravity: np.ndarray, law: str = "hookean",

@@ -1,0 +1,513 @@
+"""Vertex block descent on a shell, compiled (issue 29): each vertex's gradient and 3 x 3 Hessian block from its
+membrane triangles (membrane.py) and its discrete-shell hinges (bending.py), the change of their energy when the vertex
+alone moves, the fraction of its step that keeps its triangles' areas, and one colour's sweep (solvers/vbd.py has the
+method; fem/vbd_kernels.py is the same for solids).
+
+Membrane. Vertex i is corner a of triangle e with shape gradient n = g_a (2,). Moving it alone by u changes the 3 x 2
+deformation gradient by u n^T, so dPsi_e/dx_i = w P n and its block is w K, K_ik = sum_jl n_j A_(ij)(kl) n_l, with P
+and A = d^2 psi / dF^2 those of membrane.py's ``membrane_terms``, contracted in closed form (``membrane_vertex_terms``).
+The energy change is formed without cancellation from
+the exact change of C = F^T F,
+
+    C' - C = n v^T + v n^T + |u|^2 n n^T  (v = F^T u),
+
+whose trace is I_1's change and whose determinant change is tr(adj(C) dC) + det(dC) (2 x 2), so that J' - J =
+(det C' - det C) / (J' + J); each energy's change then follows from those of I_1 and J as a solid's does from I_C and
+J (St. Venant-Kirchhoff's from E's change dC / 2).
+
+Hinges. The hinge h = (x0, x1, x2, x3) has theta(z), z = (e, w_1, w_2) = (x1 - x0, x2 - x0, x3 - x0) (bending.py). Its
+vertex a > 0 moves z's block a - 1 alone; vertex 0 moves all three blocks by -u. So with theta_z and theta_zz from
+bending.py's ``_angle_derivatives``, dtheta/dx_a is block a - 1 of theta_z (minus the sum of the three for vertex 0)
+and d^2 theta / dx_a^2 the diagonal block a - 1 of theta_zz (the sum of all nine blocks for vertex 0); the hinge's
+E = k_h (theta - theta_rest)^2 has gradient 2 k_h (theta - theta_rest) theta_a and block 2 k_h (theta_a theta_a^T +
+(theta - theta_rest) theta_aa). Its change is k_h (theta' - theta) (theta' + theta - 2 theta_rest), theta' the angle
+at the moved vertex.
+
+Each triangle's and each hinge's block at the vertex is projected to SPD on its own (clamp or mirror its negative
+eigenvalues), as a solid's elements' and the springs' are: without projection the vertex's block is the diagonal block
+of the full Hessian, exactly.
+
+Moving one corner alone changes a triangle's normal linearly, N(t) = N + t (x2 - x1) x u (x1, x2 the other two
+corners in turn), so |N(t)|^2 = kept^2 |N|^2 is a quadratic whose first root in (0, 1] is the exact largest step that
+keeps ``kept_area`` of the triangle's area: the step filter of membrane.py's ``area_keeping_step`` for one vertex.
+
+The colliders' terms are those of systems/contact/point_kernels.py. The parallel loops run over chunks of vertices;
+every vertex's numbers are its own, in a fixed order, so the result does not depend on the thread count.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numba import prange
+
+from ..compiled_cache import keep_fresh
+from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
+from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
+from .bending import _angle
+from .energies import COROTATED, NEO_HOOKEAN, STVK
+from .membrane import AREA_FLOOR, _invariant_derivatives
+from .vbd_kernels import project_block
+
+# vertices per chunk of the parallel loops: the scratch arrays are made once per chunk, not per vertex
+CHUNK = 32
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _scratch(max_degree, max_hinges):
+    """One chunk's arrays: each incident triangle's F, each incident hinge's angle; P n; K and its projection's copy,
+    eigenvalues and vectors; one triangle's F; a hinge's z; ``hinge_angle_block``'s points and vectors; the vertex's
+    theta_a and theta_aa."""
+    return (np.empty((max_degree, 3, 2)), np.empty(max(max_hinges, 1)), np.empty(3), np.empty((3, 3)),
+            np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty((3, 2)), np.empty((3, 3)), np.empty((10, 3)),
+            np.empty(3), np.empty((3, 3)))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def membrane_vertex_terms(model, F, n0, n1, mu, lam, stress, K):
+    """P n (into stress) and K = n^T A n (into K) of a triangle's 3 x 2 F at its corner with shape gradient n, in closed
+    form. St. Venant-Kirchhoff's as a solid's, K = (n^T S n) I + (mu + lambda) w w^T + mu |n|^2 F F^T (w = F n); the
+    energies psi = f(I_1, J) contract membrane.py's A with n n, where (H_ij H_kl - H_il H_kj) vanishes:
+
+        P n = 2 f_1 w + f_J c,
+        K = 2 f_1 |n|^2 I + 4 f_11 w w^T + 2 f_1J (w c^T + c w^T) + f_JJ c c^T + f_J (n^T adj(C) n / J) (I - Q),
+
+    with c = H n = F adj(C) n / J and Q = F adj(C) F^T / J^2 (the projector onto the deformed triangle's plane)."""
+    squared = n0 * n0 + n1 * n1
+    C00 = F[0, 0] * F[0, 0] + F[1, 0] * F[1, 0] + F[2, 0] * F[2, 0]
+    C01 = F[0, 0] * F[0, 1] + F[1, 0] * F[1, 1] + F[2, 0] * F[2, 1]
+    C11 = F[0, 1] * F[0, 1] + F[1, 1] * F[1, 1] + F[2, 1] * F[2, 1]
+    if model == STVK:
+        E00, E01, E11 = 0.5 * (C00 - 1.0), 0.5 * C01, 0.5 * (C11 - 1.0)
+        trace = E00 + E11
+        Sn0 = (2.0 * mu * E00 + lam * trace) * n0 + 2.0 * mu * E01 * n1
+        Sn1 = 2.0 * mu * E01 * n0 + (2.0 * mu * E11 + lam * trace) * n1
+        along = n0 * Sn0 + n1 * Sn1
+        for i in range(3):
+            stress[i] = F[i, 0] * Sn0 + F[i, 1] * Sn1
+        for i in range(3):
+            w_i = F[i, 0] * n0 + F[i, 1] * n1
+            for k in range(i, 3):
+                w_k = F[k, 0] * n0 + F[k, 1] * n1
+                value = (mu + lam) * w_i * w_k + mu * squared * (F[i, 0] * F[k, 0] + F[i, 1] * F[k, 1])
+                if i == k:
+                    value += along
+                K[i, k] = K[k, i] = value
+        return
+    J = math.sqrt(max(C00 * C11 - C01 * C01, 0.0))
+    if model == NEO_HOOKEAN and not J > 0.0:  # a collapsed triangle: infinite energy, no force to take
+        for i in range(3):
+            stress[i] = math.nan
+            for k in range(3):
+                K[i, k] = math.nan
+        return
+    _, f1, fJ, f11, f1J, fJJ = _invariant_derivatives(model, C00 + C11, J, mu, lam)
+    floor = max(J, AREA_FLOOR)
+    adjoint0, adjoint1 = C11 * n0 - C01 * n1, -C01 * n0 + C00 * n1  # adj(C) n
+    curvature = fJ * (n0 * adjoint0 + n1 * adjoint1) / floor
+    for i in range(3):
+        w_i = F[i, 0] * n0 + F[i, 1] * n1
+        c_i = (F[i, 0] * adjoint0 + F[i, 1] * adjoint1) / floor
+        stress[i] = 2.0 * f1 * w_i + fJ * c_i
+        for k in range(i, 3):
+            w_k = F[k, 0] * n0 + F[k, 1] * n1
+            c_k = (F[k, 0] * adjoint0 + F[k, 1] * adjoint1) / floor
+            plane = (C11 * F[i, 0] * F[k, 0] - C01 * (F[i, 0] * F[k, 1] + F[i, 1] * F[k, 0])
+                     + C00 * F[i, 1] * F[k, 1]) / (floor * floor)  # Q_ik
+            value = (4.0 * f11 * w_i * w_k + 2.0 * f1J * (w_i * c_k + c_i * w_k) + fJJ * c_i * c_k
+                     - curvature * plane)
+            if i == k:
+                value += 2.0 * f1 * squared + curvature
+            K[i, k] = K[k, i] = value
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _membrane_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, model, projection, g, H, scratch):
+    """Adds vertex i's triangles' w P n to g and their projected blocks w K to H; each triangle's F into the scratch
+    (what ``_membrane_change`` reads). Incidence p is vertex i's triangle with vertex i as its corner 0 (vertex.py)."""
+    Fs, _, stress, K, copy, values, vectors, F, _, _, _, _ = scratch
+    for p in range(indptr[i], indptr[i + 1]):
+        slot = p - indptr[i]
+        v0, v1, v2 = 3 * elements[p, 0], 3 * elements[p, 1], 3 * elements[p, 2]
+        for r in range(3):
+            for j in range(2):
+                F[r, j] = (y[v0 + r] * shape_gradients[p, 0, j] + y[v1 + r] * shape_gradients[p, 1, j]
+                           + y[v2 + r] * shape_gradients[p, 2, j])
+                Fs[slot, r, j] = F[r, j]
+        membrane_vertex_terms(model, F, shape_gradients[p, 0, 0], shape_gradients[p, 0, 1], mu[p], lam[p], stress, K)
+        project_block(K, 3, projection, copy, values, vectors)
+        weight = weights[p]
+        for r in range(3):
+            g[r] += weight * stress[r]
+            for k in range(3):
+                H[r, k] += weight * K[r, k]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _hinge_vectors(y, hinges, q, z):
+    """z (3, 3): the rows e, w_1, w_2 of hinge row q (bending.py's, indexing the whole arrays)."""
+    base = 3 * hinges[q, 0]
+    for block in range(3):
+        other = 3 * hinges[q, block + 1]
+        for r in range(3):
+            z[block, r] = y[other + r] - y[base + r]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _hinge_points(y, hinges, q, points):
+    """Rows b = 0..3 of ``points``: x_b - x0 of hinge row q's vertices (row 0 zero)."""
+    base = 3 * hinges[q, 0]
+    for b in range(4):
+        other = 3 * hinges[q, b]
+        for r in range(3):
+            points[b, r] = y[other + r] - y[base + r]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def hinge_angle_block(y, hinges, q, corner, along, curvature, vectors):
+    """theta's gradient (into along) and Hessian (into curvature) in the position of hinge q's vertex ``corner`` alone,
+    in closed form (the module docstring's "Hinges", here in the form that needs no 9 x 9 product). theta = atan2(s, c)
+    gives, for any s and c of the vertex's position p, with r = s^2 + c^2, g = c s_p - s c_p and h = s s_p + c c_p,
+
+        theta_p = g / r,    theta_pp = (c s_pp - s c_pp) / r - (g h^T + h g^T) / r^2.
+
+    A wing vertex (corner 2 or 3) moves one triangle's normal linearly and leaves the other and e: with e, the other
+    normal N fixed, s = -|e| N . q and c = (N x e) . q (corner 2; corner 3: s = -|e| N_1 . q, c = (e x N_1) . q) are
+    linear in q = x_corner - x0, so s_pp = c_pp = 0. Vertex 1 moves p = e with w_1, w_2 fixed, where
+    N_1 x N_2 = -(p . m) p (m = w_1 x w_2) and N_1 . N_2 = (p . w_1)(p . w_2) - |p|^2 (w_1 . w_2):
+
+        s = -|p| (p . m),   c = (p . w_1)(p . w_2) - |p|^2 (w_1 . w_2).
+
+    Vertex 0 is vertex 1 of the same hinge seen from x1 (p = x0 - x1, w_a = x_(a+1) - x1), whose angle is -theta."""
+    _hinge_points(y, hinges, q, vectors)  # rows 0-3: x_b - x0 (e = row 1, w_1 = row 2, w_2 = row 3)
+    if corner >= 2:
+        e0, e1, e2 = vectors[1, 0], vectors[1, 1], vectors[1, 2]
+        length = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        if corner == 2:  # N = N_2 = w_2 x e fixed; s = -|e| N . q, c = (N x e) . q
+            w0, w1, w2 = vectors[3, 0], vectors[3, 1], vectors[3, 2]
+            n0, n1, n2 = w1 * e2 - w2 * e1, w2 * e0 - w0 * e2, w0 * e1 - w1 * e0
+            b0, b1, b2 = n1 * e2 - n2 * e1, n2 * e0 - n0 * e2, n0 * e1 - n1 * e0
+        else:  # N = N_1 = e x w_1 fixed; s = -|e| N . q, c = (e x N) . q
+            w0, w1, w2 = vectors[2, 0], vectors[2, 1], vectors[2, 2]
+            n0, n1, n2 = e1 * w2 - e2 * w1, e2 * w0 - e0 * w2, e0 * w1 - e1 * w0
+            b0, b1, b2 = e1 * n2 - e2 * n1, e2 * n0 - e0 * n2, e0 * n1 - e1 * n0
+        a0, a1, a2 = -length * n0, -length * n1, -length * n2
+        q0, q1, q2 = vectors[corner, 0], vectors[corner, 1], vectors[corner, 2]
+        s = a0 * q0 + a1 * q1 + a2 * q2
+        c = b0 * q0 + b1 * q1 + b2 * q2
+        r = s * s + c * c
+        g0, g1, g2 = c * a0 - s * b0, c * a1 - s * b1, c * a2 - s * b2
+        h0, h1, h2 = s * a0 + c * b0, s * a1 + c * b1, s * a2 + c * b2
+        along[0], along[1], along[2] = g0 / r, g1 / r, g2 / r
+        square = r * r
+        curvature[0, 0] = -2.0 * g0 * h0 / square
+        curvature[1, 1] = -2.0 * g1 * h1 / square
+        curvature[2, 2] = -2.0 * g2 * h2 / square
+        curvature[0, 1] = curvature[1, 0] = -(g0 * h1 + h0 * g1) / square
+        curvature[0, 2] = curvature[2, 0] = -(g0 * h2 + h0 * g2) / square
+        curvature[1, 2] = curvature[2, 1] = -(g1 * h2 + h1 * g2) / square
+        return
+    if corner == 1:
+        sign = 1.0
+        p0, p1, p2 = vectors[1, 0], vectors[1, 1], vectors[1, 2]
+        u0, u1, u2 = vectors[2, 0], vectors[2, 1], vectors[2, 2]
+        v0, v1, v2 = vectors[3, 0], vectors[3, 1], vectors[3, 2]
+    else:  # seen from x1: p = x0 - x1 = -e, w_a - e, and the angle's sign turned
+        sign = -1.0
+        p0, p1, p2 = -vectors[1, 0], -vectors[1, 1], -vectors[1, 2]
+        u0, u1, u2 = vectors[2, 0] + p0, vectors[2, 1] + p1, vectors[2, 2] + p2
+        v0, v1, v2 = vectors[3, 0] + p0, vectors[3, 1] + p1, vectors[3, 2] + p2
+    m0, m1, m2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+    squared = p0 * p0 + p1 * p1 + p2 * p2
+    length = math.sqrt(squared)
+    along_m = p0 * m0 + p1 * m1 + p2 * m2
+    along_u = p0 * u0 + p1 * u1 + p2 * u2
+    along_v = p0 * v0 + p1 * v1 + p2 * v2
+    wings = u0 * v0 + u1 * v1 + u2 * v2
+    s = -length * along_m
+    c = along_u * along_v - squared * wings
+    r = s * s + c * c
+    ratio = along_m / length
+    # s_p = -(p . m) p / |p| - |p| m;  c_p = (p . w_2) w_1 + (p . w_1) w_2 - 2 (w_1 . w_2) p
+    sp0, sp1, sp2 = -ratio * p0 - length * m0, -ratio * p1 - length * m1, -ratio * p2 - length * m2
+    cp0 = along_v * u0 + along_u * v0 - 2.0 * wings * p0
+    cp1 = along_v * u1 + along_u * v1 - 2.0 * wings * p1
+    cp2 = along_v * u2 + along_u * v2 - 2.0 * wings * p2
+    g0, g1, g2 = c * sp0 - s * cp0, c * sp1 - s * cp1, c * sp2 - s * cp2
+    h0, h1, h2 = s * sp0 + c * cp0, s * sp1 + c * cp1, s * sp2 + c * cp2
+    along[0], along[1], along[2] = sign * g0 / r, sign * g1 / r, sign * g2 / r
+    vectors[4, 0], vectors[4, 1], vectors[4, 2] = p0, p1, p2
+    vectors[5, 0], vectors[5, 1], vectors[5, 2] = m0, m1, m2
+    vectors[6, 0], vectors[6, 1], vectors[6, 2] = u0, u1, u2
+    vectors[7, 0], vectors[7, 1], vectors[7, 2] = v0, v1, v2
+    vectors[8, 0], vectors[8, 1], vectors[8, 2] = g0, g1, g2
+    vectors[9, 0], vectors[9, 1], vectors[9, 2] = h0, h1, h2
+    square = r * r
+    for i in range(3):
+        for k in range(i, 3):
+            identity = 1.0 if i == k else 0.0
+            pi, pk = vectors[4, i], vectors[4, k]
+            # s_pp = -(p m^T + m p^T) / |p| - (p . m) (I - p p^T / |p|^2) / |p|;  c_pp = w_1 w_2^T + w_2 w_1^T - 2 (w_1 . w_2) I
+            s_pp = -(pi * vectors[5, k] + vectors[5, i] * pk) / length - ratio * (identity - pi * pk / squared)
+            c_pp = vectors[6, i] * vectors[7, k] + vectors[7, i] * vectors[6, k] - 2.0 * wings * identity
+            value = ((c * s_pp - s * c_pp) / r
+                     - (vectors[8, i] * vectors[9, k] + vectors[9, i] * vectors[8, k]) / square)
+            curvature[i, k] = curvature[k, i] = sign * value
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _hinges_at(i, y, hinge_indptr, hinges, corners, stiffness, rest_angles, projection, g, H, scratch):
+    """Adds vertex i's hinges' gradients to g and their projected blocks to H; each hinge's angle into the scratch (what
+    ``_hinge_change`` reads). Hinge row q holds its four vertices in the hinge's own order and vertex i's corner."""
+    _, thetas, _, K, copy, values, vectors, _, z, points, along, curvature = scratch
+    for q in range(hinge_indptr[i], hinge_indptr[i + 1]):
+        _hinge_vectors(y, hinges, q, z)
+        theta = _angle(z)  # as the energy has it (bending.py's hinge_energies): its change differences this one
+        thetas[q - hinge_indptr[i]] = theta
+        hinge_angle_block(y, hinges, q, corners[q], along, curvature, points)
+        scale, change = 2.0 * stiffness[q], theta - rest_angles[q]
+        for r in range(3):
+            g[r] += scale * change * along[r]
+            for k in range(r, 3):
+                K[r, k] = K[k, r] = scale * (along[r] * along[k] + change * curvature[r, k])
+        project_block(K, 3, projection, copy, values, vectors)
+        for r in range(3):
+            for k in range(3):
+                H[r, k] += K[r, k]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _membrane_density_change(model, C00, C01, C11, D00, D01, D11, mu, lam):
+    """psi(C + dC) - psi(C) of the membrane energies (membrane.py) from C = F^T F and its change dC (2 x 2, symmetric),
+    without cancellation (the module docstring)."""
+    if model == STVK:
+        E00, E01, E11 = 0.5 * (C00 - 1.0), 0.5 * C01, 0.5 * (C11 - 1.0)
+        d00, d01, d11 = 0.5 * D00, 0.5 * D01, 0.5 * D11
+        product = E00 * d00 + 2.0 * E01 * d01 + E11 * d11
+        squared = d00 * d00 + 2.0 * d01 * d01 + d11 * d11
+        trace, trace_change = E00 + E11, d00 + d11
+        return mu * (2.0 * product + squared) + 0.5 * lam * trace_change * (2.0 * trace + trace_change)
+    invariant, invariant_change = C00 + C11, D00 + D11
+    determinant = C00 * C11 - C01 * C01
+    determinant_change = C11 * D00 + C00 * D11 - 2.0 * C01 * D01 + (D00 * D11 - D01 * D01)
+    J = math.sqrt(max(determinant, 0.0))
+    moved = math.sqrt(max(determinant + determinant_change, 0.0))
+    if determinant >= 0.0 and determinant + determinant_change >= 0.0:
+        J_change = determinant_change / (J + moved) if J + moved > 0.0 else 0.0
+    else:
+        J_change = moved - J
+    if model == NEO_HOOKEAN:
+        if not (J > 0.0 and moved > 0.0):
+            return math.inf  # a collapsed triangle: the energy is infinite there
+        log_ratio = math.log1p(J_change / J)
+        return (0.5 * mu * invariant_change - mu * log_ratio
+                + 0.5 * lam * log_ratio * (2.0 * math.log(J) + log_ratio))
+    if model == COROTATED:
+        # sigma_1 + sigma_2 = sqrt(I_1 + 2 J), floored as membrane.py floors it
+        before, after = invariant + 2.0 * J, invariant + invariant_change + 2.0 * (J + J_change)
+        if before >= AREA_FLOOR and after >= AREA_FLOOR:
+            total_change = (invariant_change + 2.0 * J_change) / (math.sqrt(before) + math.sqrt(after))
+        else:
+            total_change = math.sqrt(max(after, AREA_FLOOR)) - math.sqrt(max(before, AREA_FLOOR))
+        return mu * (invariant_change - 2.0 * total_change) + 0.5 * lam * J_change * (2.0 * (J - 1.0) + J_change)
+    # STABLE_NEO_HOOKEAN, alpha = 1 + 2 mu / (3 lambda) as membrane.py has it
+    alpha = 1.0 + 2.0 * mu / (3.0 * lam)
+    return (0.5 * mu * invariant_change + 0.5 * lam * J_change * (2.0 * (J - alpha) + J_change)
+            - 0.5 * mu * math.log1p(invariant_change / (invariant + 1.0)))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _membrane_change(i, u, indptr, shape_gradients, weights, mu, lam, model, scratch):
+    """The change of vertex i's triangles' energy when it alone moves by u, from the F ``_membrane_at`` kept."""
+    Fs = scratch[0]
+    squared_u = u[0] * u[0] + u[1] * u[1] + u[2] * u[2]
+    total = 0.0
+    for p in range(indptr[i], indptr[i + 1]):
+        slot = p - indptr[i]
+        n0, n1 = shape_gradients[p, 0, 0], shape_gradients[p, 0, 1]
+        v0 = Fs[slot, 0, 0] * u[0] + Fs[slot, 1, 0] * u[1] + Fs[slot, 2, 0] * u[2]
+        v1 = Fs[slot, 0, 1] * u[0] + Fs[slot, 1, 1] * u[1] + Fs[slot, 2, 1] * u[2]
+        C00 = Fs[slot, 0, 0] * Fs[slot, 0, 0] + Fs[slot, 1, 0] * Fs[slot, 1, 0] + Fs[slot, 2, 0] * Fs[slot, 2, 0]
+        C01 = Fs[slot, 0, 0] * Fs[slot, 0, 1] + Fs[slot, 1, 0] * Fs[slot, 1, 1] + Fs[slot, 2, 0] * Fs[slot, 2, 1]
+        C11 = Fs[slot, 0, 1] * Fs[slot, 0, 1] + Fs[slot, 1, 1] * Fs[slot, 1, 1] + Fs[slot, 2, 1] * Fs[slot, 2, 1]
+        D00 = 2.0 * n0 * v0 + squared_u * n0 * n0
+        D01 = n0 * v1 + n1 * v0 + squared_u * n0 * n1
+        D11 = 2.0 * n1 * v1 + squared_u * n1 * n1
+        total += weights[p] * _membrane_density_change(model, C00, C01, C11, D00, D01, D11, mu[p], lam[p])
+    return total
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _hinge_change(i, u, y, hinge_indptr, hinges, corners, stiffness, rest_angles, scratch):
+    """The change of vertex i's hinges' energy when it alone moves by u, from the angles ``_hinges_at`` kept."""
+    thetas, z = scratch[1], scratch[8]
+    total = 0.0
+    for q in range(hinge_indptr[i], hinge_indptr[i + 1]):
+        _hinge_vectors(y, hinges, q, z)
+        corner = corners[q]
+        for r in range(3):
+            if corner == 0:
+                z[0, r] -= u[r]
+                z[1, r] -= u[r]
+                z[2, r] -= u[r]
+            else:
+                z[corner - 1, r] += u[r]
+        theta, moved = thetas[q - hinge_indptr[i]], _angle(z)
+        total += stiffness[q] * (moved - theta) * (moved + theta - 2.0 * rest_angles[q])
+    return total
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _kept_fraction(i, u, y, indptr, elements, kept_area):
+    """The largest t <= 1 at which every triangle at vertex i keeps ``kept_area`` of its area, |N + t m|^2 >=
+    kept_area^2 |N|^2 with m = (x2 - x1) x u (the module docstring); triangles of no area are not cut."""
+    fraction = 1.0
+    for p in range(indptr[i], indptr[i + 1]):
+        v0, v1, v2 = 3 * elements[p, 0], 3 * elements[p, 1], 3 * elements[p, 2]
+        a0, a1, a2 = y[v1] - y[v0], y[v1 + 1] - y[v0 + 1], y[v1 + 2] - y[v0 + 2]
+        b0, b1, b2 = y[v2] - y[v0], y[v2 + 1] - y[v0 + 1], y[v2 + 2] - y[v0 + 2]
+        N0, N1, N2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        s0, s1, s2 = y[v2] - y[v1], y[v2 + 1] - y[v1 + 1], y[v2 + 2] - y[v1 + 2]
+        m0, m1, m2 = s1 * u[2] - s2 * u[1], s2 * u[0] - s0 * u[2], s0 * u[1] - s1 * u[0]
+        area = N0 * N0 + N1 * N1 + N2 * N2
+        if not area > 0.0:
+            continue
+        quadratic = m0 * m0 + m1 * m1 + m2 * m2
+        linear = 2.0 * (N0 * m0 + N1 * m1 + N2 * m2)
+        constant = (1.0 - kept_area * kept_area) * area
+        if not linear < 0.0:  # |N(t)| grows at 0, and a convex quadratic with q(0) > 0 has no positive root then
+            continue
+        discriminant = linear * linear - 4.0 * quadratic * constant
+        if discriminant < 0.0:
+            continue
+        fraction = min(fraction, 2.0 * constant / (-linear + math.sqrt(discriminant)))  # the smaller root, stably
+    return fraction
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _shell_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, hinges,
+              corners, stiffness, rest_angles, projection, g, H, scratch):
+    """dP/dy_i of the membrane and the hinges into g, their projected blocks into H (zeroed first)."""
+    for a in range(3):
+        g[a] = 0.0
+        for b in range(3):
+            H[a, b] = 0.0
+    if membrane:
+        _membrane_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, model, projection, g, H, scratch)
+    _hinges_at(i, y, hinge_indptr, hinges, corners, stiffness, rest_angles, projection, g, H, scratch)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _shell_change(i, u, y, indptr, shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, hinges, corners,
+                  stiffness, rest_angles, scratch):
+    change = 0.0
+    if membrane:
+        change += _membrane_change(i, u, indptr, shape_gradients, weights, mu, lam, model, scratch)
+    return change + _hinge_change(i, u, y, hinge_indptr, hinges, corners, stiffness, rest_angles, scratch)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _chunk(first_vertex, last_vertex, max_degree, max_hinges, y, vertices, constrained, projectors, y_tilde, mass,
+           scale, indptr, elements, shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, hinges, corners,
+           stiffness, rest_angles, gravity_force, kept_area, damping_indptr, damping_indices, damping_data,
+           damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings):
+    """The vertices first_vertex:last_vertex of one colour (fem/vbd_kernels.py's ``_chunk`` with the shell's terms)."""
+    d = 3
+    scratch = _scratch(max_degree, max_hinges)
+    contact = point_scratch(d, colliders)
+    touching = colliders[0].size > 0  # the colliders' functions only where there are any: their tuples cost a call
+    g = np.empty(d)
+    H = np.empty((d, d))
+    rate = np.empty(d)
+    D = np.empty((d, d))
+    filtered_vector = np.empty(d)
+    u = np.empty(d)
+    work = np.empty((d, d + 1))
+    filtered = np.empty((d, d))
+    for k in range(first_vertex, last_vertex):
+        i = vertices[k]
+        _shell_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, hinges,
+                  corners, stiffness, rest_angles, projection, g, H, scratch)
+        for a in range(d):
+            g[a] -= gravity_force[i, a]
+        clearance = add_vertex_terms(i, y, d, colliders, projection, g, H, contact) if touching else math.inf
+        finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
+                      velocity_origin, g, H, rate, D)
+        newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
+        fraction = _kept_fraction(i, u, y, indptr, elements, kept_area)
+        if fraction < 1.0:
+            for a in range(d):
+                u[a] *= fraction
+        rounds = 0
+        while True:
+            potential = _shell_change(i, u, y, indptr, shape_gradients, weights, mu, lam, model, membrane,
+                                      hinge_indptr, hinges, corners, stiffness, rest_angles, scratch)
+            for a in range(d):
+                potential -= gravity_force[i, a] * u[a]
+            if not beyond_reach(u, d, clearance):  # a step that reaches a collider
+                potential += vertex_change(u, d, colliders, contact)
+            change = inertia_change(i, u, y, d, y_tilde, mass) + scale * potential
+            change += damping_change(u, d, damping_weight, rate, D)
+            if change <= 0.0 or rounds >= max_halvings:  # NaN halves too
+                break
+            for a in range(d):
+                u[a] *= 0.5
+            rounds += 1
+        take_step(y, i, u, d, change)
+        halvings[k] = rounds
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, max_degree, elements,
+                 shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, max_hinges, hinges, corners,
+                 stiffness, rest_angles, gravity_force, kept_area, damping_indptr, damping_indices, damping_data,
+                 damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings):
+    """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
+    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders:
+    contact/point_kernels.py ``colliders_of``."""
+    count = vertices.size
+    for chunk in prange((count + CHUNK - 1) // CHUNK):
+        _chunk(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK), max_degree, max_hinges, y, vertices, constrained,
+               projectors, y_tilde, mass, scale, indptr, elements, shape_gradients, weights, mu, lam, model, membrane,
+               hinge_indptr, hinges, corners, stiffness, rest_angles, gravity_force, kept_area, damping_indptr,
+               damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection,
+               determinant_floor, max_halvings, halvings)
+
+
+# -- the same terms for given vertices, each at x with the others held (what the numpy sweep and contact take) --------
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def vertex_blocks(x, vertices, indptr, max_degree, elements, shape_gradients, weights, mu, lam, model, membrane,
+                  hinge_indptr, max_hinges, hinges, corners, stiffness, rest_angles, projection, gradient, hessian):
+    """gradient[k] = dP/dx_i (N) and hessian[k] the projected sum of the triangles' and hinges' blocks (N/m) of vertex
+    i = vertices[k]: the shell's elastic energy only (the caller adds gravity and contact)."""
+    count = vertices.size
+    for chunk in prange((count + CHUNK - 1) // CHUNK):
+        scratch = _scratch(max_degree, max_hinges)
+        for k in range(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)):
+            _shell_at(vertices[k], x, indptr, elements, shape_gradients, weights, mu, lam, model, membrane,
+                      hinge_indptr, hinges, corners, stiffness, rest_angles, projection, gradient[k], hessian[k],
+                      scratch)
+
+
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def vertex_changes(x, vertices, steps, indptr, max_degree, elements, shape_gradients, weights, mu, lam, model, membrane,
+                   hinge_indptr, max_hinges, hinges, corners, stiffness, rest_angles, kept_area, changes, fractions):
+    """changes[k]: the change of the shell's elastic energy (J) when vertex i = vertices[k] alone moves by steps[k];
+    fractions[k]: the largest fraction of that step that keeps its triangles above ``kept_area`` of their areas."""
+    count = vertices.size
+    for chunk in prange((count + CHUNK - 1) // CHUNK):
+        scratch = _scratch(max_degree, max_hinges)
+        g = np.empty(3)
+        H = np.empty((3, 3))
+        for k in range(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK)):
+            i = vertices[k]
+            _shell_at(i, x, indptr, elements, shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, hinges,
+                      corners, stiffness, rest_angles, 0, g, H, scratch)
+            changes[k] = _shell_change(i, steps[k], x, indptr, shape_gradients, weights, mu, lam, model, membrane,
+                                       hinge_indptr, hinges, corners, stiffness, rest_angles, scratch)
+            fractions[k] = _kept_fraction(i, steps[k], x, indptr, elements, kept_area)
+
+
+keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)
