@@ -329,3 +329,26 @@ def test_a_part_with_the_hinges_alone_sweeps_its_own_terms():
     total, _ = system.vertex_blocks(x, vertices, False)
     np.testing.assert_allclose(bending_part.vertex_blocks(x, vertices, False)[0]
                                + rest_part.vertex_blocks(x, vertices, False)[0], total, atol=1e-12 * np.abs(total).max())
+
+
+@pytest.mark.parametrize("mode", [1, 2])
+def test_the_closed_form_3x3_projection_is_numpys_eigensystem(mode):
+    """project_block_3 against eigh with the negative eigenvalues clamped or mirrored, on random symmetric matrices
+    with one, two and three negative eigenvalues spread over four decades, repeated ones (the rotations' fallback), a
+    rank-one PSD matrix (left as it is) and a diagonal one."""
+    rng = np.random.default_rng(mode)
+    change = (lambda w: np.maximum(w, 0.0)) if mode == 1 else np.abs
+    copy, values, vectors = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
+    spectra = [rng.uniform(-1.0, 1.0, 3) * 10.0 ** rng.uniform(-2, 2, 3) for _ in range(60)]
+    spectra += [np.array([-2.0, -2.0, 5.0]), np.array([-3.0, 1.0, 1.0]), np.array([-1.0, -1.0, -1.0]),
+                np.array([0.0, 0.0, 4.0]), np.array([-1e-3, 2.0, 7.0]), np.array([-5.0, -1e-4, 3.0])]
+    for number, spectrum in enumerate(spectra):
+        basis = np.linalg.qr(rng.standard_normal((3, 3)))[0] if number != len(spectra) - 1 else np.eye(3)
+        matrix = (basis * spectrum) @ basis.T
+        matrix = 0.5 * (matrix + matrix.T)
+        projected = matrix.copy()
+        shell_vbd_kernels.project_block_3(projected, mode, copy, values, vectors)
+        w, v = np.linalg.eigh(matrix)
+        np.testing.assert_allclose(projected, (v * change(w)) @ v.T, rtol=0.0, atol=1e-12 * np.abs(w).max())
+        if spectrum.min() >= 0.0:
+            assert np.array_equal(projected, matrix)

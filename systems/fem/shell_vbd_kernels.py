@@ -15,13 +15,12 @@ whose trace is I_1's change and whose determinant change is tr(adj(C) dC) + det(
 (det C' - det C) / (J' + J); each energy's change then follows from those of I_1 and J as a solid's does from I_C and
 J (St. Venant-Kirchhoff's from E's change dC / 2).
 
-Hinges. The hinge h = (x0, x1, x2, x3) has theta(z), z = (e, w_1, w_2) = (x1 - x0, x2 - x0, x3 - x0) (bending.py). Its
-vertex a > 0 moves z's block a - 1 alone; vertex 0 moves all three blocks by -u. So with theta_z and theta_zz from
-bending.py's ``_angle_derivatives``, dtheta/dx_a is block a - 1 of theta_z (minus the sum of the three for vertex 0)
-and d^2 theta / dx_a^2 the diagonal block a - 1 of theta_zz (the sum of all nine blocks for vertex 0); the hinge's
-E = k_h (theta - theta_rest)^2 has gradient 2 k_h (theta - theta_rest) theta_a and block 2 k_h (theta_a theta_a^T +
-(theta - theta_rest) theta_aa). Its change is k_h (theta' - theta) (theta' + theta - 2 theta_rest), theta' the angle
-at the moved vertex.
+Hinges. The hinge h = (x0, x1, x2, x3) has the angle theta = atan2(s, c) between its triangles' normals N_1 = e x w_1
+and N_2 = w_2 x e (e = x1 - x0, w_a = x_(a+1) - x0; bending.py), and E = k_h (theta - theta_rest)^2, whose gradient in
+vertex a is 2 k_h (theta - theta_rest) theta_a and whose block is 2 k_h (theta_a theta_a^T + (theta - theta_rest)
+theta_aa). theta_a and theta_aa in one vertex have short closed forms (``hinge_angle_block``), where bending.py's
+chain through (e, w_1, w_2) takes 9 x 9 products; they equal its blocks. The change is k_h (theta' - theta)
+(theta' + theta - 2 theta_rest), theta' the angle at the moved vertex.
 
 Each triangle's and each hinge's block at the vertex is projected to SPD on its own (clamp or mirror its negative
 eigenvalues), as a solid's elements' and the springs' are: without projection the vertex's block is the diagonal block
@@ -45,8 +44,7 @@ from numba import prange
 
 from ..compiled_cache import keep_fresh
 from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
-from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
-from .bending import _angle
+from ..vertex_kernels import damping_change, filtered_eigenvalue, finish_blocks, inertia_change, newton_step, take_step
 from .energies import COROTATED, NEO_HOOKEAN, STVK
 from .membrane import AREA_FLOOR, _invariant_derivatives
 from .vbd_kernels import project_block
@@ -58,14 +56,138 @@ CHUNK = 32
 @numba.njit(cache=True, error_model="numpy")
 def _scratch(max_degree, max_hinges):
     """One chunk's arrays: each incident triangle's F, each incident hinge's angle; P n; K and its projection's copy,
-    eigenvalues and vectors; one triangle's F; a hinge's z; ``hinge_angle_block``'s points and vectors; the vertex's
-    theta_a and theta_aa."""
+    eigenvalues and vectors; one triangle's F; ``hinge_angle_block``'s points and vectors; the vertex's theta_a and
+    theta_aa."""
     return (np.empty((max_degree, 3, 2)), np.empty(max(max_hinges, 1)), np.empty(3), np.empty((3, 3)),
-            np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty((3, 2)), np.empty((3, 3)), np.empty((10, 3)),
-            np.empty(3), np.empty((3, 3)))
+            np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty((3, 2)), np.empty((10, 3)), np.empty(3),
+            np.empty((3, 3)))
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _eigenvector(k00, k01, k02, k11, k12, k22, value):
+    """(found, a unit eigenvector) of the symmetric 3 x 3 K for its eigenvalue ``value``: the longest cross product of
+    two rows of K - value I (each is orthogonal to the rows, so along the null vector where the others span a plane).
+    Not found where all three vanish to round-off (a repeated eigenvalue: no single vector)."""
+    r00, r11, r22 = k00 - value, k11 - value, k22 - value
+    best0, best1, best2, size = 0.0, 0.0, 0.0, -1.0
+    for pair in range(3):
+        if pair == 0:  # rows 0 x 1
+            c0, c1, c2 = k01 * k12 - k02 * r11, k02 * k01 - r00 * k12, r00 * r11 - k01 * k01
+        elif pair == 1:  # rows 0 x 2
+            c0, c1, c2 = k01 * r22 - k02 * k12, k02 * k02 - r00 * r22, r00 * k12 - k01 * k02
+        else:  # rows 1 x 2
+            c0, c1, c2 = r11 * r22 - k12 * k12, k12 * k02 - k01 * r22, k01 * k12 - r11 * k02
+        squared = c0 * c0 + c1 * c1 + c2 * c2
+        if squared > size:
+            best0, best1, best2, size = c0, c1, c2, squared
+    rows = max(r00 * r00 + k01 * k01 + k02 * k02, k01 * k01 + r11 * r11 + k12 * k12, k02 * k02 + k12 * k12 + r22 * r22)
+    if not size > 1e-20 * rows * rows:
+        return False, 0.0, 0.0, 0.0
+    length = math.sqrt(size)
+    return True, best0 / length, best1 / length, best2 / length
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _polished(k00, k01, k02, k11, k12, k22, value):
+    """Two Newton steps on det(K - value I) = 0 from ``value``: the trigonometric solution loses half the digits of
+    every eigenvalue where two of them nearly coincide (acos near +-1), and a simple root's Newton steps restore them."""
+    for _ in range(2):
+        a00, a11, a22 = k00 - value, k11 - value, k22 - value
+        minors = a11 * a22 - k12 * k12 + a00 * a22 - k02 * k02 + a00 * a11 - k01 * k01  # -d det / d value
+        determinant = a00 * (a11 * a22 - k12 * k12) - k01 * (k01 * a22 - k12 * k02) + k02 * (k01 * k12 - a11 * k02)
+        if minors == 0.0:
+            break
+        value += determinant / minors
+    return value
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def project_block_3(K, projection, copy, values, vectors):
+    """fem/vbd_kernels.py's ``project_block`` of a symmetric 3 x 3 K in closed form (``_projected``); the Jacobi
+    rotations where that gives up (K = l I)."""
+    if projection == 0:
+        return
+    if K[0, 0] > 0.0:  # positive definite by its leading minors: nothing to do
+        minor = K[0, 0] * K[1, 1] - K[0, 1] * K[1, 0]
+        if minor > 0.0 and (K[0, 0] * (K[1, 1] * K[2, 2] - K[1, 2] * K[2, 1])
+                            - K[0, 1] * (K[1, 0] * K[2, 2] - K[1, 2] * K[2, 0])
+                            + K[0, 2] * (K[1, 0] * K[2, 1] - K[1, 1] * K[2, 0])) > 0.0:
+            return
+    done, k00, k01, k02, k11, k12, k22 = _projected(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2], projection)
+    if not done:
+        project_block(K, 3, projection, copy, values, vectors)
+        return
+    K[0, 0], K[1, 1], K[2, 2] = k00, k11, k22
+    K[0, 1] = K[1, 0] = k01
+    K[0, 2] = K[2, 0] = k02
+    K[1, 2] = K[2, 1] = k12
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _projected(k00, k01, k02, k11, k12, k22, projection):
+    """(done, the projected K's six entries) of a symmetric 3 x 3 K that is not positive definite, in closed form
+    instead of Jacobi rotations (a hinge's block away from its rest angle is indefinite, and the rotations per hinge
+    and vertex were half the sweep); scalars in and out, since a call that takes arrays costs numba their reference
+    counts:
+
+    1. the eigenvalues by the trigonometric solution of the characteristic cubic, good only roughly where two nearly
+       coincide (acos near +-1 halves their digits);
+    2. the one lying apart from the other two (the highest or the lowest), polished by Newton's steps on the cubic (a
+       simple root), and its eigenvector from the cross products of K - l I's rows;
+    3. the other two exactly from the 2 x 2 block of K across that vector, with their vectors.
+
+    Eigenvalues above -1e-13 of the largest count as 0 (the round-off of a singular PSD block: a hinge at rest, a flat
+    membrane across its plane), as membrane.py's PSD_SHIFT has it; otherwise K = sum f(l) v v^T. Not done where the
+    vector of step 2 is not unique to round-off (K = l I)."""
+    mean = (k00 + k11 + k22) / 3.0
+    b00, b11, b22 = k00 - mean, k11 - mean, k22 - mean
+    spread = math.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (k01 * k01 + k02 * k02 + k12 * k12)) / 6.0)
+    if not spread > 0.0:
+        return False, k00, k01, k02, k11, k12, k22
+    determinant = (b00 * (b11 * b22 - k12 * k12) - k01 * (k01 * b22 - k12 * k02)
+                   + k02 * (k01 * k12 - b11 * k02)) / (spread * spread * spread)
+    angle = math.acos(min(max(0.5 * determinant, -1.0), 1.0)) / 3.0
+    highest = mean + 2.0 * spread * math.cos(angle)
+    lowest = mean + 2.0 * spread * math.cos(angle + 2.0 * math.pi / 3.0)
+    middle = 3.0 * mean - highest - lowest
+    apart = _polished(k00, k01, k02, k11, k12, k22, highest if highest - middle >= middle - lowest else lowest)
+    found, v0, v1, v2 = _eigenvector(k00, k01, k02, k11, k12, k22, apart)
+    if not found:
+        return False, k00, k01, k02, k11, k12, k22
+    # e, f: an orthonormal pair across v (e = v x the axis v leans on least)
+    if abs(v0) <= abs(v1) and abs(v0) <= abs(v2):
+        e0, e1, e2 = 0.0, v2, -v1
+    elif abs(v1) <= abs(v2):
+        e0, e1, e2 = -v2, 0.0, v0
+    else:
+        e0, e1, e2 = v1, -v0, 0.0
+    length = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    e0, e1, e2 = e0 / length, e1 / length, e2 / length
+    f0, f1, f2 = v1 * e2 - v2 * e1, v2 * e0 - v0 * e2, v0 * e1 - v1 * e0
+    Ke0, Ke1, Ke2 = k00 * e0 + k01 * e1 + k02 * e2, k01 * e0 + k11 * e1 + k12 * e2, k02 * e0 + k12 * e1 + k22 * e2
+    Kf0, Kf1, Kf2 = k00 * f0 + k01 * f1 + k02 * f2, k01 * f0 + k11 * f1 + k12 * f2, k02 * f0 + k12 * f1 + k22 * f2
+    B00 = e0 * Ke0 + e1 * Ke1 + e2 * Ke2
+    B11 = f0 * Kf0 + f1 * Kf1 + f2 * Kf2
+    B01 = 0.5 * (e0 * Kf0 + e1 * Kf1 + e2 * Kf2 + f0 * Ke0 + f1 * Ke1 + f2 * Ke2)
+    half, centre = 0.5 * (B00 - B11), 0.5 * (B00 + B11)
+    radius = math.sqrt(half * half + B01 * B01)
+    upper, lower = centre + radius, centre - radius
+    floor = -1e-13 * max(abs(apart), abs(upper), abs(lower))
+    if apart >= floor and lower >= floor:
+        return True, k00, k01, k02, k11, k12, k22
+    turn = 0.5 * math.atan2(B01, half)  # the 2 x 2 block's vector of ``upper`` is (cos, sin) in (e, f)
+    c, s = math.cos(turn), math.sin(turn)
+    u0, u1, u2 = c * e0 + s * f0, c * e1 + s * f1, c * e2 + s * f2
+    w0, w1, w2 = -s * e0 + c * f0, -s * e1 + c * f1, -s * e2 + c * f2
+    apart = filtered_eigenvalue(apart, projection)
+    upper = filtered_eigenvalue(upper, projection)
+    lower = filtered_eigenvalue(lower, projection)
+    return (True, apart * v0 * v0 + upper * u0 * u0 + lower * w0 * w0, apart * v0 * v1 + upper * u0 * u1 + lower * w0 * w1,
+            apart * v0 * v2 + upper * u0 * u2 + lower * w0 * w2, apart * v1 * v1 + upper * u1 * u1 + lower * w1 * w1,
+            apart * v1 * v2 + upper * u1 * u2 + lower * w1 * w2, apart * v2 * v2 + upper * u2 * u2 + lower * w2 * w2)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def membrane_vertex_terms(model, F, n0, n1, mu, lam, stress, K):
     """P n (into stress) and K = n^T A n (into K) of a triangle's 3 x 2 F at its corner with shape gradient n, in closed
     form. St. Venant-Kirchhoff's as a solid's, K = (n^T S n) I + (mu + lambda) w w^T + mu |n|^2 F F^T (w = F n); the
@@ -123,11 +245,11 @@ def membrane_vertex_terms(model, F, n0, n1, mu, lam, stress, K):
             K[i, k] = K[k, i] = value
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _membrane_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, model, projection, g, H, scratch):
     """Adds vertex i's triangles' w P n to g and their projected blocks w K to H; each triangle's F into the scratch
     (what ``_membrane_change`` reads). Incidence p is vertex i's triangle with vertex i as its corner 0 (vertex.py)."""
-    Fs, _, stress, K, copy, values, vectors, F, _, _, _, _ = scratch
+    Fs, _, stress, K, copy, values, vectors, F, _, _, _ = scratch
     for p in range(indptr[i], indptr[i + 1]):
         slot = p - indptr[i]
         v0, v1, v2 = 3 * elements[p, 0], 3 * elements[p, 1], 3 * elements[p, 2]
@@ -137,7 +259,7 @@ def _membrane_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, mode
                            + y[v2 + r] * shape_gradients[p, 2, j])
                 Fs[slot, r, j] = F[r, j]
         membrane_vertex_terms(model, F, shape_gradients[p, 0, 0], shape_gradients[p, 0, 1], mu[p], lam[p], stress, K)
-        project_block(K, 3, projection, copy, values, vectors)
+        project_block_3(K, projection, copy, values, vectors)
         weight = weights[p]
         for r in range(3):
             g[r] += weight * stress[r]
@@ -146,13 +268,26 @@ def _membrane_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, mode
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _hinge_vectors(y, hinges, q, z):
-    """z (3, 3): the rows e, w_1, w_2 of hinge row q (bending.py's, indexing the whole arrays)."""
+def _hinge_angle(y, hinges, q, corner, u0, u1, u2):
+    """theta of hinge row q with its vertex ``corner`` moved by u (bending.py's ``_angle`` of z = (e, w_1, w_2), in
+    scalars: the per-hinge calls with arrays cost numba their reference counts, a third of the sweep)."""
     base = 3 * hinges[q, 0]
-    for block in range(3):
-        other = 3 * hinges[q, block + 1]
-        for r in range(3):
-            z[block, r] = y[other + r] - y[base + r]
+    e0, e1, e2 = y[3 * hinges[q, 1]] - y[base], y[3 * hinges[q, 1] + 1] - y[base + 1], y[3 * hinges[q, 1] + 2] - y[base + 2]
+    a0, a1, a2 = y[3 * hinges[q, 2]] - y[base], y[3 * hinges[q, 2] + 1] - y[base + 1], y[3 * hinges[q, 2] + 2] - y[base + 2]
+    b0, b1, b2 = y[3 * hinges[q, 3]] - y[base], y[3 * hinges[q, 3] + 1] - y[base + 1], y[3 * hinges[q, 3] + 2] - y[base + 2]
+    if corner == 0:  # x0 moves e, w_1 and w_2 by -u
+        e0, e1, e2, a0, a1, a2, b0, b1, b2 = e0 - u0, e1 - u1, e2 - u2, a0 - u0, a1 - u1, a2 - u2, b0 - u0, b1 - u1, b2 - u2
+    elif corner == 1:
+        e0, e1, e2 = e0 + u0, e1 + u1, e2 + u2
+    elif corner == 2:
+        a0, a1, a2 = a0 + u0, a1 + u1, a2 + u2
+    else:
+        b0, b1, b2 = b0 + u0, b1 + u1, b2 + u2
+    n0, n1, n2 = e1 * a2 - e2 * a1, e2 * a0 - e0 * a2, e0 * a1 - e1 * a0  # N_1 = e x w_1
+    m0, m1, m2 = b1 * e2 - b2 * e1, b2 * e0 - b0 * e2, b0 * e1 - b1 * e0  # N_2 = w_2 x e
+    c0, c1, c2 = n1 * m2 - n2 * m1, n2 * m0 - n0 * m2, n0 * m1 - n1 * m0
+    length = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    return math.atan2((c0 * e0 + c1 * e1 + c2 * e2) / length, n0 * m0 + n1 * m1 + n2 * m2)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -165,7 +300,7 @@ def _hinge_points(y, hinges, q, points):
             points[b, r] = y[other + r] - y[base + r]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def hinge_angle_block(y, hinges, q, corner, along, curvature, vectors):
     """theta's gradient (into along) and Hessian (into curvature) in the position of hinge q's vertex ``corner`` alone,
     in closed form (the module docstring's "Hinges", here in the form that needs no 9 x 9 product). theta = atan2(s, c)
@@ -201,6 +336,9 @@ def hinge_angle_block(y, hinges, q, corner, along, curvature, vectors):
         g0, g1, g2 = c * a0 - s * b0, c * a1 - s * b1, c * a2 - s * b2
         h0, h1, h2 = s * a0 + c * b0, s * a1 + c * b1, s * a2 + c * b2
         along[0], along[1], along[2] = g0 / r, g1 / r, g2 / r
+        vectors[8, 0], vectors[8, 1], vectors[8, 2] = g0, g1, g2  # for ``_wing_block``
+        vectors[9, 0], vectors[9, 1], vectors[9, 2] = h0, h1, h2
+        vectors[4, 0] = r
         square = r * r
         curvature[0, 0] = -2.0 * g0 * h0 / square
         curvature[1, 1] = -2.0 * g1 * h1 / square
@@ -257,22 +395,60 @@ def hinge_angle_block(y, hinges, q, corner, along, curvature, vectors):
             curvature[i, k] = curvature[k, i] = sign * value
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _wing_block(K, scale, change, projection, points):
+    """A wing vertex's hinge block 2 k_h (theta_a theta_a^T + (theta - theta_rest) theta_aa), projected, in closed form.
+    There theta_a = g / r and theta_aa = -(g h^T + h g^T) / r^2 (``hinge_angle_block``, which leaves g, h and r in
+    points), with g . h = 0 and |g| = |h| (a . b = 0 and |a| = |b| for its s = a . q, c = b . q): across the unit
+    vectors of g and h the block is [[A, B], [B, 0]], A = 2 k_h |g|^2 / r^2 >= 0, B = -2 k_h (theta - theta_rest)
+    |g| |h| / r^2, with eigenvalues l+ = (A + sqrt(A^2 + 4 B^2)) / 2 >= 0 and l- = -B^2 / l+ <= 0 and l+'s vector
+    (l+, B). So a hinge's wing block is indefinite wherever it is off its rest angle, and its projection takes two
+    square roots instead of an eigensystem."""
+    r = points[4, 0]
+    g0, g1, g2 = points[8, 0], points[8, 1], points[8, 2]
+    h0, h1, h2 = points[9, 0], points[9, 1], points[9, 2]
+    along, across = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2), math.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
+    A = scale * along * along / (r * r)
+    B = -scale * change * along * across / (r * r)
+    upper = 0.5 * (A + math.sqrt(A * A + 4.0 * B * B))
+    if not upper > 0.0:  # g = 0: no block
+        for i in range(3):
+            for k in range(3):
+                K[i, k] = 0.0
+        return
+    lower = filtered_eigenvalue(-B * B / upper, projection)
+    length = math.sqrt(upper * upper + B * B)
+    p, q = upper / length, B / length  # l+'s vector in (g / |g|, h / |h|); l-'s is (-q, p)
+    u0, u1, u2 = p * g0 / along + q * h0 / across, p * g1 / along + q * h1 / across, p * g2 / along + q * h2 / across
+    w0, w1, w2 = -q * g0 / along + p * h0 / across, -q * g1 / along + p * h1 / across, -q * g2 / along + p * h2 / across
+    K[0, 0] = upper * u0 * u0 + lower * w0 * w0
+    K[1, 1] = upper * u1 * u1 + lower * w1 * w1
+    K[2, 2] = upper * u2 * u2 + lower * w2 * w2
+    K[0, 1] = K[1, 0] = upper * u0 * u1 + lower * w0 * w1
+    K[0, 2] = K[2, 0] = upper * u0 * u2 + lower * w0 * w2
+    K[1, 2] = K[2, 1] = upper * u1 * u2 + lower * w1 * w2
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _hinges_at(i, y, hinge_indptr, hinges, corners, stiffness, rest_angles, projection, g, H, scratch):
     """Adds vertex i's hinges' gradients to g and their projected blocks to H; each hinge's angle into the scratch (what
     ``_hinge_change`` reads). Hinge row q holds its four vertices in the hinge's own order and vertex i's corner."""
-    _, thetas, _, K, copy, values, vectors, _, z, points, along, curvature = scratch
+    _, thetas, _, K, copy, values, vectors, _, points, along, curvature = scratch
     for q in range(hinge_indptr[i], hinge_indptr[i + 1]):
-        _hinge_vectors(y, hinges, q, z)
-        theta = _angle(z)  # as the energy has it (bending.py's hinge_energies): its change differences this one
+        theta = _hinge_angle(y, hinges, q, 0, 0.0, 0.0, 0.0)  # as the energy has it: its change differences this one
         thetas[q - hinge_indptr[i]] = theta
-        hinge_angle_block(y, hinges, q, corners[q], along, curvature, points)
+        corner = corners[q]
+        hinge_angle_block(y, hinges, q, corner, along, curvature, points)
         scale, change = 2.0 * stiffness[q], theta - rest_angles[q]
         for r in range(3):
             g[r] += scale * change * along[r]
-            for k in range(r, 3):
-                K[r, k] = K[k, r] = scale * (along[r] * along[k] + change * curvature[r, k])
-        project_block(K, 3, projection, copy, values, vectors)
+        if corner >= 2 and projection != 0:
+            _wing_block(K, scale, change, projection, points)
+        else:
+            for r in range(3):
+                for k in range(r, 3):
+                    K[r, k] = K[k, r] = scale * (along[r] * along[k] + change * curvature[r, k])
+            project_block_3(K, projection, copy, values, vectors)
         for r in range(3):
             for k in range(3):
                 H[r, k] += K[r, k]
@@ -318,7 +494,7 @@ def _membrane_density_change(model, C00, C01, C11, D00, D01, D11, mu, lam):
             - 0.5 * mu * math.log1p(invariant_change / (invariant + 1.0)))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _membrane_change(i, u, indptr, shape_gradients, weights, mu, lam, model, scratch):
     """The change of vertex i's triangles' energy when it alone moves by u, from the F ``_membrane_at`` kept."""
     Fs = scratch[0]
@@ -339,27 +515,18 @@ def _membrane_change(i, u, indptr, shape_gradients, weights, mu, lam, model, scr
     return total
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _hinge_change(i, u, y, hinge_indptr, hinges, corners, stiffness, rest_angles, scratch):
     """The change of vertex i's hinges' energy when it alone moves by u, from the angles ``_hinges_at`` kept."""
-    thetas, z = scratch[1], scratch[8]
+    thetas = scratch[1]
     total = 0.0
     for q in range(hinge_indptr[i], hinge_indptr[i + 1]):
-        _hinge_vectors(y, hinges, q, z)
-        corner = corners[q]
-        for r in range(3):
-            if corner == 0:
-                z[0, r] -= u[r]
-                z[1, r] -= u[r]
-                z[2, r] -= u[r]
-            else:
-                z[corner - 1, r] += u[r]
-        theta, moved = thetas[q - hinge_indptr[i]], _angle(z)
+        theta, moved = thetas[q - hinge_indptr[i]], _hinge_angle(y, hinges, q, corners[q], u[0], u[1], u[2])
         total += stiffness[q] * (moved - theta) * (moved + theta - 2.0 * rest_angles[q])
     return total
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _kept_fraction(i, u, y, indptr, elements, kept_area):
     """The largest t <= 1 at which every triangle at vertex i keeps ``kept_area`` of its area, |N + t m|^2 >=
     kept_area^2 |N|^2 with m = (x2 - x1) x u (the module docstring); triangles of no area are not cut."""
@@ -386,7 +553,7 @@ def _kept_fraction(i, u, y, indptr, elements, kept_area):
     return fraction
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _shell_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, hinges,
               corners, stiffness, rest_angles, projection, g, H, scratch):
     """dP/dy_i of the membrane and the hinges into g, their projected blocks into H (zeroed first)."""
@@ -399,7 +566,7 @@ def _shell_at(i, y, indptr, elements, shape_gradients, weights, mu, lam, model, 
     _hinges_at(i, y, hinge_indptr, hinges, corners, stiffness, rest_angles, projection, g, H, scratch)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _shell_change(i, u, y, indptr, shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, hinges, corners,
                   stiffness, rest_angles, scratch):
     change = 0.0
