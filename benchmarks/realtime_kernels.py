@@ -158,7 +158,12 @@ def _problem(config_name: str, **system_changes):
     """(the system of a shipped config's ``system``, changed as given; the first backward Euler step's problem at
     1/60 s; its start)."""
     shipped = yaml.safe_load((CONFIGS / config_name).read_text())["system"]
-    config = {"name": "bench_vbd", "system": {**shipped, **system_changes}, "integrators": ["backward_euler"],
+    return _problem_of({**shipped, **system_changes})
+
+
+def _problem_of(system_config: dict):
+    """``_problem`` of a system's config."""
+    config = {"name": "bench_vbd", "system": system_config, "integrators": ["backward_euler"],
               "sweep": {"dt": [1.0 / 60.0]}}
     system = load_experiment(config)[0].system.build()
     capture = _Capture()
@@ -228,6 +233,7 @@ def rows() -> list[tuple[str, float, str, str]]:
     table.append(_xpbd_row(system))
     table.extend(_collider_rows())
     table.extend(_fem_rows())
+    table.extend(_shell_rows())
     table.extend(_newton_rows())
     library = _compiled_c()
     if library is None:
@@ -308,6 +314,25 @@ def _fem_rows() -> list[tuple[str, float, str, str]]:
               f"<= {FEM_PER_VERTEX_TARGET:g}", f"{one * 1e3:.2f} ms per sweep, {vertices} vertices, {len(plans)} colours")]
     if 2 in times:
         table.append(("vbd sweep fem beam: 1 thread / 2 threads", one / times[2], f">= {THREADS_TARGET:g}",
+                      f"{times[2] * 1e3:.2f} ms per sweep at 2 threads"))
+    return table
+
+
+def _shell_rows() -> list[tuple[str, float, str, str]]:
+    """VBD's sweep of cloth_fem.yaml's St. Venant-Kirchhoff shell (its membrane triangles and discrete-shell hinges,
+    shell_vbd_kernels.py) on the 64 x 64 grid, over the sphere it falls on, at its first frame, 1 and 2 threads."""
+    shipped = yaml.safe_load((CONFIGS / "cloth_fem.yaml").read_text())["sweep"]["system"]
+    shell = {key: value for key, value in next(system for system in shipped if system["label"] == "stvk_shell").items()
+             if key != "label"}
+    shell["model"] = {"grid": {**shell["model"]["grid"], "resolution": [RESOLUTION, RESOLUTION]}}
+    system, problem, start = _problem_of(shell)
+    _, _, plans, vertices, _, times = _timed_sweeps(system, problem, start)
+    one = times[1]
+    name = f"vbd sweep shell {RESOLUTION}x{RESOLUTION} ({len(system.elements)} triangles, {len(system.hinges)} hinges)"
+    table = [(f"{name}, 1 thread: us per vertex", one / vertices * 1e6, "information",
+              f"{one * 1e3:.2f} ms per sweep, {vertices} vertices, {len(plans)} colours")]
+    if 2 in times:
+        table.append(("vbd sweep shell: 1 thread / 2 threads", one / times[2], "information",
                       f"{times[2] * 1e3:.2f} ms per sweep at 2 threads"))
     return table
 
