@@ -110,6 +110,39 @@ def agreeing_sweeps(solver, problem, start, plans, sweep, parts, count: int, tol
         y = numpy_y
 
 
+def sweeps_by_thread_count(solver, start, plans, sweep, parts, sweeps: int = 3) -> list[np.ndarray]:
+    """The compiled sweep's result after ``sweeps`` sweeps from start with one numba thread and with two (where there
+    are two), numba's count given back after."""
+    import numba
+
+    threads = numba.get_num_threads()
+    results = []
+    try:
+        for count in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(count)
+            y = start.copy()
+            for _ in range(sweeps):
+                y, _ = solver._compiled_sweep(y, plans, sweep, parts)
+            results.append(y)
+    finally:
+        numba.set_num_threads(threads)
+    return results
+
+
+def compiled_solve_energies(monkeypatch, solver_class, problem, start, **options) -> tuple[np.ndarray, np.ndarray]:
+    """(the solution, E at every iterate) of ``solver_class(**options)`` from start with its numpy sweep made to fail:
+    what the compiled sweep gives the solver."""
+
+    def numpy_sweep(*args):
+        raise AssertionError("the numpy sweep ran")
+
+    monkeypatch.setattr(solver_class, "_sweep", numpy_sweep)
+    energies = []
+    solver = solver_class(callback=lambda y, g: energies.append(problem.value(y)), **options)
+    y, _ = solver.minimize(problem, start)
+    return y, np.array(energies)
+
+
 def own_step_problem(system, name: str, x, v, dt: float, warmup_steps: int = 0):
     """The problem (and start) of ``name``'s own step: after the method's ``start`` and ``warmup_steps`` Newton-solved
     steps from (x, v) (BDF2 needs one: its first step is backward Euler's), the next step's, captured."""

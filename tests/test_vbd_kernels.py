@@ -14,7 +14,8 @@ import numba
 import numpy as np
 import pytest
 
-from conftest import agreeing_sweeps, step_problem, stretched_cloth_state
+from conftest import (agreeing_sweeps, compiled_solve_energies, step_problem, stretched_cloth_state,
+                      sweeps_by_thread_count)
 from simrun.solvers import VertexBlockDescent
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
@@ -93,17 +94,7 @@ def test_one_thread_and_two_give_the_same_sweep_bit_for_bit():
     plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
     assert max(plan.vertices.size for plan in plans) > 64, "a colour must span several chunks"
     solver, sweep, parts = VertexBlockDescent(), system.vertex_sweep(), IncrementalParts.of(problem)
-    threads = numba.get_num_threads()
-    results = []
-    try:
-        for count in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
-            numba.set_num_threads(count)
-            y = start.copy()
-            for _ in range(3):
-                y, _ = solver._compiled_sweep(y, plans, sweep, parts)
-            results.append(y)
-    finally:
-        numba.set_num_threads(threads)
+    results = sweeps_by_thread_count(solver, start, plans, sweep, parts)
     assert np.array_equal(results[0], results[-1])
 
 
@@ -113,15 +104,8 @@ def test_the_solver_takes_the_compiled_sweep_and_the_energy_never_increases(monk
     system = damped_constrained("squared_length")
     problem, start = step_problem(system, *compressed(system), 0.05)
 
-    def numpy_sweep(*args):
-        raise AssertionError("the numpy sweep ran")
-
-    monkeypatch.setattr(VertexBlockDescent, "_sweep", numpy_sweep)
-    energies = []
-    solver = VertexBlockDescent(tolerance=1e-10, max_iterations=80,
-                                callback=lambda y, g: energies.append(problem.value(y)))
-    solver.minimize(problem, start)
-    energies = np.array(energies)
+    _, energies = compiled_solve_energies(monkeypatch, VertexBlockDescent, problem, start, tolerance=1e-10,
+                                          max_iterations=80)
     assert energies.size > 10
     assert np.all(np.diff(energies) <= ENERGY_ROUNDOFF * np.abs(energies[:-1]))
     assert energies[-1] < energies[0]

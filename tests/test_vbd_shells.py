@@ -18,11 +18,10 @@ replaces:
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import pytest
 
-from conftest import agreeing_sweeps, step_problem
+from conftest import agreeing_sweeps, compiled_solve_energies, step_problem, sweeps_by_thread_count
 from simrun.solvers import VertexBlockDescent, solver_params
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
@@ -262,17 +261,7 @@ def test_one_thread_and_two_give_the_same_sweep_bit_for_bit():
     plans = plans_of(system)
     assert max(plan.vertices.size for plan in plans) > shell_vbd_kernels.CHUNK, "a colour must span several chunks"
     solver, sweep, parts = VertexBlockDescent(), system.vertex_sweep(), IncrementalParts.of(problem)
-    threads = numba.get_num_threads()
-    results = []
-    try:
-        for count in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
-            numba.set_num_threads(count)
-            y = start.copy()
-            for _ in range(3):
-                y, _ = solver._compiled_sweep(y, plans, sweep, parts)
-            results.append(y)
-    finally:
-        numba.set_num_threads(threads)
+    results = sweeps_by_thread_count(solver, start, plans, sweep, parts)
     assert np.array_equal(results[0], results[-1])
 
 
@@ -280,16 +269,8 @@ def test_one_thread_and_two_give_the_same_sweep_bit_for_bit():
 def test_the_solver_takes_the_compiled_sweep_and_the_energy_never_increases(monkeypatch, material):
     system = constrained(material)
     problem, start = thrown(system)
-
-    def numpy_sweep(*args):
-        raise AssertionError("the numpy sweep ran")
-
-    monkeypatch.setattr(VertexBlockDescent, "_sweep", numpy_sweep)
-    energies_seen = []
-    solver = VertexBlockDescent(tolerance=1e-10, max_iterations=60,
-                                callback=lambda y, g: energies_seen.append(problem.value(y)))
-    y, _ = solver.minimize(problem, start)
-    energies_seen = np.array(energies_seen)
+    y, energies_seen = compiled_solve_energies(monkeypatch, VertexBlockDescent, problem, start, tolerance=1e-10,
+                                               max_iterations=60)
     assert energies_seen.size > 10
     assert np.all(np.diff(energies_seen) <= ENERGY_ROUNDOFF * np.abs(energies_seen[:-1]))
     assert energies_seen[-1] < energies_seen[0]

@@ -9,8 +9,47 @@ from dataclasses import dataclass
 import numpy as np
 
 
+class _CompiledTerms:
+    """What the solid's and the shell's sweeps share: one colour's compiled sweep, and the same terms for given vertices
+    (what the numpy sweep and contact take), through the kernel module ``_kernels()`` with the arguments ``_terms``."""
+
+    def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
+              halvings) -> None:
+        """One colour's steps in place in y (the kernels' ``sweep_colour``); ``potential``: the incremental potential's
+        parts (solvers/vbd.py ``IncrementalParts``)."""
+        from ..mass_spring.vbd_kernels import PROJECTION_CODES, unsigned
+
+        self._kernels().sweep_colour(
+            y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
+            *self._terms, self.gravity_force, self._kept, potential.damping_indptr, potential.damping_indices,
+            potential.damping_data, potential.damping_weight, potential.velocity_origin, self.colliders,
+            PROJECTION_CODES[projection], determinant_floor, max_halvings, halvings)
+
+    def blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd) -> tuple[np.ndarray, np.ndarray]:
+        """(dP/dx_i (k, d), the projected sum of the terms' blocks (k, d, d)) of the elastic terms and gravity."""
+        from ..mass_spring.vbd_kernels import PROJECTION_CODES
+
+        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
+        d = self.gravity_force.shape[1]
+        gradient, hessian = np.empty((vertices.size, d)), np.empty((vertices.size, d, d))
+        self._kernels().vertex_blocks(np.ascontiguousarray(x, dtype=float), vertices, *self._terms,
+                                      PROJECTION_CODES[project_spd], gradient, hessian)
+        gradient -= self.gravity_force[vertices]
+        return gradient, hessian
+
+    def changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the change of the elastic terms' energy and gravity's (k,) J, the kept fraction of each step (k,))."""
+        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
+        steps = np.ascontiguousarray(steps, dtype=float)
+        changes, fractions = np.empty(vertices.size), np.empty(vertices.size)
+        self._kernels().vertex_changes(np.ascontiguousarray(x, dtype=float), vertices, steps, *self._terms, self._kept,
+                                       changes, fractions)
+        changes -= np.einsum("ij,ij->i", self.gravity_force[vertices], steps)
+        return changes, fractions
+
+
 @dataclass(frozen=True, eq=False)
-class FemSweep:
+class FemSweep(_CompiledTerms):
     """The elements at every vertex, one row per incidence: vertex i's are p in indptr[i]:indptr[i + 1] (in element
     order), each its element's corners and shape gradients with vertex i's first (elements (p, d + 1), all unsigned;
     shape_gradients (p, d + 1, d)), its volume, mu and lambda. A vertex's rows lie together, so a colour's sweep reads
@@ -54,51 +93,23 @@ class FemSweep:
                    float(kept_volume), system.mu, system.lam, empty_colliders(system.dim))
 
     @property
-    def _elements(self) -> tuple:
+    def _terms(self) -> tuple:
         return (self.indptr, self.max_degree, self.elements, self.shape_gradients, self.volumes, self.mu, self.lam,
                 self.alpha, self.model)
 
-    def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
-              halvings) -> None:
-        """One colour's steps in place in y (vbd_kernels.sweep_colour); ``potential``: the incremental potential's parts
-        (solvers/vbd.py ``IncrementalParts``)."""
-        from ..mass_spring.vbd_kernels import PROJECTION_CODES, unsigned
-        from .vbd_kernels import sweep_colour
+    @property
+    def _kept(self) -> float:
+        return self.kept_volume
 
-        sweep_colour(y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
-                     *self._elements, self.gravity_force, self.kept_volume, potential.damping_indptr,
-                     potential.damping_indices, potential.damping_data, potential.damping_weight,
-                     potential.velocity_origin, self.colliders, PROJECTION_CODES[projection], determinant_floor,
-                     max_halvings, halvings)
+    @staticmethod
+    def _kernels():
+        from . import vbd_kernels
 
-    def blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd) -> tuple[np.ndarray, np.ndarray]:
-        """(dP/dx_i (k, d), the projected sum of the elements' blocks (k, d, d)) of the elements and gravity."""
-        from ..mass_spring.vbd_kernels import PROJECTION_CODES
-        from .vbd_kernels import vertex_blocks
-
-        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
-        d = self.shape_gradients.shape[2]
-        gradient, hessian = np.empty((vertices.size, d)), np.empty((vertices.size, d, d))
-        vertex_blocks(np.ascontiguousarray(x, dtype=float), vertices, *self._elements, PROJECTION_CODES[project_spd],
-                      gradient, hessian)
-        gradient -= self.gravity_force[vertices]
-        return gradient, hessian
-
-    def changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(the change of the elements' energy and gravity's (k,) J, the kept fraction of each step (k,))."""
-        from .vbd_kernels import vertex_changes
-
-        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
-        steps = np.ascontiguousarray(steps, dtype=float)
-        changes, fractions = np.empty(vertices.size), np.empty(vertices.size)
-        vertex_changes(np.ascontiguousarray(x, dtype=float), vertices, steps, *self._elements, self.kept_volume,
-                       changes, fractions)
-        changes -= np.einsum("ij,ij->i", self.gravity_force[vertices], steps)
-        return changes, fractions
+        return vbd_kernels
 
 
 @dataclass(frozen=True, eq=False)
-class ShellSweep:
+class ShellSweep(_CompiledTerms):
     """A shell's membrane triangles and discrete-shell hinges at every vertex (shell_vbd_kernels.py). The triangles as
     ``FemSweep``'s elements: vertex i's are p in indptr[i]:indptr[i + 1], each its triangle's corners turned so that
     vertex i comes first (a cyclic turn: the normal keeps its sign), their shape gradients (p, 3, 2), weights (rest
@@ -153,41 +164,15 @@ class ShellSweep:
                 self.model, self.membrane, self.hinge_indptr, self.max_hinges, self.hinges, self.corners,
                 self.hinge_stiffness, self.rest_angles)
 
-    def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
-              halvings) -> None:
-        """One colour's steps in place in y (shell_vbd_kernels.sweep_colour), as ``FemSweep.sweep``."""
-        from ..mass_spring.vbd_kernels import PROJECTION_CODES, unsigned
-        from .shell_vbd_kernels import sweep_colour
+    @property
+    def _kept(self) -> float:
+        return self.kept_area
 
-        sweep_colour(y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
-                     *self._terms, self.gravity_force, self.kept_area, potential.damping_indptr,
-                     potential.damping_indices, potential.damping_data, potential.damping_weight,
-                     potential.velocity_origin, self.colliders, PROJECTION_CODES[projection], determinant_floor,
-                     max_halvings, halvings)
+    @staticmethod
+    def _kernels():
+        from . import shell_vbd_kernels
 
-    def blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd) -> tuple[np.ndarray, np.ndarray]:
-        """(dP/dx_i (k, 3), the projected sum of the triangles' and hinges' blocks (k, 3, 3)) with gravity's."""
-        from ..mass_spring.vbd_kernels import PROJECTION_CODES
-        from .shell_vbd_kernels import vertex_blocks
-
-        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
-        gradient, hessian = np.empty((vertices.size, 3)), np.empty((vertices.size, 3, 3))
-        vertex_blocks(np.ascontiguousarray(x, dtype=float), vertices, *self._terms, PROJECTION_CODES[project_spd],
-                      gradient, hessian)
-        gradient -= self.gravity_force[vertices]
-        return gradient, hessian
-
-    def changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(the change of the shell's energy and gravity's (k,) J, the kept fraction of each step (k,))."""
-        from .shell_vbd_kernels import vertex_changes
-
-        vertices = np.ascontiguousarray(vertices, dtype=np.intp)
-        steps = np.ascontiguousarray(steps, dtype=float)
-        changes, fractions = np.empty(vertices.size), np.empty(vertices.size)
-        vertex_changes(np.ascontiguousarray(x, dtype=float), vertices, steps, *self._terms, self.kept_area, changes,
-                       fractions)
-        changes -= np.einsum("ij,ij->i", self.gravity_force[vertices], steps)
-        return changes, fractions
+        return shell_vbd_kernels
 
 
 def _incidences(groups: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
