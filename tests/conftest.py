@@ -143,6 +143,24 @@ def compiled_solve_energies(monkeypatch, solver_class, problem, start, **options
     return y, np.array(energies)
 
 
+def cut_and_halved(problem, start, plans, sweeps: int = 4) -> tuple[int, int]:
+    """(how many vertices' first Newton steps from start the step filter cuts, the backtracking rounds of ``sweeps``
+    numpy sweeps from start): what a comparison of sweeps from start exercises."""
+    from simrun.solvers import VertexBlockDescent
+
+    solver = VertexBlockDescent()
+    cut = 0
+    for plan in plans:
+        gradient, hessian = problem.vertex_blocks(start, plan.vertices, "clamp")
+        steps = solver._newton_steps(gradient, hessian, plan)
+        cut += int((problem.vertex_step_fractions(start, plan.vertices, steps) < 1.0).sum())
+    halved, y = 0, start
+    for _ in range(sweeps):
+        y, halvings = solver._sweep(problem, y, plans)
+        halved += halvings
+    return cut, halved
+
+
 def own_step_problem(system, name: str, x, v, dt: float, warmup_steps: int = 0):
     """The problem (and start) of ``name``'s own step: after the method's ``start`` and ``warmup_steps`` Newton-solved
     steps from (x, v) (BDF2 needs one: its first step is backward Euler's), the next step's, captured."""

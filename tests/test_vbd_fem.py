@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import agreeing_sweeps, compiled_solve_energies, step_problem, sweeps_by_thread_count
+from conftest import agreeing_sweeps, compiled_solve_energies, cut_and_halved, step_problem, sweeps_by_thread_count
 from test_fem import BOX, ENERGIES, SQUARE, deformed, fem
 from simrun.solvers import VertexBlockDescent
 from simrun.solvers.dofs import free_dofs
@@ -240,17 +240,7 @@ def test_the_sweep_backtracks_and_cuts_steps_from_a_squeezed_start():
     system = constrained(BOX, "neo_hookean")
     problem, start = thrown(system)
     plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
-    solver = VertexBlockDescent()
-    cut = halved = 0
-    y = start.copy()
-    for plan in plans:
-        gradient, hessian = problem.vertex_blocks(y, plan.vertices, "clamp")
-        steps = solver._newton_steps(gradient, hessian, plan)
-        cut += int((problem.vertex_step_fractions(y, plan.vertices, steps) < 1.0).sum())
-    halved, y = 0, start
-    for _ in range(4):
-        y, halvings = solver._sweep(problem, y, plans)
-        halved += halvings
+    cut, halved = cut_and_halved(problem, start, plans)
     assert cut > 0 and halved > 0
 
 

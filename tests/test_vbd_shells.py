@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import agreeing_sweeps, compiled_solve_energies, step_problem, sweeps_by_thread_count
+from conftest import agreeing_sweeps, compiled_solve_energies, cut_and_halved, step_problem, sweeps_by_thread_count
 from simrun.solvers import VertexBlockDescent, solver_params
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
@@ -241,17 +241,7 @@ def test_the_sweep_backtracks_and_cuts_steps_from_the_thrown_start():
     area) and some raise E (halved), so the comparison above exercises both."""
     system = constrained("stvk")
     problem, start = thrown(system)
-    plans = plans_of(system)
-    solver = VertexBlockDescent()
-    cut = 0
-    for plan in plans:
-        gradient, hessian = problem.vertex_blocks(start, plan.vertices, "clamp")
-        steps = solver._newton_steps(gradient, hessian, plan)
-        cut += int((problem.vertex_step_fractions(start, plan.vertices, steps) < 1.0).sum())
-    halved, y = 0, start
-    for _ in range(4):
-        y, halvings = solver._sweep(problem, y, plans)
-        halved += halvings
+    cut, halved = cut_and_halved(problem, start, plans_of(system))
     assert cut > 0 and halved > 0
 
 
