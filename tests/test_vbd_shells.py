@@ -28,7 +28,7 @@ from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.vbd import IncrementalParts, colour_plans
 from simrun.systems import SYSTEMS
 from simrun.systems.base import System
-from simrun.systems.fem import bending, membrane, shell_vbd_kernels
+from simrun.systems.fem import bending, membrane, shell_terms, shell_vbd_kernels
 from simrun.systems.fem.materials import MATERIALS
 from simrun.systems.fem.system import KEPT_VOLUME
 
@@ -63,7 +63,7 @@ def test_the_triangles_vertex_terms_are_its_tangent_contracted_with_the_shape_gr
         F = np.eye(3, 2) + 0.3 * rng.standard_normal((3, 2))
         n = rng.standard_normal(2)
         membrane.membrane_terms(model, F, mu, lam, P, A, True, work)
-        shell_vbd_kernels.membrane_vertex_terms(model, F, n[0], n[1], mu, lam, stress, K)
+        shell_terms.membrane_vertex_terms(model, F, n[0], n[1], mu, lam, stress, K)
         expected = np.einsum("j,ijkl,l->ik", n, A.reshape(3, 2, 3, 2), n)
         np.testing.assert_allclose(stress, P @ n, rtol=0.0, atol=1e-12 * np.abs(P @ n).max())
         np.testing.assert_allclose(K, expected, rtol=0.0, atol=1e-12 * np.abs(expected).max())
@@ -85,7 +85,7 @@ def test_a_hinges_angle_derivatives_in_one_vertex_are_blocks_of_the_full_ones():
         expected = {0: (-gradient.reshape(3, 3).sum(axis=0), blocks.sum(axis=(0, 1)))}
         expected.update({a: (gradient[3 * a - 3:3 * a], blocks[a - 1, a - 1]) for a in (1, 2, 3)})
         for corner, (first, second) in expected.items():
-            shell_vbd_kernels.hinge_angle_block(x, hinges, 0, corner, along, curvature, points)
+            shell_terms.hinge_angle_block(x, hinges, 0, corner, along, curvature, points)
             np.testing.assert_allclose(along, first, rtol=0.0, atol=1e-12 * np.abs(first).max())
             np.testing.assert_allclose(curvature, second, rtol=0.0, atol=1e-11 * np.abs(second).max())
 
@@ -318,7 +318,7 @@ def test_the_closed_form_3x3_projection_is_numpys_eigensystem(mode):
         matrix = (basis * spectrum) @ basis.T
         matrix = 0.5 * (matrix + matrix.T)
         projected = matrix.copy()
-        shell_vbd_kernels.project_block_3(projected, mode, copy, values, vectors)
+        shell_terms.project_block_3(projected, mode, copy, values, vectors)
         w, v = np.linalg.eigh(matrix)
         np.testing.assert_allclose(projected, (v * change(w)) @ v.T, rtol=0.0, atol=1e-12 * np.abs(w).max())
         if spectrum.min() >= 0.0:
