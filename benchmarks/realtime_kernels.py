@@ -5,10 +5,13 @@ N/m, two corners pinned), the problem of a backward Euler step at the frame rate
 over its colours, each vertex's Newton step on its 3 x 3 block (springs with the transverse factor clamped, inertia,
 gravity), the determinant floor and the per-vertex backtracking on the change of E. simrun's sweep is the kernel the
 solver calls (systems/mass_spring/vbd_kernels.py), timed at 1 and at 2 threads; the peer is the same sweep written
-here in C, compiled with the system's compiler (``cc -O2``), single-threaded, on the same arrays. The two must agree
-(max |difference| of the swept positions below 1e-12 m) for the times to be compared. Without a C compiler the C rows
-are skipped with one line. Targets: at most 0.3 us per vertex on one core, at most 2x the C loop, two threads at least
-1.6x one.
+here in C (vbd_c_loops.py), compiled with the system's compiler (``cc -O2``), single-threaded, on the same arrays. The
+two must agree (max |difference| of the swept positions below 1e-12 m) for the times to be compared. Without a C
+compiler the C rows are skipped with one line. Targets: at most 0.3 us per vertex on one core, at most 2x the C loop,
+two threads at least 1.6x one.
+
+The same on a tetrahedral solid: one sweep of configs/realtime_fem.yaml's stable neo-Hookean beam (12,288 tets) at its
+first frame, against the same sweep in C; target at most 2 us per vertex iteration on one core.
 
 The peer on its own scene, where the ``newton`` package (NVIDIA's Newton on Warp, ``make install-peers``) is installed:
 its VBD cloth example (newton.examples cloth_hanging: 64 x 32 cells of 0.1 m, StVK triangles, bending, ground and
@@ -24,9 +27,6 @@ first substep's prediction, per spring constraint; target at most 0.2 us.
 from __future__ import annotations
 
 import ctypes
-import shutil
-import subprocess
-import tempfile
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -41,6 +41,8 @@ from simrun.solvers import Newton, SolveStats
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.vbd import MAX_HALVINGS, IncrementalParts, VertexBlockDescent, colour_plans
 
+from .vbd_c_loops import CLOTH_SOURCE, FEM_SOURCE, compiled
+
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 RESOLUTION = 64
 SWEEPS = 40  # per timing; the best of REPEATS
@@ -48,105 +50,6 @@ REPEATS = 5
 FEM_PER_VERTEX_TARGET = 2.0  # us per vertex iteration of a 10,000-tet soft body, one core (issue 29)
 PER_VERTEX_TARGET, C_RATIO_TARGET, THREADS_TARGET, XPBD_TARGET = 0.3, 2.0, 1.6, 0.2
 DETERMINANT_FLOOR = 1e-20
-
-C_SOURCE = r"""
-#include <math.h>
-/* one VBD sweep over the colours of a Hookean mass-spring incremental potential, clamped transverse factors, no
-   damping: the algorithm of simrun's kernel, vertex by vertex in each colour's order */
-static double change_of(int i, const double *u, const double *y, const double *y_tilde, const double *mass,
-                        double scale, const long *indptr, const long *springs, const double *stiffness,
-                        const double *rest_length, const double *gravity, const double *deltas, const double *lengths) {
-    double inertia = 0.0, potential = 0.0;
-    for (int a = 0; a < 3; a++) inertia += mass[3 * i + a] * u[a] * (y[3 * i + a] - y_tilde[3 * i + a] + 0.5 * u[a]);
-    for (long p = indptr[i]; p < indptr[i + 1]; p++) {
-        long e = springs[p], slot = p - indptr[i];
-        double moved = 0.0, squared_change = 0.0;
-        for (int a = 0; a < 3; a++) {
-            double shifted = deltas[3 * slot + a] + u[a];
-            moved += shifted * shifted;
-            squared_change += u[a] * (deltas[3 * slot + a] + deltas[3 * slot + a] + u[a]);
-        }
-        double length = lengths[slot], moved_length = sqrt(moved);
-        potential += 0.5 * stiffness[e] * squared_change / (moved_length + length)
-                     * (moved_length + length - 2.0 * rest_length[e]);
-    }
-    for (int a = 0; a < 3; a++) potential -= gravity[3 * i + a] * u[a];
-    return inertia + scale * potential;
-}
-
-void sweep(double *y, const long *colour_starts, long colours, const long *vertices, const double *y_tilde,
-           const double *mass, double scale, const long *indptr, const long *other, const long *springs,
-           const double *stiffness, const double *rest_length, const double *gravity, double floor_,
-           int max_halvings, double *deltas, double *lengths) {
-    for (long c = 0; c < colours; c++) {
-        for (long k = colour_starts[c]; k < colour_starts[c + 1]; k++) {
-            long i = vertices[k];
-            double g[3] = {0, 0, 0}, H[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}}, u[3];
-            for (long p = indptr[i]; p < indptr[i + 1]; p++) {
-                long j = other[p], e = springs[p], slot = p - indptr[i];
-                double squared = 0.0;
-                for (int a = 0; a < 3; a++) {
-                    deltas[3 * slot + a] = y[3 * i + a] - y[3 * j + a];
-                    squared += deltas[3 * slot + a] * deltas[3 * slot + a];
-                }
-                double length = sqrt(squared);
-                lengths[slot] = length;
-                double factor = stiffness[e] * (length - rest_length[e]) / length;
-                double along = stiffness[e], ratio = 1.0 - rest_length[e] / length;
-                double transverse = stiffness[e] * (ratio > 0.0 ? ratio : 0.0);
-                double outer_scale = (along - transverse) / squared;
-                for (int a = 0; a < 3; a++) {
-                    g[a] += factor * deltas[3 * slot + a];
-                    H[a][a] += transverse;
-                    for (int b = 0; b < 3; b++) H[a][b] += outer_scale * deltas[3 * slot + a] * deltas[3 * slot + b];
-                }
-            }
-            for (int a = 0; a < 3; a++) {
-                g[a] = mass[3 * i + a] * (y[3 * i + a] - y_tilde[3 * i + a]) + scale * (g[a] - gravity[3 * i + a]);
-                for (int b = 0; b < 3; b++) H[a][b] *= scale;
-                H[a][a] += mass[3 * i + a];
-            }
-            double det = H[0][0] * (H[1][1] * H[2][2] - H[1][2] * H[2][1]) - H[0][1] * (H[1][0] * H[2][2] - H[1][2] * H[2][0])
-                         + H[0][2] * (H[1][0] * H[2][1] - H[1][1] * H[2][0]);
-            double size = 0.0;
-            for (int a = 0; a < 3; a++) for (int b = 0; b < 3; b++) size += H[a][b] * H[a][b];
-            size = sqrt(size);
-            if (!(fabs(det) > floor_ * size * size * size) || !isfinite(det)) {
-                u[0] = u[1] = u[2] = 0.0;
-            } else {  /* Gaussian elimination with partial pivoting */
-                double w[3][4];
-                for (int r = 0; r < 3; r++) { for (int s = 0; s < 3; s++) w[r][s] = H[r][s]; w[r][3] = -g[r]; }
-                for (int col = 0; col < 3; col++) {
-                    int pivot = col;
-                    for (int r = col + 1; r < 3; r++) if (fabs(w[r][col]) > fabs(w[pivot][col])) pivot = r;
-                    if (pivot != col) for (int s = 0; s < 4; s++) { double t = w[col][s]; w[col][s] = w[pivot][s]; w[pivot][s] = t; }
-                    for (int r = col + 1; r < 3; r++) {
-                        double f = w[r][col] / w[col][col];
-                        for (int s = col; s < 4; s++) w[r][s] -= f * w[col][s];
-                    }
-                }
-                for (int r = 2; r >= 0; r--) {
-                    double t = w[r][3];
-                    for (int s = r + 1; s < 3; s++) t -= w[r][s] * u[s];
-                    u[r] = t / w[r][r];
-                }
-            }
-            int rounds = 0;
-            double change = change_of(i, u, y, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, gravity,
-                                      deltas, lengths);
-            while (!(change <= 0.0) && rounds < max_halvings) {
-                for (int a = 0; a < 3; a++) u[a] *= 0.5;
-                change = change_of(i, u, y, y_tilde, mass, scale, indptr, springs, stiffness, rest_length, gravity,
-                                   deltas, lengths);
-                rounds++;
-            }
-            if (!(change <= 0.0)) u[0] = u[1] = u[2] = 0.0;
-            for (int a = 0; a < 3; a++) y[3 * i + a] += u[a];
-        }
-    }
-}
-"""
-
 
 class _Capture:
     def minimize(self, problem, start):
@@ -169,17 +72,6 @@ def _problem_of(system_config: dict):
     capture = _Capture()
     INTEGRATORS["backward_euler"]().step(system, State(0.0, system.x0, system.v0), 1.0 / 60.0, capture)
     return system, capture.problem, capture.start
-
-
-def _compiled_c() -> ctypes.CDLL | None:
-    compiler = shutil.which("cc") or shutil.which("gcc")
-    if compiler is None:
-        return None
-    folder = Path(tempfile.mkdtemp(prefix="simrun_vbd_c_"))
-    source, library = folder / "vbd.c", folder / "vbd.so"
-    source.write_text(C_SOURCE)
-    subprocess.run([compiler, "-O2", "-shared", "-fPIC", str(source), "-o", str(library), "-lm"], check=True)
-    return ctypes.CDLL(str(library))
 
 
 def _best(sweep_once) -> float:
@@ -235,7 +127,7 @@ def rows() -> list[tuple[str, float, str, str]]:
     table.extend(_fem_rows())
     table.extend(_shell_rows())
     table.extend(_newton_rows())
-    library = _compiled_c()
+    library = compiled(CLOTH_SOURCE)
     if library is None:
         print("vbd against a C loop: skipped, no C compiler (cc or gcc) on the path")
         return table
@@ -306,15 +198,58 @@ def _collider_rows() -> list[tuple[str, float, str, str]]:
 
 
 def _fem_rows() -> list[tuple[str, float, str, str]]:
-    """VBD's sweep of realtime_fem.yaml's beam (12,288 stable neo-Hookean tets) at its first frame, 1 and 2 threads."""
+    """VBD's sweep of realtime_fem.yaml's beam (12,288 stable neo-Hookean tets) at its first frame, 1 and 2 threads,
+    and against the same sweep in C (vbd_c_loops.py ``fem_sweep``) on the same arrays."""
+    import numba
+
     system, problem, start = _problem("realtime_fem.yaml")
-    _, _, plans, vertices, _, times = _timed_sweeps(system, problem, start)
+    sweep, parts, plans, vertices, simrun_sweep, times = _timed_sweeps(system, problem, start)
     one = times[1]
     table = [(f"vbd sweep fem beam ({len(system.elements)} tets), 1 thread: us per vertex", one / vertices * 1e6,
               f"<= {FEM_PER_VERTEX_TARGET:g}", f"{one * 1e3:.2f} ms per sweep, {vertices} vertices, {len(plans)} colours")]
     if 2 in times:
         table.append(("vbd sweep fem beam: 1 thread / 2 threads", one / times[2], f">= {THREADS_TARGET:g}",
                       f"{times[2] * 1e3:.2f} ms per sweep at 2 threads"))
+    library = compiled(FEM_SOURCE)
+    if library is None:
+        print("vbd fem against a C loop: skipped, no C compiler (cc or gcc) on the path")
+        return table
+    if (system.material != "stable_neo_hookean" or any(plan.constrained.any() for plan in plans)
+            or parts.damping_weight != 0.0 or sweep.colliders[0].size or not (sweep.lam > 0.0).all()):
+        raise AssertionError("the C loop takes the stable neo-Hookean energy with lambda > 0 (K needs no projection), "
+                             "pins only, no damping and no colliders")
+    order = np.concatenate([plan.vertices for plan in plans]).astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum([plan.vertices.size for plan in plans])]).astype(np.int64)
+    scratch = [np.empty((sweep.max_degree, 3)), np.empty((sweep.max_degree, 3)), np.empty(sweep.max_degree),
+               np.empty(sweep.max_degree)]
+    arrays = [np.ascontiguousarray(array) for array in (sweep.indptr, sweep.elements, sweep.shape_gradients,
+                                                        sweep.volumes, sweep.mu, sweep.lam, sweep.alpha)]
+    gravity = np.ascontiguousarray(sweep.gravity_force.ravel())
+    library.fem_sweep.restype = None
+    library.fem_sweep.argtypes = ([ctypes.c_void_p] * 2 + [ctypes.c_long] + [ctypes.c_void_p] * 3 + [ctypes.c_double]
+                                  + [ctypes.c_void_p] * 8 + [ctypes.c_double] * 2 + [ctypes.c_int]
+                                  + [ctypes.c_void_p] * 4)
+
+    def c_sweep(z):
+        library.fem_sweep(z.ctypes.data, starts.ctypes.data, len(plans), order.ctypes.data, parts.y_tilde.ctypes.data,
+                          parts.mass.ctypes.data, parts.scale, *(array.ctypes.data for array in arrays),
+                          gravity.ctypes.data, sweep.kept_volume, DETERMINANT_FLOOR, MAX_HALVINGS,
+                          *(array.ctypes.data for array in scratch))
+
+    simrun_y, c_y = start.copy(), start.copy()
+    available = numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(1)
+    simrun_sweep(simrun_y)
+    numba.set_num_threads(available)
+    c_sweep(c_y)
+    difference = float(np.max(np.abs(simrun_y - c_y)))
+    if difference > 1e-12:
+        raise AssertionError(f"simrun's fem sweep and the C loop differ by {difference:.2e} m")
+    z = start.copy()
+    c_time = _best(lambda: c_sweep(z))
+    table.append(("vbd sweep fem beam: simrun 1 thread / C loop", one / c_time, f"<= {C_RATIO_TARGET:g}",
+                  f"C {c_time / vertices * 1e6:.3f} us per vertex ({c_time * 1e3:.2f} ms), swept positions within "
+                  f"{difference:.1e} m"))
     return table
 
 
