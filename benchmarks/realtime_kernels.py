@@ -111,11 +111,8 @@ def _timed_sweeps(system, problem, start):
 
 
 def rows() -> list[tuple[str, float, str, str]]:
-    import numba
-
     system, problem, start = _problem("realtime_solvers.yaml", resolution=[RESOLUTION, RESOLUTION])
     sweep, parts, plans, vertices, simrun_sweep, times = _timed_sweeps(system, problem, start)
-    available = numba.config.NUMBA_NUM_THREADS
     one = times[1]
     table = [(f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}, 1 thread: us per vertex", one / vertices * 1e6,
               f"<= {PER_VERTEX_TARGET:g}", f"{one * 1e3:.2f} ms per sweep, {vertices} vertices, {len(plans)} colours")]
@@ -150,19 +147,7 @@ def rows() -> list[tuple[str, float, str, str]]:
                       arrays[2].ctypes.data, sweep.stiffness.ctypes.data, sweep.rest_length.ctypes.data,
                       gravity.ctypes.data, DETERMINANT_FLOOR, MAX_HALVINGS, deltas.ctypes.data, lengths.ctypes.data)
 
-    simrun_y, c_y = start.copy(), start.copy()
-    numba.set_num_threads(1)
-    simrun_sweep(simrun_y)
-    numba.set_num_threads(available)
-    c_sweep(c_y)
-    difference = float(np.max(np.abs(simrun_y - c_y)))
-    if difference > 1e-12:
-        raise AssertionError(f"simrun's sweep and the C loop differ by {difference:.2e} m")
-    z = start.copy()
-    c_time = _best(lambda: c_sweep(z))
-    table.append((f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}: simrun 1 thread / C loop", one / c_time,
-                  f"<= {C_RATIO_TARGET:g}", f"C {c_time / vertices * 1e6:.3f} us per vertex ({c_time * 1e3:.2f} ms), "
-                  f"swept positions within {difference:.1e} m"))
+    table.append(_against_c(f"vbd sweep cloth {RESOLUTION}x{RESOLUTION}", simrun_sweep, c_sweep, start, one, vertices))
     return table
 
 
@@ -200,8 +185,6 @@ def _collider_rows() -> list[tuple[str, float, str, str]]:
 def _fem_rows() -> list[tuple[str, float, str, str]]:
     """VBD's sweep of realtime_fem.yaml's beam (12,288 stable neo-Hookean tets) at its first frame, 1 and 2 threads,
     and against the same sweep in C (vbd_c_loops.py ``fem_sweep``) on the same arrays."""
-    import numba
-
     system, problem, start = _problem("realtime_fem.yaml")
     sweep, parts, plans, vertices, simrun_sweep, times = _timed_sweeps(system, problem, start)
     one = times[1]
@@ -236,6 +219,15 @@ def _fem_rows() -> list[tuple[str, float, str, str]]:
                           gravity.ctypes.data, sweep.kept_volume, DETERMINANT_FLOOR, MAX_HALVINGS,
                           *(array.ctypes.data for array in scratch))
 
+    table.append(_against_c("vbd sweep fem beam", simrun_sweep, c_sweep, start, one, vertices))
+    return table
+
+
+def _against_c(name: str, simrun_sweep, c_sweep, start, one: float, vertices: int) -> tuple[str, float, str, str]:
+    """The row of simrun's sweep (one sweep in place, taking ``one`` s on one thread) against the C loop's: both from
+    start, their positions first checked to agree within 1e-12 m."""
+    import numba
+
     simrun_y, c_y = start.copy(), start.copy()
     available = numba.config.NUMBA_NUM_THREADS
     numba.set_num_threads(1)
@@ -244,13 +236,12 @@ def _fem_rows() -> list[tuple[str, float, str, str]]:
     c_sweep(c_y)
     difference = float(np.max(np.abs(simrun_y - c_y)))
     if difference > 1e-12:
-        raise AssertionError(f"simrun's fem sweep and the C loop differ by {difference:.2e} m")
+        raise AssertionError(f"{name}: simrun's sweep and the C loop differ by {difference:.2e} m")
     z = start.copy()
     c_time = _best(lambda: c_sweep(z))
-    table.append(("vbd sweep fem beam: simrun 1 thread / C loop", one / c_time, f"<= {C_RATIO_TARGET:g}",
-                  f"C {c_time / vertices * 1e6:.3f} us per vertex ({c_time * 1e3:.2f} ms), swept positions within "
-                  f"{difference:.1e} m"))
-    return table
+    return (f"{name}: simrun 1 thread / C loop", one / c_time, f"<= {C_RATIO_TARGET:g}",
+            f"C {c_time / vertices * 1e6:.3f} us per vertex ({c_time * 1e3:.2f} ms), swept positions within "
+            f"{difference:.1e} m")
 
 
 def _shell_rows() -> list[tuple[str, float, str, str]]:

@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse
 
 from .base import Advance, NonlinearSolver, chebyshev_weight
+from .line_search import collision_free
 from .dofs import FreeDofs
 
 VBD_SPD_PROJECTIONS = ("clamp", "abs")
@@ -105,6 +106,15 @@ class _SweepState:
     weight: float = 1.0
 
 
+def _crosses_no_collider(problem, y: np.ndarray, moved: np.ndarray) -> bool:
+    """Whether the move y -> moved, every vertex at once along its straight line, reaches no collider under IPC (the
+    sweep's own moves are cut vertex by vertex; the Chebyshev extrapolation is not); True without IPC. (A finite-
+    element system's step filter also bounds its volumes, which the extrapolation's energy check already guards.)"""
+    if not getattr(getattr(problem, "system", None), "contact_needs_step_filter", False):
+        return True
+    return collision_free(problem, y, moved - y) >= 1.0
+
+
 class VertexBlockDescent(NonlinearSolver):
     """Vertex block descent (see the module docstring) with per-vertex backtracking and optional Chebyshev acceleration.
 
@@ -114,7 +124,8 @@ class VertexBlockDescent(NonlinearSolver):
     and so each sweep, never raises E. The steps are Newton steps of SPD blocks (``spd_projection``: the
     system's blocks with negative eigenvalues clamped at 0 or mirrored, plus M_i), hence descent directions,
     and the full step is taken wherever E_i's quadratic model is good. Where the system has a step filter (finite
-    elements keep a tenth of their volume), each vertex's step is first cut to it (``vertex_step_fractions``).
+    elements keep a tenth of their volume; IPC's colliders, which a step stops CCD_MARGIN short of), each vertex's
+    step is first cut to it (``vertex_step_fractions``).
 
     Constraints. A vertex with fixed dofs or a sliding filter S_i takes the exact constrained step: the
     minimiser of the local quadratic model over y_i + range(S_i), the solution of
@@ -125,7 +136,9 @@ class VertexBlockDescent(NonlinearSolver):
     approach for accelerating projective and position-based dynamics", ACM TOG 34(6), 2015): from the sweep's
     result y^ of y_k, y_{k+1} = omega_{k+1} (y^ - y_{k-1}) + y_{k-1}. Where that raises E above E(y_k) it is
     rejected (one line search step) and the sequence restarts from y^ (Wang's restart on an energy increase),
-    so the energy still never increases; it costs one evaluation of E per sweep.
+    so the energy still never increases; it costs one evaluation of E per sweep. Under IPC it is rejected too
+    where the move y_k -> y_{k+1}, every vertex at once, would reach a collider (``collision_free``): so every
+    iterate's path, as a line search's, crosses no surface.
 
     Parameters: spd_projection ``clamp`` | ``abs``; chebyshev_rho in [0, 1), 0 for none; determinant_floor:
     vertex i is skipped in a sweep where |det H_i| <= determinant_floor |H_i|_F^d. With M_i in every block an
@@ -137,6 +150,7 @@ class VertexBlockDescent(NonlinearSolver):
 
     name = "vbd"
     takes_newton_step = False  # its iteration is not Newton's: semi_implicit_backward_euler refuses it
+    filters_steps = True  # IPC: each vertex's step stops short of the colliders; so does the Chebyshev extrapolation
     requires: ClassVar[tuple[str, ...]] = ("vertex_blocks",)
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver="direct",
@@ -212,7 +226,7 @@ class VertexBlockDescent(NonlinearSolver):
         if state.position >= 2:
             accelerated = state.weight * (state.swept - state.previous) + state.previous
             accelerated_energy = problem.value(accelerated)
-            if accelerated_energy <= current.energy:
+            if accelerated_energy <= current.energy and _crosses_no_collider(problem, current.y, accelerated):
                 candidate, energy = accelerated, accelerated_energy
             else:  # Wang's restart: the plain sweep, and the sequence starts again from it
                 rejections, state.position, state.weight = 1, 1, 1.0

@@ -288,18 +288,23 @@ PLATE = {"shape": "box", "center": [0.0, 0.0, 0.0], "half_extents": [1.0, 1.0, 0
 def test_thin_plate_tunnelling(method):
     """The 3-D drop onto a 4 mm plate at dt = 0.1 s. IPC: the time of impact cuts every solver step before the plate,
     so the vertices stay above its top face z = 2 mm at every frame, whatever the method (backward_euler, bdf2,
-    newmark). Penalty (k = 1e3 N/m): backward Euler's third step, from z = 20.6 cm to -8.9 cm, meets no penetration
-    at either end and so no force, and the vertices end below the plate: tunnelling (with every recorded distance
-    positive)."""
+    newmark) and the solver: Newton's line search cuts its steps, vertex block descent each vertex's step and its
+    Chebyshev extrapolation. Penalty (k = 1e3 N/m): backward Euler's third step, from z = 20.6 cm to -8.9 cm, meets no
+    penetration at either end and so no force, and the vertices end below the plate: tunnelling (with every recorded
+    distance positive)."""
     config = _drop(3, method=method, **({"stiffness": 1.0e3} if method == "penalty" else {}))
     config["contact"]["colliders"] = [PLATE]
     top = PLATE["half_extents"][2]
-    for integrator in (["backward_euler", "bdf2", "newmark"] if method == "ipc" else ["backward_euler"]):
-        result = run_one(config, integrator, 0.1, 1.0, solver=NEWTON)
+    vbd = {"type": "vbd", "tolerance": 1e-6, "max_iterations": 2000}
+    runs = ([(integrator, NEWTON) for integrator in ("backward_euler", "bdf2", "newmark")]
+            + [("backward_euler", vbd), ("backward_euler", {**vbd, "chebyshev_rho": 0.9})]
+            if method == "ipc" else [("backward_euler", NEWTON)])
+    for integrator, solver in runs:
+        result = run_one(config, integrator, 0.1, 1.0, solver=solver)
         assert result.status == "ok", result.message
         heights = result.samples["frames"][:, :, 2]
         if method == "ipc":
-            assert result.attrs["max_active_contacts"] == 2 and np.all(heights > top), integrator
+            assert result.attrs["max_active_contacts"] == 2 and np.all(heights > top), (integrator, solver)
         else:
             assert np.all(heights[-1] < -top) and result.attrs["min_contact_distance"] > 0.0
 
@@ -509,7 +514,7 @@ CONFIG_ERRORS = {  # case: (config from tmp_path, [the field the message starts 
                      ["integrators", "implicit_midpoint", "IPC"]),
     "ipc-projective": (lambda tmp: _experiment(solver={"type": "projective_dynamics"}),
                        ["solver.type", "projective_dynamics", "IPC"]),
-    "ipc-vbd": (lambda tmp: _experiment(solver={"type": "vbd"}), ["solver.type", "vbd", "IPC"]),
+    "ipc-jacobi": (lambda tmp: _experiment(solver={"type": "jacobi_chebyshev"}), ["solver.type", "jacobi_chebyshev", "IPC"]),
     "friction-rk4": (lambda tmp: _experiment(integrator="rk4", method="penalty", friction={"mu": 0.3}),
                      ["integrators", "rk4", "friction"]),
     "self-penalty": (lambda tmp: _experiment(method="penalty", self=True), ["system.contact", "self", "ipc"]),

@@ -30,6 +30,14 @@ class ContactHooks:
         """IPC's barrier: every step of a solve cut short of a collision (System.contact_needs_step_filter)."""
         return self.contact is not None and self.contact.requires_step_filter
 
+    def vertex_step_fractions(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray | None:
+        """IPC's step filter for each vertex moving alone by steps (k, d): the fraction (k,) of its step that stops
+        short of the first collider it would reach (ContactModel.point_step_fractions); None without IPC
+        (System.vertex_step_fractions). The mesh contacts couple vertices: vertex block descent refuses them."""
+        if not self.contact_needs_step_filter:
+            return None
+        return self.contact.point_step_fractions(x.reshape(-1, self.dim)[vertices], steps)
+
     def contact_energy(self, x: np.ndarray) -> float:
         return 0.0 if self.contact is None else self.contact.energy(x)
 

@@ -268,22 +268,28 @@ class ContactModel:
         plane and the sphere, conservative advancement for the others), and ipctk's CCD for the meshes."""
         fraction = 1.0
         if self.colliders:
-            positions = x.reshape(-1, self.dim)
-            moves = direction.reshape(-1, self.dim)
-            length = np.sqrt(np.einsum("ij,ij->i", moves, moves))
-            for contact in self.colliders:
-                phi = contact.signed_distance(positions, self.time)
-                # a point moving less than its distance cannot reach the collider (phi is L-Lipschitz)
-                reaching = np.flatnonzero(contact.collider.lipschitz * length >= phi)
-                if not reaching.size:
-                    continue
-                start = positions[reaching]
-                impact = float(np.min(contact.time_of_impact(start, start + moves[reaching], self.time)))
-                if impact <= 1.0:
-                    fraction = min(fraction, (1.0 - CCD_MARGIN) * impact)
+            fraction = float(self.point_step_fractions(x.reshape(-1, self.dim), direction.reshape(-1, self.dim)).min())
         if self.mesh is not None and fraction > 0.0:
             fraction = min(fraction, self.mesh.collision_free_step(x, x + fraction * direction) * fraction)
         return max(fraction, 0.0)
+
+    def point_step_fractions(self, positions: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """The largest fraction (k,) of each point's move positions (k, d) -> positions + steps that stops it
+        CCD_MARGIN of the way short of the first collider it would reach (``max_step``'s filter, each point on its
+        own: what vertex block descent cuts a vertex's step to); 1 where it reaches none."""
+        fractions = np.ones(len(positions))
+        length = np.sqrt(np.einsum("ij,ij->i", steps, steps))
+        for contact in self.colliders:
+            phi = contact.signed_distance(positions, self.time)
+            # a point moving less than its distance cannot reach the collider (phi is L-Lipschitz)
+            reaching = np.flatnonzero(contact.collider.lipschitz * length >= phi)
+            if not reaching.size:
+                continue
+            start = positions[reaching]
+            impact = contact.time_of_impact(start, start + steps[reaching], self.time)
+            hit = impact <= 1.0
+            fractions[reaching[hit]] = np.minimum(fractions[reaching[hit]], (1.0 - CCD_MARGIN) * impact[hit])
+        return fractions
 
     def carried(self, x: np.ndarray) -> np.ndarray:
         """The step's start x_n (flat, m) as IPC's solvers may begin from it: each vertex within reach of a moving

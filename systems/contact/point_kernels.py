@@ -26,7 +26,8 @@ from numba import prange
 
 from ..compiled_cache import keep_fresh
 from ..vertex_kernels import filtered_eigenvalue
-from .sdf import _perpendicular
+from .model import CCD_MARGIN
+from .sdf import TOI_MAX_ITERATIONS, TOI_TOLERANCE, _perpendicular
 
 PLANE, SPHERE, BOX, CAPSULE, TORUS = 0, 1, 2, 3, 4
 SHAPE_CODES = {"plane": PLANE, "sphere": SPHERE, "box": BOX, "capsule": CAPSULE, "torus": TORUS}
@@ -35,12 +36,15 @@ PENALTY, IPC = 0, 1
 # capsule (a, b, radius, a fixed unit normal to b - a: its gradient on the segment), torus (center, axis, R, r, a fixed
 # unit normal to the axis: e on the axis); the torus's 11 are the most
 PARAMETER_SLOTS = 11
+_CCD = (CCD_MARGIN, TOI_TOLERANCE, TOI_MAX_ITERATIONS)
 
 
 def colliders_of(contact, dim: int) -> tuple | None:
     """(shapes (c,), parameters (c, 10), frames M (c, d, d), moved centres c(t) (c, d), rest centres c0 (c, d),
-    stiffnesses (c,), method, kappa, dhat) of the contact model's colliders at its time; None where one has no compiled
-    form (or the model has mesh contact, which couples vertices). No contact: the same tuple with c = 0."""
+    stiffnesses (c,), method, kappa, dhat, and IPC's CCD: its margin, the tolerance and iteration cap of conservative
+    advancement) of the contact model's colliders at its time; None where one has no compiled form (or the model has
+    mesh contact, which couples vertices). No contact: the same tuple with c = 0. The CCD's numbers travel with the
+    colliders, not as the kernels' globals: numba would keep those in its cache when model.py or sdf.py changed."""
     if contact is None:
         return empty_colliders(dim)
     if contact.mesh is not None:
@@ -82,7 +86,7 @@ def colliders_of(contact, dim: int) -> tuple | None:
         stiffness[number] = 0.0 if placed.stiffness is None else placed.stiffness
     method = IPC if contact.method == "ipc" else PENALTY
     kappa = 0.0 if contact.kappa is None else float(contact.kappa)  # None: a penalty, whose stiffnesses are per collider
-    return (shapes, parameters, frames, moved, rest, stiffness, method, kappa, float(contact.dhat))
+    return (shapes, parameters, frames, moved, rest, stiffness, method, kappa, float(contact.dhat)) + _CCD
 
 
 def placed(sweep, contact, dim: int):
@@ -97,15 +101,16 @@ def placed(sweep, contact, dim: int):
 
 def empty_colliders(dim: int) -> tuple:
     return (np.zeros(0, dtype=np.int64), np.zeros((0, PARAMETER_SLOTS)), np.zeros((0, dim, dim)), np.zeros((0, dim)),
-            np.zeros((0, dim)), np.zeros(0), PENALTY, 1.0, 1.0)
+            np.zeros((0, dim)), np.zeros(0), PENALTY, 1.0, 1.0) + _CCD
 
 
 @numba.njit(cache=True)
 def point_scratch(d, colliders):
     """One thread's arrays: q, the local normal, P, the world normal, each collider's phi at the vertex, the vertex's
-    position and its moved position, and Q (the torus's second projector)."""
+    position and its moved position, Q (the torus's second projector), and a move's start and step in a collider's
+    frame (``impact_fraction``)."""
     return (np.empty(d), np.empty(d), np.empty((d, d)), np.empty(d), np.empty(max(colliders[0].size, 1)), np.empty(d),
-            np.empty(d), np.empty((d, d)))
+            np.empty(d), np.empty((d, d)), np.empty(d), np.empty(d))
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -279,7 +284,7 @@ def add_point_terms(p, d, colliders, projection, g, H, scratch):
     collider under IPC gets no term from it (numpy's ``point_terms`` gives such a state infinite energy). Returns the
     clearance: the least phi less the reach (0 for the penalty, dhat for IPC). A move shorter than it changes no
     collider's potential (each phi is 1-Lipschitz: these are exact distances), so ``point_change`` is 0 there."""
-    shapes, parameters, frames, moved, rest, stiffness, method, kappa, dhat = colliders
+    shapes, parameters, frames, moved, rest, stiffness, method, kappa, dhat = colliders[:9]
     reach = dhat if method == IPC else 0.0
     clearance = math.inf
     q, normal, P, world, distances, Q = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[7]
@@ -347,6 +352,118 @@ def point_change(p, u, d, colliders, scratch):
     return change
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _enter_ball(m, step, d, radius):
+    """The first tau in [0, 1] with |m + tau step| = radius: 0 if |m| <= radius already, inf if never (sdf.py's
+    ``_enter_ball``). |step|^2 tau^2 + 2 b tau + c = 0 (b = m . step, c = |m|^2 - radius^2 > 0) has a root in tau > 0
+    only when b < 0; the smaller one is c / (-b + sqrt(b^2 - |step|^2 c)), free of cancellation."""
+    along, offset, squared = 0.0, 0.0, 0.0
+    for a in range(d):
+        along += m[a] * step[a]
+        offset += m[a] * m[a]
+        squared += step[a] * step[a]
+    offset -= radius * radius
+    if offset <= 0.0:
+        return 0.0
+    discriminant = along * along - squared * offset
+    if along >= 0.0 or discriminant < 0.0:
+        return math.inf
+    tau = offset / (math.sqrt(discriminant) - along)
+    return tau if tau <= 1.0 else math.inf
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _time_of_impact(c, d, colliders, start, step, length, q, normal, P, Q):
+    """The first tau in [0, 1] at which start + tau step (collider c's t = 0 frame; |step| = length > 0) reaches
+    phi = 0, inf where it does not: colliders.py's ``_time_of_impact`` at distance 0. Exact for the plane, the sphere
+    and the capsule; conservative advancement for the box and the torus, as sdf.py's: tau never passes the first root,
+    and stops once phi <= TOI_TOLERANCE |step| (the colliders' tolerance and cap, ``colliders_of``)."""
+    shapes, parameters, toi_tolerance, max_iterations = colliders[0], colliders[1], colliders[10], colliders[11]
+    code = shapes[c]
+    if code == PLANE:  # phi is linear along the move
+        gap = _shape(code, parameters, c, start, d, normal, P, Q, False)[0]
+        if gap <= 0.0:
+            return 0.0
+        for a in range(d):
+            q[a] = start[a] + step[a]
+        end_gap = _shape(code, parameters, c, q, d, normal, P, Q, False)[0]
+        return gap / (gap - end_gap) if end_gap <= 0.0 else math.inf
+    if code == SPHERE:
+        for a in range(d):
+            q[a] = start[a] - parameters[c, a]
+        return _enter_ball(q, step, d, parameters[c, d])
+    if code == CAPSULE:
+        # the first entry into either end ball or through the finite cylinder's side (an entry through a flat end
+        # lies inside an end ball, which is entered no later)
+        radius, squared_axis, m_along, step_along = parameters[c, 2 * d], 0.0, 0.0, 0.0
+        for a in range(d):
+            axis = parameters[c, d + a] - parameters[c, a]
+            squared_axis += axis * axis
+            m_along += (start[a] - parameters[c, a]) * axis
+            step_along += step[a] * axis
+        for a in range(d):  # the parts of m = start - a and of step across the axis
+            axis = parameters[c, d + a] - parameters[c, a]
+            q[a] = start[a] - parameters[c, a] - m_along / squared_axis * axis
+            normal[a] = step[a] - step_along / squared_axis * axis
+        side = _enter_ball(q, normal, d, radius)
+        if math.isfinite(side):
+            t = (m_along + side * step_along) / squared_axis
+            if t < 0.0 or t > 1.0:  # the infinite cylinder is entered beyond the segment's ends
+                side = math.inf
+        for a in range(d):
+            q[a] = start[a] - parameters[c, a]
+        first = min(side, _enter_ball(q, step, d, radius))
+        for a in range(d):
+            q[a] = start[a] - parameters[c, d + a]
+        return min(first, _enter_ball(q, step, d, radius))
+    tolerance = toi_tolerance * length
+    gap = _shape(code, parameters, c, start, d, normal, P, Q, False)[0]
+    if gap <= tolerance:
+        return 0.0
+    tau = 0.0
+    for _ in range(max_iterations):
+        tau += gap / length  # phi is 1-Lipschitz: it cannot reach 0 before this
+        if tau > 1.0:
+            return math.inf
+        for a in range(d):
+            q[a] = start[a] + tau * step[a]
+        gap = _shape(code, parameters, c, q, d, normal, P, Q, False)[0]
+        if gap <= tolerance:
+            return tau
+    return tau  # the cap: still a lower bound of the first root
+
+
+@numba.njit(cache=True, error_model="numpy")
+def impact_fraction(p, u, d, colliders, scratch):
+    """IPC's step filter for point p moving alone by u: the largest fraction of u that stops (1 - the colliders'
+    CCD margin) of the way to the first collider it would reach (model.py ``max_step`` for one point); 1 where it
+    reaches none. Reads each
+    collider's phi at p from scratch's distances (``add_point_terms``): a collider farther than |u| is not reached."""
+    frames, moved, rest, margin = colliders[2], colliders[3], colliders[4], colliders[9]
+    q, normal, P, distances, Q, start, step = (scratch[0], scratch[1], scratch[2], scratch[4], scratch[7], scratch[8],
+                                               scratch[9])
+    squared = 0.0
+    for a in range(d):
+        squared += u[a] * u[a]
+    length = math.sqrt(squared)
+    fraction = 1.0
+    if not length > 0.0:
+        return fraction
+    for c in range(colliders[0].size):
+        if length < distances[c]:
+            continue
+        _local(c, p, d, frames, moved, rest, start)
+        for a in range(d):
+            total = 0.0
+            for b in range(d):
+                total += frames[c, b, a] * u[b]  # M^T u: the move in the collider's frame
+            step[a] = total
+        impact = _time_of_impact(c, d, colliders, start, step, length, q, normal, P, Q)
+        if impact <= 1.0:
+            fraction = min(fraction, (1.0 - margin) * impact)
+    return fraction
+
+
 # -- the same terms at given points, vectorised over them (what the tests compare with numpy's) ---------------------
 @numba.njit(parallel=True, cache=True, error_model="numpy")
 def point_blocks(positions, colliders, projection, gradient, hessian):
@@ -368,6 +485,17 @@ def point_changes(positions, steps, colliders, changes):
         changes[k] = point_change(positions[k], steps[k], d, colliders, scratch)
 
 
+@numba.njit(parallel=True, cache=True, error_model="numpy")
+def point_impact_fractions(positions, steps, colliders, fractions):
+    """fractions[k] = ``impact_fraction`` of point k moving alone by steps[k]."""
+    d = positions.shape[1]
+    for k in prange(positions.shape[0]):
+        scratch = point_scratch(d, colliders)
+        g, H = np.zeros(d), np.zeros((d, d))
+        add_point_terms(positions[k], d, colliders, 0, g, H, scratch)
+        fractions[k] = impact_fraction(positions[k], steps[k], d, colliders, scratch)
+
+
 # -- at vertex i of a sweep's flat positions y ---------------------------------------------------------------------
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def add_vertex_terms(i, y, d, colliders, projection, g, H, scratch):
@@ -382,6 +510,20 @@ def add_vertex_terms(i, y, d, colliders, projection, g, H, scratch):
 def vertex_change(u, d, colliders, scratch):
     """``point_change`` of the vertex ``add_vertex_terms`` last saw, moved by u."""
     return point_change(scratch[5], u, d, colliders, scratch)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def vertex_impact_fraction(u, d, colliders, scratch):
+    """``impact_fraction`` of the vertex ``add_vertex_terms`` last saw, moved by u."""
+    return impact_fraction(scratch[5], u, d, colliders, scratch)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def may_reach(u, d, colliders, clearance):
+    """Whether the move u of the vertex ``add_vertex_terms`` last saw (its ``clearance``) can reach a collider under
+    IPC, |u| >= the least phi = clearance + dhat: only such a step needs its time of impact (a call that takes the
+    colliders' and the scratch's arrays, which costs numba their reference counts)."""
+    return colliders[6] == IPC and not beyond_reach(u, d, clearance + colliders[8])
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")

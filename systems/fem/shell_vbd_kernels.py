@@ -43,7 +43,8 @@ import numpy as np
 from numba import prange
 
 from ..compiled_cache import keep_fresh
-from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
+from ..contact.point_kernels import (add_vertex_terms, beyond_reach, may_reach, point_scratch, vertex_change,
+                                     vertex_impact_fraction)
 from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
 from .energies import COROTATED, NEO_HOOKEAN, STVK
 from .membrane import AREA_FLOOR
@@ -260,6 +261,8 @@ def _chunk(first_vertex, last_vertex, max_degree, max_hinges, y, vertices, const
                       velocity_origin, g, H, rate, D)
         newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
         fraction = _kept_fraction(i, u, y, indptr, elements, kept_area)
+        if touching and may_reach(u, d, colliders, clearance):  # IPC: the step stops short of the first collider
+            fraction = min(fraction, vertex_impact_fraction(u, d, colliders, contact))
         if fraction < 1.0:
             for a in range(d):
                 u[a] *= fraction

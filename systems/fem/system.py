@@ -422,11 +422,14 @@ class Fem(ContactHooks, System):
 
     def vertex_step_fractions(self, x, vertices, steps):
         """The largest fraction of each vertex's step that keeps its elements above KEPT_VOLUME of their volume (the
-        step filter of ``max_step``, exact for one vertex: J is linear in its position)."""
+        step filter of ``max_step``, exact for one vertex: J is linear in its position) and stops short of the
+        colliders under IPC (ContactHooks)."""
+        colliders = super().vertex_step_fractions(x, vertices, steps)
         sweep = self._element_sweep()
         if sweep is None:
-            return super().vertex_step_fractions(x, vertices, steps)
-        return sweep.changes(x, vertices, steps)[1]
+            return colliders
+        kept = sweep.changes(x, vertices, steps)[1]
+        return kept if colliders is None else np.minimum(kept, colliders)
 
     def vertex_sweep(self):
         """The elements and the colliders, where they stand now, for vertex block descent's compiled colour sweep;

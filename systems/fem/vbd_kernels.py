@@ -41,7 +41,8 @@ import numpy as np
 from numba import prange
 
 from ..compiled_cache import keep_fresh
-from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
+from ..contact.point_kernels import (add_vertex_terms, beyond_reach, may_reach, point_scratch, vertex_change,
+                                     vertex_impact_fraction)
 from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
 from .energies import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, WORK_SLOTS, _cofactor, material_terms
 from .linalg import _determinant, _symmetric_eigen
@@ -523,6 +524,8 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
                       velocity_origin, g, H, rate, D)
         newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
         fraction = _kept_fraction(i, u, d, indptr, kept_volume, scratch)
+        if touching and may_reach(u, d, colliders, clearance):  # IPC: the step stops short of the first collider
+            fraction = min(fraction, vertex_impact_fraction(u, d, colliders, contact))
         if fraction < 1.0:
             for a in range(d):
                 u[a] *= fraction

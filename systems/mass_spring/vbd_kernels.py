@@ -28,7 +28,8 @@ import numpy as np
 from numba import prange
 
 from ..compiled_cache import keep_fresh
-from ..contact.point_kernels import add_vertex_terms, beyond_reach, point_scratch, vertex_change
+from ..contact.point_kernels import (add_vertex_terms, beyond_reach, may_reach, point_scratch, vertex_change,
+                                     vertex_impact_fraction)
 from ..vertex_kernels import (damping_change, filtered_eigenvalue, finish_blocks, inertia_change, newton_step,
                               take_step)
 from .kernels import SQUARED_LENGTH, gradient_factor
@@ -151,6 +152,11 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
         finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
                       velocity_origin, g, H, rate, D)
         newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
+        if touching and may_reach(u, d, colliders, clearance):  # IPC: the step stops short of the first collider
+            fraction = vertex_impact_fraction(u, d, colliders, contact)
+            if fraction < 1.0:
+                for a in range(d):
+                    u[a] *= fraction
         rounds = 0
         while True:
             contact_change = 0.0 if beyond_reach(u, d, clearance) else vertex_change(u, d, colliders, contact)
