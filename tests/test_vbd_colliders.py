@@ -29,7 +29,7 @@ from simrun.solvers.vbd import IncrementalParts, colour_plans
 from simrun.systems import ClothParams
 from simrun.systems.contact.colliders import build_collider
 from simrun.systems.contact.model import ContactModel
-from simrun.systems.contact.point_kernels import colliders_of, point_blocks, point_changes, point_impact_fractions
+from simrun.systems.contact.point_kernels import colliders_of, point_blocks, point_moves
 from simrun.systems.contact.pose import ColliderContact
 from simrun.systems.fem.params import FemParams
 from simrun.systems.mass_spring.vbd_kernels import PROJECTION_CODES
@@ -123,7 +123,7 @@ def test_the_compiled_point_terms_are_numpys(shapes, dim, method, motion):
     assert acting > 50, "the sample must put many points in contact"
     changes = model.point_energy_changes(points, steps)
     compiled = np.empty(len(points))
-    point_changes(points, steps, colliders, compiled)
+    point_moves(points, steps, colliders, compiled, np.empty(len(points)))
     finite = np.isfinite(changes)
     np.testing.assert_array_equal(np.isfinite(compiled), finite)
     np.testing.assert_array_equal(compiled[~finite], changes[~finite])  # a step into a collider under IPC: inf
@@ -143,7 +143,7 @@ def test_the_compiled_impact_fractions_are_numpys_and_stop_short_of_every_collid
     steps *= 5.0  # 0.4 m moves: many reach a collider, some would cross one
     fractions = model.point_step_fractions(points, steps)
     compiled = np.empty(len(points))
-    point_impact_fractions(points, steps, colliders_of(model, dim), compiled)
+    point_moves(points, steps, colliders_of(model, dim), np.empty(len(points)), compiled)
     cut = fractions < 1.0
     assert np.count_nonzero(cut) > 100, "the sample must cut many moves"
     assert np.max(np.abs(compiled - fractions)) < 1e-12

@@ -475,24 +475,15 @@ def point_blocks(positions, colliders, projection, gradient, hessian):
 
 
 @numba.njit(parallel=True, cache=True, error_model="numpy")
-def point_changes(positions, steps, colliders, changes):
-    """changes[k] = the change of the colliders' potential when point k alone moves by steps[k]."""
+def point_moves(positions, steps, colliders, changes, fractions):
+    """changes[k] = the change of the colliders' potential when point k alone moves by steps[k]; fractions[k] = IPC's
+    ``impact_fraction`` of that move."""
     d = positions.shape[1]
     for k in prange(positions.shape[0]):
         scratch = point_scratch(d, colliders)
         g, H = np.zeros(d), np.zeros((d, d))
         add_point_terms(positions[k], d, colliders, 0, g, H, scratch)
         changes[k] = point_change(positions[k], steps[k], d, colliders, scratch)
-
-
-@numba.njit(parallel=True, cache=True, error_model="numpy")
-def point_impact_fractions(positions, steps, colliders, fractions):
-    """fractions[k] = ``impact_fraction`` of point k moving alone by steps[k]."""
-    d = positions.shape[1]
-    for k in prange(positions.shape[0]):
-        scratch = point_scratch(d, colliders)
-        g, H = np.zeros(d), np.zeros((d, d))
-        add_point_terms(positions[k], d, colliders, 0, g, H, scratch)
         fractions[k] = impact_fraction(positions[k], steps[k], d, colliders, scratch)
 
 
