@@ -21,8 +21,8 @@ import numpy as np
 import scipy.sparse
 
 from .base import Advance, NonlinearSolver, chebyshev_weight
-from .line_search import collision_free
 from .dofs import FreeDofs
+from .line_search import collision_free
 
 VBD_SPD_PROJECTIONS = ("clamp", "abs")
 # The problems that offer vertex_blocks (``refusal``'s problem_kind): the integrators' IncrementalPotential.
