@@ -55,6 +55,7 @@ class XPBD(Integrator):
     name: ClassVar[str] = "xpbd"
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = True  # no nonlinear solve: the solver is never called
+    needs_no_blas_threads: ClassVar[bool] = True  # the projections on numba's threads (xpbd_kernels.py)
     summary: ClassVar[str] = "XPBD with substeps (small steps); on the spring each substep is backward Euler with h/substeps"
 
     substeps: int = Field(10, ge=1, le=10_000, description="substeps per step, each h/substeps long (small steps)")

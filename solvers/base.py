@@ -26,6 +26,7 @@ and the optional ``callback(y, gradient)`` after the start and every iteration.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from abc import ABC, abstractmethod
@@ -51,6 +52,32 @@ TOLERANCE_MODES = ("residual", "absolute", "step", "velocity")
 STEP_MODES = ("step", "velocity")  # the modes that test the Newton direction (Newton-type solvers only)
 # where a solve starts: the kinds of a problem's initial_guess (integrators/base.py: initial_guess)
 INITIAL_GUESSES = ("start", "inertial", "predictor", "adaptive")
+
+
+
+# Long vectors: above about this many entries OpenBLAS runs a ddot or daxpy on every core it has
+BLAS_THREADED_SIZE = 10_000
+
+
+@functools.cache
+def _blas_libraries():
+    """threadpoolctl's view of the loaded BLAS libraries (numpy's and scipy's, loaded by the time a solve runs), made
+    once: making it scans the process's libraries."""
+    import threadpoolctl
+
+    return threadpoolctl.ThreadpoolController()
+
+
+def one_blas_thread():
+    """A context in which BLAS runs on one thread. OpenBLAS's threads, once woken by a call on long vectors (above
+    BLAS_THREADED_SIZE), spin waiting for the next: on a machine's every core they take the time of whatever runs
+    between the calls.
+    - L-BFGS's two-loop recursion is 4 x history ddot and daxpy calls: on two cores they made an iteration on the
+      64 x 64 cloth 3-5x slower (26-32 ms, against 9-11 ms on one thread). The factor solves between the two loops
+      keep the threads they were given: CHOLMOD's supernodal solve gains from them on large problems.
+    - Vertex block descent's compiled sweeps run on numba's threads between the gradients' and energies' BLAS calls:
+      on two cores its sweeps of the 64 x 64 cloth took 2-10 ms instead of a steady 2.4."""
+    return _blas_libraries().limit(limits=1, user_api="blas")
 
 
 class NonlinearProblem(Protocol):
@@ -260,6 +287,9 @@ class NonlinearSolver(ABC):
     uses_linear_solver: ClassVar[bool] = False  # are its directions linear solves (else only newton_step uses one)?
     # does every step go through line_search (which cuts it to the collision-free fraction IPC contact asks for)?
     filters_steps: ClassVar[bool] = False
+    # is its work numba's compiled loops and vector operations, with no BLAS call that gains from threads? A run of it
+    # then holds BLAS at one thread (one_blas_thread), whose woken threads would spin against numba's on the cores
+    needs_no_blas_threads: ClassVar[bool] = False
 
     def __init__(self, tolerance: float = 1e-10, max_iterations: int = 50, linear_solver: str | LinearSolver = "direct",
                  *, tolerance_mode: str = "residual", initial_guess: str = "start", callback: Callable | None = None,

@@ -11,7 +11,6 @@ Hessian each).
 
 from __future__ import annotations
 
-import functools
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -19,7 +18,7 @@ import numpy as np
 import scipy.sparse
 from scipy.linalg.blas import daxpy, ddot
 
-from .base import Advance, Iterate, NonlinearSolver, chebyshev_weight
+from .base import Advance, Iterate, NonlinearSolver, chebyshev_weight, one_blas_thread
 from .dofs import FreeDofs
 from .line_search import MAX_LINE_SEARCH, accept, has_value, line_search
 from .projective import RestFactor, factorise_spd, refusal
@@ -57,24 +56,6 @@ def _lagged_point(problem, start: np.ndarray) -> np.ndarray:
     than to x_n, so the lagged Hessian is less stale), or the solve's start where the problem has no guesses."""
     guess = getattr(problem, "initial_guess", None)
     return problem.start_point(guess("inertial")) if guess is not None and getattr(problem, "step_start", None) else start
-
-
-@functools.cache
-def _blas_libraries():
-    """threadpoolctl's view of the loaded BLAS libraries (scipy's, whose ddot and daxpy the recursion calls, is loaded
-    with this module), made once: making it scans the process's libraries."""
-    import threadpoolctl
-
-    return threadpoolctl.ThreadpoolController()
-
-
-def one_blas_thread():
-    """A context in which BLAS runs on one thread. L-BFGS's two-loop recursion is 4 x history ddot and daxpy calls on
-    vectors long enough (above about 10,000 entries) for OpenBLAS to wake its other threads for each: on two cores
-    that made an iteration on the 64 x 64 cloth 3-5x slower (26-32 ms, against 9-11 ms on one thread). The factor
-    solves between the two loops keep the threads they were given: CHOLMOD's supernodal solve gains from them on large
-    problems."""
-    return _blas_libraries().limit(limits=1, user_api="blas")
 
 
 @dataclass

@@ -34,6 +34,11 @@ class FallbackChain:
     def main(self) -> NonlinearSolver:
         return self.solvers[0]
 
+    @property
+    def needs_no_blas_threads(self) -> bool:
+        """Whether no solver of the chain gains from BLAS threads (``NonlinearSolver.needs_no_blas_threads``)."""
+        return all(solver.needs_no_blas_threads for solver in self.solvers)
+
     def minimize(self, problem, start: np.ndarray) -> tuple[np.ndarray, SolveStats]:
         first = self.main.starting_point(problem, start)
         outcome = self.main.solve(problem, first, self.main.test_from(problem, start, first))

@@ -150,6 +150,7 @@ class VertexBlockDescent(NonlinearSolver):
 
     name = "vbd"
     takes_newton_step = False  # its iteration is not Newton's: semi_implicit_backward_euler refuses it
+    needs_no_blas_threads = True  # compiled sweeps on numba's threads, and no factorisation
     filters_steps = True  # IPC: each vertex's step stops short of the colliders; so does the Chebyshev extrapolation
     requires: ClassVar[tuple[str, ...]] = ("vertex_blocks",)
 

@@ -147,3 +147,45 @@ def test_threads_above_the_cores_are_capped_with_a_warning_and_below_one_refused
     with pytest.raises(ConfigError, match="solver.threads"):
         load_experiment({"name": "bad", "system": {"type": "cloth", "resolution": [3, 3]}, "integrators": ["backward_euler"],
                          "solver": {"type": "vbd", "threads": 0}, "sweep": {"dt": [0.01]}})
+
+
+@pytest.mark.parametrize("method, solver, one_thread", [
+    ("backward_euler", "vbd", True),
+    ({"type": "xpbd", "substeps": 2}, "newton", True),
+    ("backward_euler", "newton", False),
+    ("backward_euler", {"type": "vbd", "fallback": ["newton"]}, False),
+])
+def test_a_run_on_numbas_threads_holds_blas_at_one_and_gives_the_threads_back(monkeypatch, method, solver, one_thread):
+    """OpenBLAS's threads, woken by a long vector's ddot, spin against the compiled sweeps' and projections' threads
+    (docs/performance.md): a vbd or xpbd run holds BLAS at one thread throughout, a run whose solver may factorise
+    (newton, or a chain that falls back to it) keeps the threads it has, and each leaves them as it found them."""
+    import threadpoolctl
+
+    from simrun.execution.simulate import simulate
+    from simrun.experiment.config import load_experiment
+    from simrun.experiment.sweep import expand_runs
+    from simrun.integrators import INTEGRATORS
+
+    def blas_threads():
+        return max(library["num_threads"] for library in threadpoolctl.threadpool_info() if library["user_api"] == "blas")
+
+    seen = []
+    kind = INTEGRATORS[method if isinstance(method, str) else method["type"]]
+    original = kind.step
+
+    def watched_step(self, *args):
+        seen.append(blas_threads())
+        return original(self, *args)
+
+    monkeypatch.setattr(kind, "step", watched_step)
+    solver = {"type": solver} if isinstance(solver, str) else solver
+    config = {"name": "blas", "system": {"type": "cloth", "resolution": [4, 4], "pinned": ["top_left", "top_right"]},
+              "integrators": [method], "duration": 0.03, "sweep": {"dt": [0.01]},
+              "solver": {**solver, "max_iterations": 5, "on_not_converged": "accept"}}
+    (run,) = expand_runs(load_experiment(config)[0])
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        assert simulate(run).status == "ok"
+        after = blas_threads()
+    assert len(seen) == 3 and set(seen) == ({1} if one_thread else {before})
+    assert after == before
