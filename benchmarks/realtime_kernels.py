@@ -94,11 +94,12 @@ def _timed_sweeps(system, problem, start):
     plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
                          system.dim)
     rounds = np.zeros(max(plan.vertices.size for plan in plans), dtype=np.int64)
+    gradient_norms = np.zeros(rounds.size)
 
     def sweep_once(y):
         for plan in plans:
             sweep.sweep(y, plan.vertices, plan.constrained, plan.all_projectors, parts, "clamp", DETERMINANT_FLOOR,
-                        MAX_HALVINGS, rounds[:plan.vertices.size])
+                        MAX_HALVINGS, rounds[:plan.vertices.size], gradient_norms[:plan.vertices.size])
 
     available = numba.config.NUMBA_NUM_THREADS
     times = {}

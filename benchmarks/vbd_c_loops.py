@@ -2,10 +2,10 @@
 single-threaded, compiled with the system's compiler (``cc -O2``) and called on simrun's own arrays.
 
 - ``sweep``: a Hookean mass-spring cloth (clamped transverse factors, no damping; systems/mass_spring/vbd_kernels.py).
-- ``fem_sweep``: a stable neo-Hookean tetrahedral solid (systems/fem/vbd_kernels.py's ``_invariant_elements_3d`` and
-  ``_invariant_change_3d``): each incident element's F = sum_a x_a g_a^T, P n and K = (mu - mu / (I_C + 1)) |n|^2 I +
-  2 mu / (I_C + 1)^2 w w^T + lambda c c^T (w = F n, c = cof(F) n), the kept-volume cut J + t c . u >= kept J, and the
-  backtracking on the exact change of E from the changes of I_C and J.
+- ``fem_sweep``: a stable neo-Hookean tetrahedral solid (systems/fem/tet_terms.py's ``invariant_elements_3d`` and
+  ``invariant_change_3d`` in vbd_kernels.py's sweep): each incident element's F = sum_a x_a g_a^T, P n and
+  K = (mu - mu / (I_C + 1)) |n|^2 I + 2 mu / (I_C + 1)^2 w w^T + lambda c c^T (w = F n, c = cof(F) n), the kept-volume
+  cut J + t c . u >= kept J, and the backtracking on the exact change of E from the changes of I_C and J.
 
 Both share the vertex's Newton step (the determinant floor and Gaussian elimination with partial pivoting, as
 systems/vertex_kernels.py's) and the backtracking, and take the vertices colour by colour in the order of simrun's

@@ -14,6 +14,7 @@ at the iterate that the colours before it left (Gauss-Seidel). One iteration is 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -102,6 +103,7 @@ class _SweepState:
     compiled: tuple | None = None  # (the system's compiled sweep, the problem's IncrementalParts), or None: numpy
     swept: np.ndarray | None = None  # the sweep's result from y_k
     halvings: int = 0  # backtracking rounds of the last sweep
+    residual: float = math.inf  # the last sweep's residual: the largest |g_i|_inf (filtered) where vertex i met it
     position: int = 0  # iterates since the (re)start of the Chebyshev sequence
     weight: float = 1.0
 
@@ -143,9 +145,14 @@ class VertexBlockDescent(NonlinearSolver):
     Parameters: spd_projection ``clamp`` | ``abs``; chebyshev_rho in [0, 1), 0 for none; determinant_floor:
     vertex i is skipped in a sweep where |det H_i| <= determinant_floor |H_i|_F^d. With M_i in every block an
     SPD H_i has det H_i >= det M_i > 0, so the floor only catches blocks singular to working precision.
-    Counts: every sweep is one iteration (the convergence test evaluates the full gradient once per sweep);
-    linear_iterations stays 0 (the d x d solves are direct); line_search_steps counts backtracking rounds
-    (one vectorised halving of a colour's rejected steps) and Chebyshev rejections.
+
+    Convergence. The sweep reports its residual as it met the vertices: the largest |g_i|_inf (filtered) where vertex
+    i took its step (``Advance.residual_estimate``). The loop evaluates the full gradient only where that meets the
+    threshold, and at the end of the solve: on the 12,288-tet beam a full gradient cost half a sweep, on the 64 x 64
+    cloth a fifth. The full gradient alone decides convergence; it may find it one sweep after a full gradient per
+    sweep would have. Counts: every sweep is one iteration; linear_iterations stays 0 (the d x d solves are direct);
+    line_search_steps counts backtracking rounds (one vectorised halving of a colour's rejected steps) and Chebyshev
+    rejections.
     """
 
     name = "vbd"
@@ -212,14 +219,14 @@ class VertexBlockDescent(NonlinearSolver):
 
     def _direction(self, problem, current, state):
         if state.compiled is not None:
-            state.swept, state.halvings = self._compiled_sweep(current.y, state.plans, *state.compiled)
+            state.swept, state.halvings, state.residual = self._compiled_sweep(current.y, state.plans, *state.compiled)
         else:
-            state.swept, state.halvings = self._sweep(problem, current.y, state.plans)
+            state.swept, state.halvings, state.residual = self._sweep(problem, current.y, state.plans)
         return state.swept - current.y, 0
 
     def _advance(self, problem, current, direction, state):
         if self.rho == 0.0:
-            return Advance(state.swept, line_search_steps=state.halvings)
+            return Advance(state.swept, line_search_steps=state.halvings, residual_estimate=state.residual)
         state.position += 1
         state.weight = chebyshev_weight(state.position, state.weight, self.rho)
         rejections = 0
@@ -234,19 +241,26 @@ class VertexBlockDescent(NonlinearSolver):
         if energy is None:
             energy = problem.value(candidate)
         state.previous = current.y
-        return Advance(candidate, energy=energy, line_search_steps=state.halvings + rejections)
+        return Advance(candidate, energy=energy, line_search_steps=state.halvings + rejections,
+                       residual_estimate=state.residual)
 
     # -- one sweep -----------------------------------------------------------------------------
-    def _sweep(self, problem, y: np.ndarray, plans: list[ColourPlan]) -> tuple[np.ndarray, int]:
-        """One Gauss-Seidel sweep from y over the colours: (the new iterate, the backtracking rounds it took)."""
+    def _sweep(self, problem, y: np.ndarray, plans: list[ColourPlan]) -> tuple[np.ndarray, int, float]:
+        """One Gauss-Seidel sweep from y over the colours: (the new iterate, the backtracking rounds it took, its
+        residual: the largest |g_i|_inf, filtered, of E where vertex i met it)."""
         swept = y.copy()  # a new iterate: the solve keeps its iterates by reference
         positions_of = None
         halvings = 0
+        residual = 0.0
         for plan in plans:
             vertices = plan.vertices
             gradient, hessian = problem.vertex_blocks(swept, vertices, self.spd_projection)
             if positions_of is None:
                 positions_of = swept.reshape(-1, gradient.shape[1])
+            met = np.array(gradient)
+            if plan.filtered.size:
+                met[plan.filtered] = np.einsum("fij,fj->fi", plan.projectors, met[plan.filtered])
+            residual = max(residual, float(np.max(np.abs(met), initial=0.0)))
             steps = self._newton_steps(gradient, hessian, plan)
             fractions = problem.vertex_step_fractions(swept, vertices, steps)
             if fractions is not None:
@@ -262,20 +276,23 @@ class VertexBlockDescent(NonlinearSolver):
             steps[rejected] = 0.0
             positions_of[vertices] += steps
             halvings += rounds
-        return swept, halvings
+        return swept, halvings, residual if math.isfinite(residual) else math.inf
 
-    def _compiled_sweep(self, y: np.ndarray, plans: list[ColourPlan], sweep, parts) -> tuple[np.ndarray, int]:
+    def _compiled_sweep(self, y: np.ndarray, plans: list[ColourPlan], sweep, parts) -> tuple[np.ndarray, int, float]:
         """The same sweep by the system's compiled kernel (``System.vertex_sweep``): each colour's vertices in parallel,
         the same numbers as ``_sweep`` to round-off. A colour's backtracking rounds are its vertices' most."""
         swept = np.array(y, dtype=float)  # a new iterate: the solve keeps its iterates by reference
         halvings = 0
+        residual = 0.0
         rounds = np.zeros(max(plan.vertices.size for plan in plans) if plans else 0, dtype=np.int64)
+        gradient_norms = np.zeros(rounds.size)
         for plan in plans:
             count = plan.vertices.size
             sweep.sweep(swept, plan.vertices, plan.constrained, plan.all_projectors, parts, self.spd_projection,
-                        self.determinant_floor, MAX_HALVINGS, rounds[:count])
+                        self.determinant_floor, MAX_HALVINGS, rounds[:count], gradient_norms[:count])
             halvings += int(rounds[:count].max())
-        return swept, halvings
+            residual = max(residual, float(gradient_norms[:count].max()))
+        return swept, halvings, residual
 
     def _newton_steps(self, gradient: np.ndarray, hessian: np.ndarray, plan: ColourPlan) -> np.ndarray:
         """u_i = -H_i^{-1} g_i for the colour's vertices, (k, d); constrained vertices on their subspaces, and

@@ -101,7 +101,8 @@ def finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices
 def newton_step(H, g, u, constrained, S, determinant_floor, d, filtered, filtered_vector, work):
     """u = -H^-1 g for one vertex: with a filter S (``constrained``) the minimiser over y_i + range(S) of the quadratic
     model, (S H S + c (I - S)) u = -S g, c H's mean |diagonal|; u = 0 where |det H| <= floor |H|_F^d or anything is
-    not finite. H and g are changed."""
+    not finite. H and g are changed. Returns |S g|_inf (inf where g is not finite): the vertex's part of the sweep's
+    residual (solvers/vbd.py)."""
     if constrained:
         mean = 0.0
         for a in range(d):
@@ -123,8 +124,10 @@ def newton_step(H, g, u, constrained, S, determinant_floor, d, filtered, filtere
     determinant = block_determinant(H, d)
     size = 0.0
     finite = True
+    gradient_norm = 0.0
     for a in range(d):
         finite = finite and math.isfinite(g[a])
+        gradient_norm = max(gradient_norm, abs(g[a]))
         for b in range(d):
             size += H[a, b] * H[a, b]
     size = math.sqrt(size)
@@ -138,6 +141,7 @@ def newton_step(H, g, u, constrained, S, determinant_floor, d, filtered, filtere
             u[a] = 0.0
     if constrained:
         filter_in_place(S, u, filtered_vector, d)
+    return gradient_norm if finite else math.inf
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")

@@ -96,16 +96,18 @@ def step_problem(system, x=None, v=None, dt=0.01, integrator="backward_euler"):
 def agreeing_sweeps(solver, problem, start, plans, sweep, parts, count: int, tolerance: float = 1e-12):
     """``count`` VBD sweeps from start, each by the numpy sweep (solvers/vbd.py ``_sweep``, the reference) and by the
     system's compiled one from the same iterate, asserted to land on the same positions (to ``tolerance`` of the largest
-    move) with the same backtracking rounds; yields (the iterate, numpy's result, its rounds), the next from numpy's
-    result."""
+    move) with the same backtracking rounds and the same residual (the largest |g_i|_inf the vertices met, to
+    ``tolerance``); yields (the iterate, numpy's result, its rounds), the next from numpy's result."""
     y = start.copy()
     for _ in range(count):
-        numpy_y, numpy_halvings = solver._sweep(problem, y, plans)
-        compiled_y, compiled_halvings = solver._compiled_sweep(y, plans, sweep, parts)
+        numpy_y, numpy_halvings, numpy_residual = solver._sweep(problem, y, plans)
+        compiled_y, compiled_halvings, compiled_residual = solver._compiled_sweep(y, plans, sweep, parts)
         scale = np.max(np.abs(numpy_y - y))
         assert scale > 0.0
         np.testing.assert_allclose(compiled_y, numpy_y, rtol=0.0, atol=tolerance * scale)
         assert compiled_halvings == numpy_halvings
+        assert numpy_residual > 0.0
+        np.testing.assert_allclose(compiled_residual, numpy_residual, rtol=tolerance)
         yield y, numpy_y, numpy_halvings
         y = numpy_y
 
@@ -122,7 +124,7 @@ def sweeps_by_thread_count(solver, start, plans, sweep, parts, sweeps: int = 3) 
             numba.set_num_threads(count)
             y = start.copy()
             for _ in range(sweeps):
-                y, _ = solver._compiled_sweep(y, plans, sweep, parts)
+                y, _, _ = solver._compiled_sweep(y, plans, sweep, parts)
             results.append(y)
     finally:
         numba.set_num_threads(threads)
@@ -156,7 +158,7 @@ def cut_and_halved(problem, start, plans, sweeps: int = 4) -> tuple[int, int]:
         cut += int((problem.vertex_step_fractions(start, plan.vertices, steps) < 1.0).sum())
     halved, y = 0, start
     for _ in range(sweeps):
-        y, halvings = solver._sweep(problem, y, plans)
+        y, halvings, _ = solver._sweep(problem, y, plans)
         halved += halvings
     return cut, halved
 

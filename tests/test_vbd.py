@@ -260,12 +260,7 @@ def test_vbd_keeps_pinned_and_sliding_vertices_on_their_constraints():
     """A 4 x 4 cloth with a pinned vertex, axis-aligned and oblique sliding planes and lines: VBD's solution is
     projected Newton's (filtered, 1e-12) within the strong-convexity bound, pins stay exactly, and each sliding
     vertex moved only along its plane or line (to 1e-12 of its move)."""
-    system = MassSpringParams(
-        model={"grid": {"resolution": [4, 4], "size": [0.3, 0.3]}}, stiffness={"stretch": 60.0, "shear": 10.0, "bend": 1.0},
-        mass={"total": 0.2}, damping=[{"model": "spring", "coefficient": 0.02}], pinned=[12],
-        constraints=[{"vertices": [0], "normal": [0.0, 0.0, 1.0]}, {"vertices": [5], "direction": [0.0, 1.0, 0.0]},
-                     {"vertices": [15, 10], "normal": PLANE_NORMAL.tolist()}, {"vertices": [3], "direction": LINE_DIRECTION.tolist()}],
-        initial={"spin": [0.2, 0.5, 1.0]}).build()
+    system = constrained_cloth()
     problem, start = backward_euler_problem(system, system.x0, system.v0, 0.02)
     reference, stats = solver_params(type="projected_newton", tolerance=1e-12).build().minimize(problem, start)
     assert stats.converged
@@ -282,6 +277,93 @@ def test_vbd_keeps_pinned_and_sliding_vertices_on_their_constraints():
     mu, free = free_hessian_floor(problem, reference, system.fixed_dofs)
     assert mu > 0
     assert np.linalg.norm(y - reference) <= 2.0 * np.linalg.norm(problem.gradient(y)) / mu
+
+
+def constrained_cloth():
+    """test_vbd_keeps_pinned_and_sliding_vertices_on_their_constraints's cloth: a pin, sliding planes and lines."""
+    return MassSpringParams(
+        model={"grid": {"resolution": [4, 4], "size": [0.3, 0.3]}}, stiffness={"stretch": 60.0, "shear": 10.0, "bend": 1.0},
+        mass={"total": 0.2}, damping=[{"model": "spring", "coefficient": 0.02}], pinned=[12],
+        constraints=[{"vertices": [0], "normal": [0.0, 0.0, 1.0]}, {"vertices": [5], "direction": [0.0, 1.0, 0.0]},
+                     {"vertices": [15, 10], "normal": PLANE_NORMAL.tolist()}, {"vertices": [3], "direction": LINE_DIRECTION.tolist()}],
+        initial={"spin": [0.2, 0.5, 1.0]}).build()
+
+
+@pytest.mark.parametrize("path", ["numpy", "compiled"])
+def test_the_first_colours_sweep_residual_is_the_filtered_gradient_of_its_vertices(path):
+    """The first colour's vertices meet E at y itself: the sweep's residual over that colour alone is the largest
+    |S_i g_i(y)|_inf of its vertices (pins zeroed, sliding vertices filtered), to round-off."""
+    from simrun.solvers.dofs import free_dofs
+    from simrun.solvers.vbd import IncrementalParts, colour_plans
+
+    system = constrained_cloth()
+    problem, start = backward_euler_problem(system, system.x0, system.v0, 0.02)
+    free = free_dofs(system.dof_count, system.fixed_dofs, system.sliding)
+    plans = colour_plans(system.vertex_colouring(), free, 3)
+    solver = VertexBlockDescent()
+    for plan in plans:
+        if path == "numpy":
+            _, _, residual = solver._sweep(problem, start, [plan])
+        else:
+            _, _, residual = solver._compiled_sweep(start, [plan], system.vertex_sweep(), IncrementalParts.of(problem))
+        gradient = free.zero_fixed(np.array(problem.gradient(start))).reshape(-1, 3)
+        expected = np.abs(gradient[plan.vertices]).max()
+        assert expected > 0.0
+        assert residual == pytest.approx(expected, rel=1e-12)
+
+
+def filtered_residual(system, problem, y) -> float:
+    """|S g(y)|_inf: the residual a solve reports (pins zeroed, sliding vertices filtered)."""
+    from simrun.solvers.dofs import free_dofs
+
+    return float(np.abs(free_dofs(system.dof_count, system.fixed_dofs, system.sliding).zero_fixed(
+        np.array(problem.gradient(y)))).max())
+
+
+class CountedGradients:
+    """A problem whose full gradients are counted."""
+
+    def __init__(self, problem):
+        self.problem, self.gradients = problem, 0
+
+    def gradient(self, y):
+        self.gradients += 1
+        return self.problem.gradient(y)
+
+    def __getattr__(self, name):
+        return getattr(self.problem, name)
+
+
+def test_a_solve_evaluates_the_full_gradient_only_where_the_sweeps_residual_meets_the_threshold_and_at_its_end():
+    """Ten sweeps that cannot converge cost two full gradients (the start's and the end's, which the solve reports),
+    not eleven; with a callback, which records every iterate's gradient, eleven. Both solves land on the same y."""
+    system = constrained_cloth()
+    problem, start = backward_euler_problem(system, system.x0, system.v0, 0.02)
+    counted = CountedGradients(problem)
+    y, stats = VertexBlockDescent(tolerance=1e-300, max_iterations=10).minimize(counted, start)
+    assert counted.gradients == 2 and stats.iterations == 10 and not stats.converged
+    assert stats.residual == filtered_residual(system, problem, y)
+    watched = CountedGradients(problem)
+    seen = []
+    y_watched, stats_watched = VertexBlockDescent(tolerance=1e-300, max_iterations=10,
+                                                  callback=lambda y, g: seen.append(y)).minimize(watched, start)
+    assert watched.gradients == 11 and len(seen) == 11
+    assert np.array_equal(y, y_watched) and stats.residual == stats_watched.residual
+
+
+@pytest.mark.parametrize("options", [{}, {"chebyshev_rho": 0.9}], ids=["plain", "chebyshev"])
+def test_convergence_is_found_by_the_full_gradient_at_most_one_sweep_late(options):
+    """The full gradient at every sweep (a callback asks for it) finds convergence at sweep k; the sweep's residual
+    as the gate finds it at k or k + 1, and the solve reports the residual of the y it returns."""
+    system = constrained_cloth()
+    problem, start = backward_euler_problem(system, system.x0, system.v0, 0.02)
+    residuals = []
+    _, every = VertexBlockDescent(tolerance=1e-9, max_iterations=500, callback=lambda y, g: residuals.append(
+        np.abs(g).max()), **options).minimize(problem, start)
+    y, gated = VertexBlockDescent(tolerance=1e-9, max_iterations=500, **options).minimize(problem, start)
+    assert every.converged and gated.converged and every.iterations > 10
+    assert gated.iterations in (every.iterations, every.iterations + 1)
+    assert gated.residual == filtered_residual(system, problem, y) <= 1e-9 * residuals[0]
 
 
 # ==================================================================================================

@@ -322,5 +322,5 @@ def test_vbd_never_carries_a_vertex_through_a_thin_board(kind, monkeypatch):
         assert system.contact.minimum_distance(y) > 0.0
     assert min(heights) > -0.02 and min(heights) < -0.015, "the vertices come down to the board and stay above it"
     monkeypatch.setattr(type(system), "vertex_step_fractions", lambda self, x, vertices, steps: None)
-    unfiltered, _ = solver._sweep(problem, start, plans)
+    unfiltered, _, _ = solver._sweep(problem, start, plans)
     assert unfiltered.reshape(-1, 3)[:, 2].min() < -0.03, "the sweep without the cut jumps the board"

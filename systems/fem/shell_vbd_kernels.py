@@ -236,7 +236,8 @@ def _shell_change(i, u, y, indptr, shape_gradients, weights, mu, lam, model, mem
 def _chunk(first_vertex, last_vertex, max_degree, max_hinges, y, vertices, constrained, projectors, y_tilde, mass,
            scale, indptr, elements, shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, hinges, corners,
            stiffness, rest_angles, gravity_force, kept_area, damping_indptr, damping_indices, damping_data,
-           damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings):
+           damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings,
+           gradient_norms):
     """The vertices first_vertex:last_vertex of one colour (fem/vbd_kernels.py's ``_chunk`` with the shell's terms)."""
     d = 3
     scratch = _scratch(max_degree, max_hinges)
@@ -259,7 +260,8 @@ def _chunk(first_vertex, last_vertex, max_degree, max_hinges, y, vertices, const
         clearance = add_vertex_terms(i, y, d, colliders, projection, g, H, contact) if touching else math.inf
         finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
                       velocity_origin, g, H, rate, D)
-        newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
+        gradient_norms[k] = newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered,
+                                        filtered_vector, work)
         fraction = _kept_fraction(i, u, y, indptr, elements, kept_area)
         if touching and may_reach(u, d, colliders, clearance):  # IPC: the step stops short of the first collider
             fraction = min(fraction, vertex_impact_fraction(u, d, colliders, contact))
@@ -289,17 +291,19 @@ def _chunk(first_vertex, last_vertex, max_degree, max_hinges, y, vertices, const
 def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, max_degree, elements,
                  shape_gradients, weights, mu, lam, model, membrane, hinge_indptr, max_hinges, hinges, corners,
                  stiffness, rest_angles, gravity_force, kept_area, damping_indptr, damping_indices, damping_data,
-                 damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings):
+                 damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings,
+                 gradient_norms):
     """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
-    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders:
-    contact/point_kernels.py ``colliders_of``."""
+    for a step dropped); gradient_norms[k]: |g_k|_inf of E where vertex k met it (filtered; the sweep's residual).
+    ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders: contact/point_kernels.py
+    ``colliders_of``."""
     count = vertices.size
     for chunk in prange((count + CHUNK - 1) // CHUNK):
         _chunk(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK), max_degree, max_hinges, y, vertices, constrained,
                projectors, y_tilde, mass, scale, indptr, elements, shape_gradients, weights, mu, lam, model, membrane,
                hinge_indptr, hinges, corners, stiffness, rest_angles, gravity_force, kept_area, damping_indptr,
                damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection,
-               determinant_floor, max_halvings, halvings)
+               determinant_floor, max_halvings, halvings, gradient_norms)
 
 
 # -- the same terms for given vertices, each at x with the others held (what the numpy sweep and contact take) --------

@@ -46,6 +46,8 @@ from ..contact.point_kernels import (add_vertex_terms, beyond_reach, may_reach, 
 from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
 from .energies import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, WORK_SLOTS, _cofactor, material_terms
 from .linalg import _determinant, _symmetric_eigen
+from .tet_terms import (invariant_change, invariant_change_3d, invariant_elements_3d, invariant_terms,
+                        set_blocks)
 
 # vertices per chunk of the parallel loops: the scratch arrays are made once per chunk, not per vertex (their 30-odd
 # allocations cost about 3 us a chunk)
@@ -55,7 +57,7 @@ CHUNK = 64
 @numba.njit(cache=True, error_model="numpy")
 def _scratch(d, max_degree):
     """One chunk's arrays: each incident element's F, w = F n, c = cof(F) n, J and its energy's kept value (ln J or
-    1 / (I_C + 1), ``_invariant_blocks``); P, A, the material's work, K
+    1 / (I_C + 1), ``invariant_blocks``); P, A, the material's work, K
     and its eigensystem, a moved F (the co-rotated change), P n; one element's F, n, w and c.
 
     The loops index these whole arrays and copy one element's values in and out: a view per element (``Fs[slot]``)
@@ -187,142 +189,6 @@ def project_block(K, d, projection, copy, values, vectors):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _invariant_terms(model, F, n, d, mu, lam, alpha, C, w, c, stress, K):
-    """The neo-Hookean energies' P n (into stress) and K straight from the invariants (w = F n and c = cof(F) n into
-    w, c; C scratch): no tangent, no full P. Returns J and what ``_invariant_blocks`` returns."""
-    J = _determinant(F, d)
-    _cofactor(F, d, C)
-    invariant, squared = 0.0, 0.0
-    for i in range(d):
-        squared += n[i] * n[i]
-        along, volume = 0.0, 0.0
-        for j in range(d):
-            invariant += F[i, j] * F[i, j]
-            along += F[i, j] * n[j]
-            volume += C[i, j] * n[j]
-        w[i], c[i] = along, volume
-    return J, _invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, stress, K)
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_terms_3d(y, elements, shape_gradients, p, model, mu, lam, alpha, projection):
-    """``_invariant_terms`` of row p's tetrahedron (its corner 0 the vertex) written out in scalars (F's columns f_j,
-    cof(F) = [f1 x f2, f2 x f0, f0 x f1]), with K's projection in closed form where it has one: the same numbers to
-    round-off at a third of the cost of the loops over d. Returns (J, the kept value, w = F n, c = cof(F) n, and the
-    coefficients of P n = shear w + volume_stress c and K = diagonal I + stretch w w^T + spread c c^T: shear,
-    volume_stress, diagonal, stretch, spread)."""
-    v0, v1, v2, v3 = 3 * elements[p, 0], 3 * elements[p, 1], 3 * elements[p, 2], 3 * elements[p, 3]
-    g00, g01, g02 = shape_gradients[p, 0, 0], shape_gradients[p, 0, 1], shape_gradients[p, 0, 2]
-    g10, g11, g12 = shape_gradients[p, 1, 0], shape_gradients[p, 1, 1], shape_gradients[p, 1, 2]
-    g20, g21, g22 = shape_gradients[p, 2, 0], shape_gradients[p, 2, 1], shape_gradients[p, 2, 2]
-    g30, g31, g32 = shape_gradients[p, 3, 0], shape_gradients[p, 3, 1], shape_gradients[p, 3, 2]
-    x0, x1, x2, x3 = y[v0], y[v1], y[v2], y[v3]
-    f00 = x0 * g00 + x1 * g10 + x2 * g20 + x3 * g30
-    f01 = x0 * g01 + x1 * g11 + x2 * g21 + x3 * g31
-    f02 = x0 * g02 + x1 * g12 + x2 * g22 + x3 * g32
-    x0, x1, x2, x3 = y[v0 + 1], y[v1 + 1], y[v2 + 1], y[v3 + 1]
-    f10 = x0 * g00 + x1 * g10 + x2 * g20 + x3 * g30
-    f11 = x0 * g01 + x1 * g11 + x2 * g21 + x3 * g31
-    f12 = x0 * g02 + x1 * g12 + x2 * g22 + x3 * g32
-    x0, x1, x2, x3 = y[v0 + 2], y[v1 + 2], y[v2 + 2], y[v3 + 2]
-    f20 = x0 * g00 + x1 * g10 + x2 * g20 + x3 * g30
-    f21 = x0 * g01 + x1 * g11 + x2 * g21 + x3 * g31
-    f22 = x0 * g02 + x1 * g12 + x2 * g22 + x3 * g32
-    n0, n1, n2 = g00, g01, g02  # the vertex's own shape gradient
-    # cofactor columns: C[:, 0] = f1 x f2, C[:, 1] = f2 x f0, C[:, 2] = f0 x f1 (f_j = F[:, j])
-    c00, c10, c20 = f11 * f22 - f21 * f12, f21 * f02 - f01 * f22, f01 * f12 - f11 * f02
-    c01, c11, c21 = f12 * f20 - f22 * f10, f22 * f00 - f02 * f20, f02 * f10 - f12 * f00
-    c02, c12, c22 = f10 * f21 - f20 * f11, f20 * f01 - f00 * f21, f00 * f11 - f10 * f01
-    J = f00 * c00 + f10 * c10 + f20 * c20
-    invariant = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21
-                 + f22 * f22)
-    w0, w1, w2 = f00 * n0 + f01 * n1 + f02 * n2, f10 * n0 + f11 * n1 + f12 * n2, f20 * n0 + f21 * n1 + f22 * n2
-    a0, a1, a2 = c00 * n0 + c01 * n1 + c02 * n2, c10 * n0 + c11 * n1 + c12 * n2, c20 * n0 + c21 * n1 + c22 * n2
-    squared = n0 * n0 + n1 * n1 + n2 * n2
-    shear, stretch, spread, volume_stress, kept = _invariant_coefficients(model, J, invariant, mu, lam, alpha)
-    diagonal = shear * squared
-    if projection != 0 and spread < 0.0:
-        # K = shear |n|^2 I + stretch w w^T + spread c c^T with shear, stretch >= 0. Only the neo-Hookean K (stretch 0)
-        # gets here: its eigenvalue along c is shear |n|^2 + spread |c|^2 (across c: shear |n|^2), so the projection
-        # moves that one. The stable neo-Hookean spread is its lambda, above 0 for every nu > -1 (materials.py).
-        along = a0 * a0 + a1 * a1 + a2 * a2
-        lowest = diagonal + spread * along
-        if lowest < 0.0:
-            spread = ((0.0 if projection == 1 else -lowest) - diagonal) / along
-    return J, kept, w0, w1, w2, a0, a1, a2, shear, volume_stress, diagonal, stretch, spread
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_elements_3d(i, y, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection, ws, cs,
-                           Js, kept):
-    """The real-time case, the neo-Hookean energies on tetrahedra, in scalars: (dP_el/dy_i, the upper triangle of the
-    sum of the elements' projected K: h00, h01, h02, h11, h12, h22); each element's w, c, J and kept value into ws,
-    cs, Js and kept. The sums stay in registers: summed in arrays, each element's blocks were stored and loaded again
-    (numba cannot tell those arrays from y), which had cost the vertex blocks of the 12,288-tet beam 1.8 us per vertex
-    against 1.0 now."""
-    g0 = g1 = g2 = 0.0
-    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-    for p in range(indptr[i], indptr[i + 1]):
-        slot = p - indptr[i]
-        J, value, w0, w1, w2, a0, a1, a2, shear, volume_stress, diagonal, stretch, spread = _invariant_terms_3d(
-            y, elements, shape_gradients, p, model, mu[p], lam[p], alpha[p], projection)
-        ws[slot, 0], ws[slot, 1], ws[slot, 2] = w0, w1, w2
-        cs[slot, 0], cs[slot, 1], cs[slot, 2] = a0, a1, a2
-        Js[slot], kept[slot] = J, value
-        volume = volumes[p]
-        g0 += volume * (shear * w0 + volume_stress * a0)
-        g1 += volume * (shear * w1 + volume_stress * a1)
-        g2 += volume * (shear * w2 + volume_stress * a2)
-        h00 += volume * (diagonal + stretch * w0 * w0 + spread * a0 * a0)
-        h11 += volume * (diagonal + stretch * w1 * w1 + spread * a1 * a1)
-        h22 += volume * (diagonal + stretch * w2 * w2 + spread * a2 * a2)
-        h01 += volume * (stretch * w0 * w1 + spread * a0 * a1)
-        h02 += volume * (stretch * w0 * w2 + spread * a0 * a2)
-        h12 += volume * (stretch * w1 * w2 + spread * a1 * a2)
-    return g0, g1, g2, h00, h01, h02, h11, h12, h22
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _set_blocks(g, H, g0, g1, g2, h00, h01, h02, h11, h12, h22):
-    """g = (g0, g1, g2) and the symmetric H of its upper triangle."""
-    g[0], g[1], g[2] = g0, g1, g2
-    H[0, 0], H[1, 1], H[2, 2] = h00, h11, h22
-    H[0, 1] = H[1, 0] = h01
-    H[0, 2] = H[2, 0] = h02
-    H[1, 2] = H[2, 1] = h12
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_coefficients(model, J, invariant, mu, lam, alpha):
-    """The neo-Hookean energies' P n = shear w + volume_stress c and K = shear |n|^2 I + stretch w w^T + spread c c^T
-    (w = F n, c = cof(F) n): (shear, stretch, spread, volume_stress, kept), kept what their energy change reads
-    besides J: ln J (neo-Hookean), 1 / (I_C + 1) (stable neo-Hookean, whose alpha = 1 + mu d / ((d + 1) lambda) is
-    the element's, made once)."""
-    if model == NEO_HOOKEAN:
-        # P n = mu w + (lambda ln J - mu) / J c
-        log_J = math.log(J) if J > 0.0 else math.nan
-        inverse = 1.0 / J
-        return mu, 0.0, (mu + lam * (1.0 - log_J)) * inverse * inverse, (lam * log_J - mu) * inverse, log_J
-    # STABLE_NEO_HOOKEAN: P n = (mu - mu / (I_C + 1)) w + lambda (J - alpha) c
-    kept = 1.0 / (invariant + 1.0)
-    return mu - mu * kept, 2.0 * mu * kept * kept, lam, lam * (J - alpha), kept
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, stress, K):
-    """P n (into stress) and K of the neo-Hookean energies from J, I_C, |n|^2, w and c; returns the kept value
-    (``_invariant_coefficients``)."""
-    shear, stretch, spread, volume_stress, kept = _invariant_coefficients(model, J, invariant, mu, lam, alpha)
-    diagonal = shear * squared
-    for i in range(d):
-        stress[i] = shear * w[i] + volume_stress * c[i]
-        for k in range(d):
-            K[i, k] = stretch * w[i] * w[k] + spread * c[i] * c[k]
-        K[i, i] += diagonal
-    return kept
-
-
-@numba.njit(cache=True, error_model="numpy")
 def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection,
                  g, H, scratch):
     """dP_el/dy_i into g and the projected sum of the elements' K into H; each incident element's F, w, c, J and kept
@@ -331,9 +197,9 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
     Fs, ws, cs, Js, kept, P, A, work, K, copy, values, vectors, _, stress, F, n, w, c = scratch
     invariant_based = model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN
     if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars: F itself is not kept
-        g0, g1, g2, h00, h01, h02, h11, h12, h22 = _invariant_elements_3d(
+        g0, g1, g2, h00, h01, h02, h11, h12, h22 = invariant_elements_3d(
             i, y, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection, ws, cs, Js, kept)
-        _set_blocks(g, H, g0, g1, g2, h00, h01, h02, h11, h12, h22)
+        set_blocks(g, H, g0, g1, g2, h00, h01, h02, h11, h12, h22)
         return
     for a in range(d):
         g[a] = 0.0
@@ -347,7 +213,7 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
             for b in range(d):
                 Fs[slot, a, b] = F[a, b]
         if invariant_based:
-            J, value = _invariant_terms(model, F, n, d, mu[e], lam[e], alpha[e], copy, w, c, stress, K)
+            J, value = invariant_terms(model, F, n, d, mu[e], lam[e], alpha[e], copy, w, c, stress, K)
         else:
             material_terms(model, F, d, mu[e], lam[e], P, A, model == COROTATED, work)
             vertex_stiffness(model, F, n, d, mu[e], lam[e], A, K, work)
@@ -374,7 +240,7 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
 @numba.njit(cache=True, error_model="numpy")
 def _density_change(model, F, n, w, c, J, kept, u, d, mu, lam, alpha, moved, P, A, work):
     """psi(F + u n^T) - psi(F) without cancellation (see the module docstring); w = F n and kept (the neo-Hookean
-    energies', ``_invariant_blocks``), c = cof(F) n, J = det F."""
+    energies', ``invariant_blocks``), c = cof(F) n, J = det F."""
     squared_n, squared_u, turned, volume_change = 0.0, 0.0, 0.0, 0.0  # |n|^2, |u|^2, u . n, c . u
     for j in range(d):
         squared_n += n[j] * n[j]
@@ -420,35 +286,7 @@ def _density_change(model, F, n, w, c, J, kept, u, d, mu, lam, alpha, moved, P, 
     along = 0.0
     for j in range(d):
         along += u[j] * w[j]
-    return _invariant_change(model, J, kept, 2.0 * along + squared_u * squared_n, volume_change, mu, lam, alpha)
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_change(model, J, kept, invariant_change, volume_change, mu, lam, alpha):
-    """psi' - psi of the neo-Hookean energies from the exact changes of I_C and J; kept: ln J (neo-Hookean) or
-    1 / (I_C + 1) (stable neo-Hookean), as ``_invariant_blocks`` left it."""
-    if model == NEO_HOOKEAN:
-        if not (J > 0.0 and J + volume_change > 0.0):
-            return math.inf  # inverted or flat: the energy is infinite there, and no step is taken to it
-        log_ratio = math.log1p(volume_change / J)
-        return 0.5 * mu * invariant_change - mu * log_ratio + 0.5 * lam * log_ratio * (2.0 * kept + log_ratio)
-    return (0.5 * mu * invariant_change + 0.5 * lam * volume_change * (2.0 * (J - alpha) + volume_change)
-            - 0.5 * mu * math.log1p(invariant_change * kept))
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _invariant_change_3d(i, u0, u1, u2, indptr, shape_gradients, volumes, mu, lam, alpha, model, ws, cs, Js, kept):
-    """``_elastic_change`` of the neo-Hookean energies on tetrahedra, from what ``_invariant_elements_3d`` kept."""
-    squared_u = u0 * u0 + u1 * u1 + u2 * u2
-    total = 0.0
-    for p in range(indptr[i], indptr[i + 1]):
-        slot = p - indptr[i]
-        n0, n1, n2 = shape_gradients[p, 0, 0], shape_gradients[p, 0, 1], shape_gradients[p, 0, 2]
-        total += volumes[p] * _invariant_change(
-            model, Js[slot], kept[slot], 2.0 * (u0 * ws[slot, 0] + u1 * ws[slot, 1] + u2 * ws[slot, 2])
-            + squared_u * (n0 * n0 + n1 * n1 + n2 * n2), u0 * cs[slot, 0] + u1 * cs[slot, 1] + u2 * cs[slot, 2],
-            mu[p], lam[p], alpha[p])
-    return total
+    return invariant_change(model, J, kept, 2.0 * along + squared_u * squared_n, volume_change, mu, lam, alpha)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -458,7 +296,7 @@ def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, alpha, m
     invariant_based = model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN
     total = 0.0
     if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars
-        return _invariant_change_3d(i, u[0], u[1], u[2], indptr, shape_gradients, volumes, mu, lam, alpha, model, ws,
+        return invariant_change_3d(i, u[0], u[1], u[2], indptr, shape_gradients, volumes, mu, lam, alpha, model, ws,
                                     cs, Js, kept)
     for p in range(indptr[i], indptr[i + 1]):
         slot = p - indptr[i]
@@ -492,7 +330,7 @@ def _kept_fraction(i, u, d, indptr, kept_volume, scratch):
 def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
            elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force, kept_volume, damping_indptr,
            damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor,
-           max_halvings, halvings):
+           max_halvings, halvings, gradient_norms):
     """The vertices first_vertex:last_vertex of one colour; d a constant at each call site."""
     scratch = _scratch(d, max_degree)
     contact = point_scratch(d, colliders)
@@ -512,9 +350,9 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
     for k in range(first_vertex, last_vertex):
         i = vertices[k]
         if tetrahedra_in_scalars:
-            g0, g1, g2, h00, h01, h02, h11, h12, h22 = _invariant_elements_3d(
+            g0, g1, g2, h00, h01, h02, h11, h12, h22 = invariant_elements_3d(
                 i, y, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection, ws, cs, Js, kept)
-            _set_blocks(g, H, g0, g1, g2, h00, h01, h02, h11, h12, h22)
+            set_blocks(g, H, g0, g1, g2, h00, h01, h02, h11, h12, h22)
         else:
             _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection,
                          g, H, scratch)
@@ -523,7 +361,8 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
         clearance = add_vertex_terms(i, y, d, colliders, projection, g, H, contact) if touching else math.inf
         finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
                       velocity_origin, g, H, rate, D)
-        newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
+        gradient_norms[k] = newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered,
+                                        filtered_vector, work)
         fraction = _kept_fraction(i, u, d, indptr, kept_volume, scratch)
         if touching and may_reach(u, d, colliders, clearance):  # IPC: the step stops short of the first collider
             fraction = min(fraction, vertex_impact_fraction(u, d, colliders, contact))
@@ -533,7 +372,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
         rounds = 0
         while True:
             if tetrahedra_in_scalars:
-                potential = _invariant_change_3d(i, u[0], u[1], u[2], indptr, shape_gradients, volumes, mu, lam, alpha,
+                potential = invariant_change_3d(i, u[0], u[1], u[2], indptr, shape_gradients, volumes, mu, lam, alpha,
                                                  model, ws, cs, Js, kept)
             else:
                 potential = _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, alpha, model, scratch)
@@ -556,17 +395,18 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
 def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, max_degree,
                  elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force, kept_volume, damping_indptr,
                  damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor,
-                 max_halvings, halvings):
+                 max_halvings, halvings, gradient_norms):
     """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
-    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders:
-    contact/point_kernels.py ``colliders_of``."""
+    for a step dropped); gradient_norms[k]: |g_k|_inf of E where vertex k met it (filtered; the sweep's residual).
+    ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders: contact/point_kernels.py
+    ``colliders_of``."""
     dim = projectors.shape[1]
     count = vertices.size
     for chunk in prange((count + CHUNK - 1) // CHUNK):
         _chunk(chunk * CHUNK, min(count, chunk * CHUNK + CHUNK), dim, max_degree, y, vertices, constrained, projectors,
                y_tilde, mass, scale, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, gravity_force,
                kept_volume, damping_indptr, damping_indices, damping_data, damping_weight, velocity_origin, colliders,
-               projection, determinant_floor, max_halvings, halvings)
+               projection, determinant_floor, max_halvings, halvings, gradient_norms)
 
 
 # -- the same terms for given vertices, each at x with the others held (what the numpy sweep and contact take) --------

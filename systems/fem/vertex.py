@@ -14,16 +14,17 @@ class _CompiledTerms:
     (what the numpy sweep and contact take), through the kernel module ``_kernels()`` with the arguments ``_terms``."""
 
     def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
-              halvings) -> None:
+              halvings, gradient_norms) -> None:
         """One colour's steps in place in y (the kernels' ``sweep_colour``); ``potential``: the incremental potential's
-        parts (solvers/vbd.py ``IncrementalParts``)."""
+        parts (solvers/vbd.py ``IncrementalParts``); per vertex, into halvings and gradient_norms: its backtracking
+        rounds and the |g_i|_inf it met."""
         from ..mass_spring.vbd_kernels import PROJECTION_CODES, unsigned
 
         self._kernels().sweep_colour(
             y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
             *self._terms, self.gravity_force, self._kept, potential.damping_indptr, potential.damping_indices,
             potential.damping_data, potential.damping_weight, potential.velocity_origin, self.colliders,
-            PROJECTION_CODES[projection], determinant_floor, max_halvings, halvings)
+            PROJECTION_CODES[projection], determinant_floor, max_halvings, halvings, gradient_norms)
 
     def blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd) -> tuple[np.ndarray, np.ndarray]:
         """(dP/dx_i (k, d), the projected sum of the terms' blocks (k, d, d)) of the elastic terms and gravity."""

@@ -183,13 +183,14 @@ class SpringSweep:
                    empty_colliders(system.dim))
 
     def sweep(self, y, vertices, constrained, projectors, potential, projection, determinant_floor, max_halvings,
-              halvings) -> None:
+              halvings, gradient_norms) -> None:
         """One colour's steps in place in y (vbd_kernels.sweep_colour); ``potential``: the incremental potential's
-        parts (``IncrementalParts``)."""
+        parts (``IncrementalParts``); per vertex, into halvings and gradient_norms: its backtracking rounds and the
+        |g_i|_inf it met."""
         from .vbd_kernels import PROJECTION_CODES, sweep_colour, unsigned
 
         sweep_colour(y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
                      self.indptr, self.other, self.springs, self.max_degree, self.stiffness, self.rest_length,
                      self.rest_length_squared, self.law, self.gravity_force, potential.damping_indptr, potential.damping_indices,
                      potential.damping_data, potential.damping_weight, potential.velocity_origin, self.colliders,
-                     PROJECTION_CODES[projection], determinant_floor, max_halvings, halvings)
+                     PROJECTION_CODES[projection], determinant_floor, max_halvings, halvings, gradient_norms)

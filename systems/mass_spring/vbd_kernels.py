@@ -123,7 +123,8 @@ def _change(i, u, y, d, y_tilde, mass, scale, indptr, springs, stiffness, rest_l
 @numba.njit(cache=True, error_model="numpy")
 def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, other,
            springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr, damping_indices,
-           damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings):
+           damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings, halvings,
+           gradient_norms):
     """The vertices first_vertex:last_vertex of one colour; d a constant at each call site, so that the d x d loops
     unroll. Each vertex: g_i and H_i of E at y, the damping's rates (D (y - a))_i and block D_ii, and each incident
     spring's y_i - y_j and length (what ``_change`` reads), the Newton step and its backtracking. The colliders'
@@ -151,7 +152,8 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
         clearance = add_vertex_terms(i, y, d, colliders, projection, g, H, contact) if touching else math.inf
         finish_blocks(i, y, d, y_tilde, mass, scale, damping_indptr, damping_indices, damping_data, damping_weight,
                       velocity_origin, g, H, rate, D)
-        newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered, filtered_vector, work)
+        gradient_norms[k] = newton_step(H, g, u, constrained[k], projectors[k], determinant_floor, d, filtered,
+                                        filtered_vector, work)
         if touching and may_reach(u, d, colliders, clearance):  # IPC: the step stops short of the first collider
             fraction = vertex_impact_fraction(u, d, colliders, contact)
             if fraction < 1.0:
@@ -176,10 +178,11 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
 def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, indptr, other, springs, max_degree,
                  stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr, damping_indices,
                  damping_data, damping_weight, velocity_origin, colliders, projection, determinant_floor, max_halvings,
-                 halvings):
+                 halvings, gradient_norms):
     """One colour's vertex steps, taken in place in y; halvings[k]: the halvings vertex k's step took (max_halvings
-    for a step dropped). ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders:
-    contact/point_kernels.py ``colliders_of``."""
+    for a step dropped); gradient_norms[k]: |g_k|_inf of E where vertex k met it (filtered; the sweep's residual).
+    ``constrained[k]``: vertex k's filter is projectors[k] (fixed dofs or sliding); colliders: contact/point_kernels.py
+    ``colliders_of``."""
     dim = projectors.shape[1]
     count = vertices.size
     chunks = (count + CHUNK - 1) // CHUNK
@@ -189,12 +192,12 @@ def sweep_colour(y, vertices, constrained, projectors, y_tilde, mass, scale, ind
             _chunk(first_vertex, last_vertex, 3, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
                    other, springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr,
                    damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection,
-                   determinant_floor, max_halvings, halvings)
+                   determinant_floor, max_halvings, halvings, gradient_norms)
         else:
             _chunk(first_vertex, last_vertex, 2, max_degree, y, vertices, constrained, projectors, y_tilde, mass, scale, indptr,
                    other, springs, stiffness, rest_length, rest_length_squared, law, gravity_force, damping_indptr,
                    damping_indices, damping_data, damping_weight, velocity_origin, colliders, projection,
-                   determinant_floor, max_halvings, halvings)
+                   determinant_floor, max_halvings, halvings, gradient_norms)
 
 
 keep_fresh(globals())  # the cached kernels above compiled from today's sources (compiled_cache.py)
