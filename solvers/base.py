@@ -273,6 +273,27 @@ class Outcome:
     test: ConvergenceTest
 
 
+class FrameClock:
+    """A solve's time budget, as a real-time frame's: the solve stops before an iteration that would end past it, the
+    next iteration's length taken as the last one's. The first iteration is always taken (its length is timed from the
+    end of the solve's start, whose factorisations the budget includes but whose length is not an iteration's)."""
+
+    __slots__ = ("deadline", "mark")
+
+    def __init__(self, budget: float):
+        self.mark = time.perf_counter()
+        self.deadline = self.mark + budget
+
+    def start_iterations(self) -> None:
+        self.mark = time.perf_counter()
+
+    def spent(self) -> bool:
+        """After an iteration: whether one more as long would end past the budget."""
+        now = time.perf_counter()
+        length, self.mark = now - self.mark, now
+        return now + length > self.deadline
+
+
 class NonlinearSolver(ABC):
     """Base of the nonlinear solvers: the loop, the counts and the convergence test (see the module docstring).
 
@@ -283,8 +304,8 @@ class NonlinearSolver(ABC):
     x_n; ``inertial``, ``predictor``, ``adaptive``: the problem's ``initial_guess(kind)``, see
     integrators/base.py); callback(y, gradient), called after the start and every iteration (tests
     record histories with it); time_budget: seconds of wall time per solve (its start, factorisations
-    included, to the end of an iteration), after which the solve stops unconverged (None: no limit;
-    real-time practice: a frame's budget, see ``on_not_converged: accept``).
+    included): the solve stops unconverged before an iteration that would end past it (``FrameClock``; None: no
+    limit; real-time practice: a frame's budget, see ``on_not_converged: accept``).
     """
 
     name: ClassVar[str]
@@ -356,7 +377,7 @@ class NonlinearSolver(ABC):
 
     def _run(self, problem, start: np.ndarray, test: ConvergenceTest | None):
         """The iteration: (y, SolveStats, best y, test), what ``Outcome`` holds (``minimize`` needs no Outcome)."""
-        deadline = None if self.time_budget is None else time.perf_counter() + self.time_budget
+        clock = None if self.time_budget is None else FrameClock(self.time_budget)
         free = _free_dofs(start.size, problem.fixed_dofs, getattr(problem, "sliding", None))
         callback = self.callback
         y = _own_copy(start)
@@ -378,6 +399,8 @@ class NonlinearSolver(ABC):
                 state = self._begin(problem, current, free)
             except FACTORISATION_FAILURES:  # a factorisation at the start (PD's, L-BFGS's H_0) failed: not converged
                 began = False
+            if clock is not None:
+                clock.start_iterations()
             step_mode = test.tests_steps
             while began and iterations < self.max_iterations:
                 try:
@@ -408,7 +431,7 @@ class NonlinearSolver(ABC):
                     current = Iterate(advance.y, None, estimate, advance.energy)
                     if not math.isfinite(estimate):
                         break
-                    if deadline is not None and time.perf_counter() >= deadline:
+                    if clock is not None and clock.spent():
                         break
                     continue
                 gradient = advance.gradient
@@ -426,7 +449,7 @@ class NonlinearSolver(ABC):
                 if residual <= test.threshold or final:  # test.residual_met, or the step test met
                     converged = True
                     break
-                if deadline is not None and time.perf_counter() >= deadline:  # the frame's time is spent
+                if clock is not None and clock.spent():  # the frame's time would be overrun by one more
                     break
         if current.gradient is None:  # the last iterate's residual was an estimate: the solve reports the true one
             gradient = problem.gradient(current.y)

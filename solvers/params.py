@@ -244,7 +244,7 @@ RefactorRate = Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False, descripti
 
 # The real-time solvers' budget (not Newton's: a sweep of solver.type keeps its Newton runs converged, the reference
 # the budgeted ones are measured against)
-TimeBudget = Annotated[Optional[float], Field(gt=0, allow_inf_nan=False, description="seconds of wall time per step's solve (factorisations included) after which it stops, unconverged: a frame's budget, as real-time practice sets it (with on_not_converged: accept the run stays ok); null: no limit. The iterations it buys depend on the machine and its load, so budgeted runs do not repeat bit for bit")]
+TimeBudget = Annotated[Optional[float], Field(gt=0, allow_inf_nan=False, description="seconds of wall time per step's solve (factorisations included): it stops, unconverged, before an iteration that would end past them (the next taken as long as the last; the first is always taken): a frame's budget, as real-time practice sets it (with on_not_converged: accept the run stays ok); null: no limit. The iterations it buys depend on the machine and its load, so budgeted runs do not repeat bit for bit")]
 
 
 class NewtonParams(SolverParams):
