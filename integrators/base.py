@@ -150,9 +150,6 @@ class Integrator(BaseModel):
     family: ClassVar[str] = "lecture"
     # a peer's run is taken whole by another code (integrators/peers.py), not step by step
     whole_run: ClassVar[bool] = False
-    # is its own work (an explicit method's: the solver is not called) numba's compiled loops, with no BLAS call that
-    # gains from threads? The run then holds BLAS at one thread, as for such a solver (NonlinearSolver's attribute)
-    needs_no_blas_threads: ClassVar[bool] = False
     # a multistep method's State.aux holds its history at its own past steps: a step from the same state at another
     # size (Richardson's two half steps) is not the method's step, so no Richardson estimate is taken of it
     carries_history: ClassVar[bool] = False

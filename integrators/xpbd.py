@@ -55,7 +55,9 @@ class XPBD(Integrator):
     name: ClassVar[str] = "xpbd"
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = True  # no nonlinear solve: the solver is never called
-    needs_no_blas_threads: ClassVar[bool] = True  # the projections on numba's threads (xpbd_kernels.py)
+    # its work is the projections on numba's threads (xpbd_kernels.py), with no BLAS call that gains from threads: the
+    # run holds BLAS at one thread (runner/execution/simulate.py, as for a solver with NonlinearSolver's attribute)
+    needs_no_blas_threads: ClassVar[bool] = True
     summary: ClassVar[str] = "XPBD with substeps (small steps); on the spring each substep is backward Euler with h/substeps"
 
     substeps: int = Field(10, ge=1, le=10_000, description="substeps per step, each h/substeps long (small steps)")

@@ -260,7 +260,9 @@ class VertexBlockDescent(NonlinearSolver):
             met = np.array(gradient)
             if plan.filtered.size:
                 met[plan.filtered] = np.einsum("fij,fj->fi", plan.projectors, met[plan.filtered])
-            residual = max(residual, float(np.max(np.abs(met), initial=0.0)))
+            largest = float(np.max(np.abs(met), initial=0.0))
+            if not largest <= residual:  # a NaN too: Python's max would drop it
+                residual = largest
             steps = self._newton_steps(gradient, hessian, plan)
             fractions = problem.vertex_step_fractions(swept, vertices, steps)
             if fractions is not None:

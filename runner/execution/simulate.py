@@ -295,10 +295,10 @@ def simulate(run: Run) -> RunResult:
 
 
 def needs_no_blas_threads(integrator, solver) -> bool:
-    """Whether a run's work gains nothing from BLAS threads: its integrator's own (an explicit method's), or its
-    solver's (every solver of a fallback chain)."""
+    """Whether a run's work gains nothing from BLAS threads: an explicit method's own (those that declare
+    ``needs_no_blas_threads``: XPBD), or its solver's (every solver of a fallback chain)."""
     if integrator.explicit:
-        return integrator.needs_no_blas_threads
+        return getattr(integrator, "needs_no_blas_threads", False)
     return bool(getattr(solver, "needs_no_blas_threads", False))
 
 
