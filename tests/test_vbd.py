@@ -290,9 +290,9 @@ def constrained_cloth():
 
 
 @pytest.mark.parametrize("path", ["numpy", "compiled"])
-def test_the_first_colours_sweep_residual_is_the_filtered_gradient_of_its_vertices(path):
-    """The first colour's vertices meet E at y itself: the sweep's residual over that colour alone is the largest
-    |S_i g_i(y)|_inf of its vertices (pins zeroed, sliding vertices filtered), to round-off."""
+def test_a_colours_sweep_residual_is_the_filtered_gradient_of_its_vertices(path):
+    """A colour swept alone from y meets E at y itself: its sweep's residual is the largest |S_i g_i(y)|_inf of its
+    vertices (pins zeroed, sliding vertices filtered), to round-off; for every colour."""
     from simrun.solvers.dofs import free_dofs
     from simrun.solvers.vbd import IncrementalParts, colour_plans
 

@@ -282,3 +282,18 @@ def test_vbd_reaches_newtons_backward_euler_step_of_a_hanging_box():
     assert stats.converged
     moved = np.max(np.abs(reference - start))
     assert np.max(np.abs(y - reference)) < 1e-4 * moved
+
+
+def test_the_first_root_shortcut_is_the_root_search_where_it_applies():
+    """kernels._first_root returns 2.0 at once where c0 + min(c1, 0) + min(c2, 0) + min(c3, 0) > 0 (the cubic cannot
+    reach 0 on [0, 1]); everywhere, small steps and large, it is the first crossing of the full search, or 2.0."""
+    rng = np.random.default_rng(4)
+    shortcuts = 0
+    for scale in (1e-3, 0.1, 1.0, 5.0):
+        for c1, c2, c3 in scale * rng.standard_normal((400, 3)):
+            c0 = 0.9
+            crossings = kernels.cubic_crossings(c0, c1, c2, c3)
+            expected = crossings[0] if len(crossings) else 2.0
+            shortcuts += c0 + min(c1, 0.0) + min(c2, 0.0) + min(c3, 0.0) > 0.0
+            assert kernels._first_root(c0, c1, c2, c3) == expected
+    assert 0 < shortcuts < 1600, "both paths must be taken"
