@@ -1,7 +1,7 @@
 """`python -m benchmarks` (what `make bench` runs): every benchmark, one table of ratios.
 
 Every figure is a ratio against a reference measured in the same process in the same run; the
-target column is issue 8's bound on that ratio (or on the absolute time it names), and the absolute
+target column is the bound on that ratio (or on the absolute time it names), and the absolute
 times are printed for information. ``SIMRUN_BENCH_QUICK=1`` skips the end-to-end runs of damping_curves and of the
 damping map.
 """

@@ -1,4 +1,4 @@
-"""Calibration (issue 17): what the exact forward sensitivities buy over finite differences.
+"""Calibration: what the exact forward sensitivities buy over finite differences.
 
 One fit each, with the engine's exact Jacobian (``sensitivities: auto``) against forward finite differences
 (``finite_differences``: one more simulation per parameter and Jacobian), started from the same values on the same

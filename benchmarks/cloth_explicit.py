@@ -5,7 +5,7 @@ default recording (energies and momenta every step, frames at their own cadence)
 check. The reference, written inline here, is the vectorised spring force (one sparse incidence
 product for the scatter), gravity, the pins and the update v += dt M^-1 f, x += dt v, without any
 recording.
-Target (issue 8): at most 1.5.
+Target: at most 1.5.
 """
 
 from __future__ import annotations

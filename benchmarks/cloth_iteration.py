@@ -5,7 +5,7 @@ line search, direct solve) minimises one incremental potential of a deformed, mo
 fixed number of iterations (tolerance 0, so none ends early); the time per iteration (assembly,
 restriction to the free dofs, factorisation and solve, line search, bookkeeping) is divided by the
 time of one ``splu`` of the same reduced matrix with the options the direct solver uses, measured
-in the same run. Target (issue 8): at most 1.3 at 64x64. The same iteration with the optional
+in the same run. Target: at most 1.3 at 64x64. The same iteration with the optional
 ``cholesky`` linear solver (CHOLMOD: the pattern analysed in the warm-up solve, as in a run's
 first step, then refactored per iteration) against the same splu: at most 0.6 at 64x64.
 """

@@ -1,4 +1,4 @@
-"""Contact handling within a Newton iteration (issue 15): a 64 x 64 cloth with self-contact on, resting on a
+"""Contact handling within a Newton iteration: a 64 x 64 cloth with self-contact on, resting on a
 sphere under IPC with friction, one backward Euler step (dt = 0.01 s) with projected Newton (IPC's solver: the raw
 Hessian of a cloth bent over a sphere is indefinite, and the default Newton's raw steps are cut short by CCD).
 

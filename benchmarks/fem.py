@@ -1,15 +1,15 @@
-"""Finite elements at compiled speed (issue 27): the element loops per tetrahedron, a Newton iteration against a
+"""Finite elements at compiled speed: the element loops per tetrahedron, a Newton iteration against a
 factorisation of its matrix, and the course code's Newton iteration on its own square.
 
 - Element loops on a 20^3-cube box (48,000 tets), stable neo-Hookean, one thread, at a state 1 % off the rest shape:
-  energy, gradient, and the Hessian with its scatter into the fixed pattern, raw and SPD-projected. Target (issue
-  27): at most 2 us per tet for all of it. A compiled C loop does a StVK Hessian and its scatter in about 1.2 us per
-  tet on this machine.
+  energy, gradient, and the Hessian with its scatter into the fixed pattern, raw and SPD-projected. Target:
+  at most 2 us per tet for all of it, set by what a compiled C loop takes for a StVK Hessian and its scatter
+  (docs/performance.md).
 - A backward Euler step of a 12 x 12 x 12 box hanging from one face (projected Newton, the direct solver): the
   cost of one Newton iteration over one symmetric-mode SuperLU factorisation of its Newton matrix. Target: <= 1.5.
 - A shell on a 64 x 64 grid (7,938 StVK membrane triangles, 11,781 discrete-shell hinges), one thread: gradient and
   SPD-projected Hessian with its scatter, over the mass-spring cloth's (clamped springs) on the same grid; per
-  triangle and per hinge for information. No target in the issue: a hinge's 9 x 9 eigenproblem (the projection of
+  triangle and per hinge for information. No target: a hinge's 9 x 9 eigenproblem (the projection of
   its indefinite Hessian) is most of it.
 - The course code's 2-D neo-Hookean square (solid-sim-tutorial 6_inv_free), 16 segments: its Newton iteration (its
   own functions, Python loops per element) over simrun's on the same scene. Target: >= 50. The course code is not

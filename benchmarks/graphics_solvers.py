@@ -1,4 +1,4 @@
-"""The solvers of graphics practice against Newton (issue 16), each as a ratio measured in this run.
+"""The solvers of graphics practice against Newton, each as a ratio measured in this run.
 
 - The cloth dropped on a penalty sphere (16x16, k = 1e5, backward Euler, dt = 0.005, tolerance 1e-9) with
   the default solver, to t = 0.4 s (through first contact): Newton iterations per step (target <= 8).

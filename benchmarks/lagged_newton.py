@@ -1,4 +1,4 @@
-"""Fewer factorisations per cloth step (issue 18): Newton with the factorisation lagged across iterations and steps
+"""Fewer factorisations per cloth step: Newton with the factorisation lagged across iterations and steps
 (``solver.refactor: adaptive``, solvers/lagged.py), and Newton-Krylov with PCG preconditioned by that factorisation
 (``refactor: preconditioner``), against Newton that factorises at every iteration, backward
 Euler, dt = 0.01 s, tolerance 1e-9, on the hanging cloth (pinned at two corners) and on a cloth falling onto a

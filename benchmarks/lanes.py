@@ -1,4 +1,4 @@
-"""Lockstep lanes (issue 18, runner/execution/lanes.py): many spring runs stepped together, against the same arithmetic written
+"""Lockstep lanes (runner/execution/lanes.py): many spring runs stepped together, against the same arithmetic written
 as a bare numpy loop here, and the damping map end to end.
 
 - 10^4 spring runs (w from 1 to 100 rad/s x 100 damping ratios in (0, 0.05]) of 10^3 steps of 0.01 s, stepped by

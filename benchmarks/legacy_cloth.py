@@ -1,4 +1,4 @@
-"""The cloth system as it was before issue 14 made it a grid ``mass_spring`` (systems/cloth.py at commit
+"""The cloth system as it was before it became a grid ``mass_spring`` (systems/cloth.py at commit
 50b8fe0), kept unchanged here as the reference of ``benchmarks/mass_spring_paths.py``: the general
 mass-spring path must cost no more than this specialised one. Not used by simrun itself.
 """

@@ -1,4 +1,4 @@
-"""The general mass-spring path against the specialised cloth it replaced (issue 14).
+"""The general mass-spring path against the specialised cloth it replaced.
 
 A 64x64 grid built as ``type: mass_spring`` (grid generator, stiffness per kind, equal masses, pinned
 corners) against ``benchmarks/legacy_cloth.py``, the cloth system as it was before it became a grid
@@ -6,7 +6,7 @@ mass_spring, on the same state:
 - an explicit step (symplectic Euler through simulate(), recording included), per step;
 - one backward Euler Newton iteration: the incremental potential's value, gradient and SPD-projected
   Hessian, the SuperLU factorisation of the free block and the solve.
-Target (issue 14): at most 1.05 for both.
+Target: at most 1.05 for both.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
-"""A user's own mesh at the speed of the grid (issue 30): Newton on a spot-sized surface in no useful vertex order.
+"""A user's own mesh at the speed of the grid: Newton on a spot-sized surface in no useful vertex order.
 
 The benchmark makes its mesh itself (models/make_models.py's ``spot_like_surface``: 2,930 vertices, as spot.obj,
 shuffled as an export's or a scan's are), writes it as an OBJ and drops it as a mass-spring shell onto the ground
 under IPC with friction (backward Euler, dt = 0.01 s, the default solver: Newton with the direct solver), starting
 at dhat above the ground so that contact acts from the first step. The cost of one Newton iteration (the run's
 wall time over its Newton iterations: energies, gradients, Hessians, IPC's barrier and CCD, the factorisation, the
-line search) is compared with one symmetric-mode factorisation of its first Newton matrix. Target: at most 3. Before
-issue 30 the direct solver factored that matrix with partial pivoting, 180x the symmetric mode's time.
+line search) is compared with one symmetric-mode factorisation of its first Newton matrix. Target: at most 3. Partial
+pivoting in the MMD ordering would factor that matrix in 180x the symmetric mode's time.
 """
 
 from __future__ import annotations

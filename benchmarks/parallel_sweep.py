@@ -1,7 +1,7 @@
 """``--jobs 2`` against ``--jobs 1`` on a sweep of 16 independent runs of about a second each.
 
 Both go through the real command line (``simrun.cli.main``) into a temporary folder, without
-figures, twice each, interleaved; the ratio is the best serial wall time over the best parallel one (issue 8 target: at least 1.8
+figures, twice each, interleaved; the ratio is the best serial wall time over the best parallel one (target: at least 1.8
 with two jobs on a machine with two free cores). Also: the shipped configs/damping_curves.yaml
 end to end, figures included, with ``--jobs 2`` (target: under 30 s); ``SIMRUN_BENCH_QUICK=1``
 skips it.
@@ -20,7 +20,7 @@ from simrun.cli import main as cli
 
 RUNS = 16
 REPEATS = 2
-# backward Euler with Newton on the spring: about 38 k steps, ~1 s per run at ~25 us a step
+# backward Euler with Newton on the spring: about 38 k steps, so that a run lasts about a second
 CONFIG = f"""\
 name: parallel_bench
 system: {{type: spring_mass, stiffness: 100.0}}

@@ -1,4 +1,4 @@
-"""The compiled real-time solver kernels against a compiled C loop of the same algorithm (issue 29).
+"""The compiled real-time solver kernels against a compiled C loop of the same algorithm.
 
 Vertex block descent on the 64 x 64 hanging cloth of configs/realtime_solvers.yaml (stretch 1e4, shear 1e3, bend 10
 N/m, two corners pinned), the problem of a backward Euler step at the frame rate (dt = 1/60 s) from rest: one sweep
@@ -47,7 +47,7 @@ CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 RESOLUTION = 64
 SWEEPS = 40  # per timing; the best of REPEATS
 REPEATS = 5
-FEM_PER_VERTEX_TARGET = 2.0  # us per vertex iteration of a 10,000-tet soft body, one core (issue 29)
+FEM_PER_VERTEX_TARGET = 2.0  # us per vertex iteration of a 10,000-tet soft body, one core (the real-time target)
 PER_VERTEX_TARGET, C_RATIO_TARGET, THREADS_TARGET, XPBD_TARGET = 0.3, 2.0, 1.6, 0.2
 DETERMINANT_FLOOR = 1e-20
 
@@ -155,7 +155,7 @@ def rows() -> list[tuple[str, float, str, str]]:
 def _collider_rows() -> list[tuple[str, float, str, str]]:
     """The same cloth's sweep with a sphere under its middle (r = 0.3 m), penalty (k = 1e4 N/m, the cloth's middle 5 cm
     inside) and IPC (dhat = 1 cm, 5 mm below): compiled (contact/point_kernels.py in the sweep), 1 thread, and the
-    numpy sweep it replaced / the compiled one. The numpy sweep is timed over 4 sweeps, not 40 (it takes 20-40 ms)."""
+    numpy sweep it replaced / the compiled one. The numpy sweep is timed over 4 sweeps, not 40 (it is several times slower)."""
     import numba
 
     table = []

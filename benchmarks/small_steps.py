@@ -5,7 +5,7 @@ Explicit: symplectic Euler on the spring and on linear circular motion; implicit
 with Newton (direct) on the same systems. Each is reported as the ratio of the per-step time of
 ``simulate()`` over a bare loop, written inline here, that does the same update in plain numpy
 (no recording, no checks); absolute times per step and steps per second for information.
-Targets (issue 8): at most 5 us per explicit step and 30 us per implicit step.
+Targets: at most 5 us per explicit step and 30 us per implicit step.
 """
 
 from __future__ import annotations

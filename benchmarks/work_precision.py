@@ -1,4 +1,4 @@
-"""At equal error on the 16 x 16 cloth of configs/work_precision.yaml (issue 28): simrun's Radau IIA against scipy's
+"""At equal error on the 16 x 16 cloth of configs/work_precision.yaml: simrun's Radau IIA against scipy's
 Radau, and simrun's cheapest method against scipy's best.
 
 The cloth (stretch 1e3 N/m, hanging from two corners, swinging down from flat) over 1 s; every method step-controlled
@@ -7,11 +7,12 @@ rtol 1e-10 (a method and tolerance no compared run uses), its wall time (the ste
 read at the error 1e-6 m off its own work-precision curve (runner/analysis/equal_error.py: log-log between the runs
 that bracket it, never extrapolated). Targets: scipy's Radau (with the sparse Jacobian) over simrun's radau_iia at
 least 2; scipy's best over simrun's cheapest at least 5. numpy's BLAS is held at one thread for both sides: SuperLU's
-small dense kernels in two threads on a loaded machine took a factorisation from 16 ms to a second.
+small dense kernels in two threads on a loaded machine make a factorisation's time vary from call to call
+(docs/performance.md, "Threads and BLAS").
 
 The second target cannot be met on this cloth (docs/performance.md): it is not stiff at these tolerances, so the
 cheapest method of each side is explicit (simrun's dopri5, scipy's DOP853), and both evaluate one function, the
-system's own acceleration, which the peer hands scipy (55 us and 51 us per evaluation). At equal cost per
+system's own acceleration, which the peer hands scipy (nearly the same cost per evaluation). At equal cost per
 evaluation the ratio is that of the evaluations at equal error, and an eighth-order pair needs fewer than any fifth-
 order one: 3,854 against 7,520 near 5e-6 m.
 """

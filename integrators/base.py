@@ -145,7 +145,7 @@ class Integrator(BaseModel):
         an IMEX method with nothing implicit."""
         return self
 
-    # what kind of method it is, for work-precision by family (issue 28): lecture (the lectures' methods), explicit,
+    # what kind of method it is, for work-precision by family: lecture (the lectures' methods), explicit,
     # dirk, radau, bdf, rosenbrock, imex; peers: scipy
     family: ClassVar[str] = "lecture"
     # a peer's run is taken whole by another code (integrators/peers.py), not step by step

@@ -1,4 +1,4 @@
-"""Diagonally implicit Runge-Kutta methods, each stage an incremental potential (issue 28).
+"""Diagonally implicit Runge-Kutta methods, each stage an incremental potential.
 
 On the first-order form u = (x, v), u' = F(u) = (v, M^-1 f(x, v)), stage i of a DIRK method with tableau (A, b, c),
 A lower triangular with diagonal gamma_i = A_ii, is

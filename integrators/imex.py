@@ -1,5 +1,5 @@
 """IMEX Runge-Kutta methods: the named energy terms implicit, the rest explicit (Ascher's "decouple fast and slow
-scales"; issue 28).
+scales").
 
 The force splits as f = f_I + f_E: f_I from the terms named in ``implicit`` (the system's ``energy_terms``: spring
 kinds or a finite-element system's elements and hinges, drag, gravity, contact), f_E from the others. On u = (x, v)

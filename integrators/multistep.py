@@ -71,7 +71,7 @@ class BDF2MidpointMix(Integrator):
     theta; theta = 0 is the implicit midpoint rule (no artificial damping), theta = 1 is BDF2;
     more theta, more damping: the spectral radius at h w -> infinity is 3 (1 - theta)/(3 + theta),
     and at every h w it does not grow with theta. A-stable for theta in [0, 1]. Source: the
-    course's "Ascher theta method" as defined in issue 3 (no published reference was found to
+    course's "Ascher theta method" as the project's specification defines it (no published reference was found to
     cite); the two members: Ascher, Numerical Methods for Evolutionary Differential Equations
     (SIAM 2008), ch. 5 and 6.
     """

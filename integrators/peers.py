@@ -1,5 +1,5 @@
 """scipy's own solvers as peers of simrun's methods: ``solve_ivp``'s Radau, BDF and LSODA (and its explicit RK45 and
-DOP853) on the same system, the same tolerances and the same error norm (issue 28).
+DOP853) on the same system, the same tolerances and the same error norm.
 
 A peer is not stepped by simrun: scipy chooses and takes its steps on the first-order form u = (x, v), u' = F(u) =
 (v, M^-1 f(x, v)), with the system's sparse Jacobian J = [[0, I], [-M^-1 K, -M^-1 D]] (the Hessian K and the damping

@@ -1,5 +1,5 @@
 """Radau IIA, the coupled stage system solved by simplified Newton in the real and complex eigenblocks of A^-1
-(Hairer & Wanner, Solving ODEs II, sec. IV.8: RADAU5), with the stage positions as the unknowns (issue 28).
+(Hairer & Wanner, Solving ODEs II, sec. IV.8: RADAU5), with the stage positions as the unknowns.
 
 On u = (x, v), u' = (v, M^-1 f(x, v)), the stages U_i = u_n + Z_i satisfy Z = h (A x I) F(u_n + Z). With W = A^-1
 and Z_i = (X_i, V_i) (displacements from x_n and v_n), the position rows give V = (W X) / h - v_n 1, so the

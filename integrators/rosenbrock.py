@@ -1,4 +1,4 @@
-"""Rosenbrock (linearly implicit) methods: one linear solve per stage with the step's Jacobian, no Newton (issue 28).
+"""Rosenbrock (linearly implicit) methods: one linear solve per stage with the step's Jacobian, no Newton.
 
 On u = (x, v), u' = F(u) = (v, M^-1 f(x, v)), with J = dF/du at u_n, a Rosenbrock method in the form of Hairer &
 Wanner (Solving ODEs II, sec. IV.7, eq. 7.4') is
@@ -217,9 +217,9 @@ def factorised(matrix, free: np.ndarray, complex_valued: bool = False):
 
     Every matrix here (M/(h gamma)^2 + D/(h gamma) + K, lambda^2 M + h lambda D + h^2 K, filtered or not) is symmetric,
     complex symmetric for a complex lambda: SuperLU takes the symmetric paths of the Newton solves (diagonal pivots
-    in the MMD ordering of A^T + A, solvers/linear.py ``sparse_lu``): on the 16 x 16 cloth radau_iia's real and complex
-    blocks factor in 5.4 ms where the default COLAMD with partial pivoting took 8.1 ms; pivoting stays the fallback
-    where a pivot is too small."""
+    in the MMD ordering of A^T + A, solvers/linear.py ``sparse_lu``), faster than the default COLAMD with partial
+    pivoting (docs/performance.md, "Step control and work-precision"); pivoting stays the fallback where a pivot is too
+    small."""
     dtype = complex if complex_valued else float
 
     def cast(right):

@@ -1,4 +1,4 @@
-"""XPBD's distance-constraint projection, compiled (issue 29): one colour of springs (no shared vertex) in parallel.
+"""XPBD's distance-constraint projection, compiled: one colour of springs (no shared vertex) in parallel.
 
 Per spring of the group, at x = x_n + displacement (integrators/xpbd.py has the method, MMC 2016 eqs. 18 and 26):
 

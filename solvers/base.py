@@ -66,14 +66,14 @@ def _blas_libraries():
 def one_blas_thread():
     """A context in which BLAS runs on one thread. OpenBLAS's threads, once woken by a call on long vectors (above
     about 10,000 entries), spin waiting for the next: on a machine's every core they take the time of whatever runs
-    between the calls.
-    - L-BFGS's two-loop recursion is 4 x history ddot and daxpy calls: on two cores they made an iteration on the
-      64 x 64 cloth 3-5x slower (26-32 ms, against 9-11 ms on one thread). The factor solves between the two loops
-      keep the threads they were given: CHOLMOD's supernodal solve gains from them on large problems.
+    between the calls (docs/performance.md, "Threads and BLAS").
+    - L-BFGS's two-loop recursion is 4 x history ddot and daxpy calls, each of which wakes them. The factor solves
+      between the two loops keep the threads they were given: CHOLMOD's supernodal solve gains from them on large
+      problems.
     - Vertex block descent's compiled sweeps and XPBD's projections run on numba's threads between the energies' BLAS
-      calls: on two cores VBD's sweeps of the 64 x 64 cloth took 2-10 ms instead of a steady 2.4. Such a run holds
-      BLAS at one thread throughout (runner/execution/simulate.py): limited within each solve only, the threads woken
-      between solves kept spinning."""
+      calls, on the cores where OpenBLAS's woken threads spin, so that a sweep's time varies several-fold from call to
+      call. Such a run holds BLAS at one thread throughout (runner/execution/simulate.py): limited within each solve
+      only, the threads woken between solves keep spinning."""
     return _blas_libraries().limit(limits=1, user_api="blas")
 
 

@@ -43,8 +43,8 @@ SPLU_SPD_OPTIONS = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
 THRESHOLD_PIVOT = 0.1
 # The paths of a sparse LU (SuperLU), in the order they are tried (docs/solvers.md, "Sparse direct solves"):
 # diagonal pivots in the symmetric fill-reducing ordering; threshold pivoting in that ordering; COLAMD with partial
-# pivoting, the last resort. Partial pivoting in the MMD ordering, the path before issue 30, destroys the ordering:
-# a 2,930-vertex mesh in its file's vertex order filled 43 million entries of L + U against 2.5 million (180x the
+# pivoting, the last resort. Partial pivoting in the MMD ordering would destroy the ordering:
+# a 2,930-vertex mesh in its file's vertex order fills 43 million entries of L + U against 2.5 million (180x the
 # time). factorisation_path (per step) and factorisations (per run) say which path the factorisations took.
 FACTORISATION_PATHS = ("symmetric", "threshold", "colamd")
 SPLU_PATHS = (dict(permc_spec=SPLU_ORDERING, **SPLU_SPD_OPTIONS),

@@ -1,4 +1,4 @@
-"""Multicolour Gauss-Seidel, compiled (issue 29): the rows of a sparse matrix coloured so that no two rows of one
+"""Multicolour Gauss-Seidel, compiled: the rows of a sparse matrix coloured so that no two rows of one
 colour are coupled (A_ij = 0 for i != j of one colour), and the forward substitution (D + L) z = r in colour order,
 each colour's rows in parallel.
 

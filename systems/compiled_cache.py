@@ -3,7 +3,7 @@
 numba keys a cached function by its own file's time stamp and size only, so a kernel that calls compiled functions of
 another module keeps its cached machine code when only that other module changes: after an edit of
 contact/point_kernels.py alone, the cached VBD sweeps (mass_spring/vbd_kernels.py) ran the old collider code and
-landed elsewhere than the numpy sweep (issue 29). A `git pull` into an editable install would do the same to a user.
+landed elsewhere than the numpy sweep. A `git pull` into an editable install would do the same to a user.
 
 Every module with cached kernels calls ``keep_fresh(globals())`` after its last kernel. The digest of the sources of
 all of simrun's modules with cached kernels is recorded next to the module's cache files; where it differs (or is

@@ -16,8 +16,9 @@ def near_critical_states(m, k, d, q0, p0, t):
     """(q, p) at t of m q'' + d q' + k q = 0 from (q0, p0), where the roots nearly coincide: the propagator exp(t A),
     A = [[0, 1], [-k/m, -d/m]], in closed form, e^{s t} (cosh(delta t) I + sinh(delta t)/delta (A - s I)) with s =
     -d/(2m) and delta^2 = s^2 - k/m (complex for an oscillation), sinh(z)/z taken as 1 at z = 0: no digits lost as
-    delta goes to 0, where the two-exponential form loses them. Arrays that broadcast (lanes, or times); a batched
-    scipy expm, one 2 x 2 matrix at a time, had cost a 42,000-run map 20 s of its 27."""
+    delta goes to 0, where the two-exponential form loses them. Arrays that broadcast (lanes, or times), where scipy's
+    expm takes one 2 x 2 matrix at a time and would be most of the damping map's stepping (docs/performance.md,
+    "Lockstep lanes")."""
     s = -d / (2.0 * m)
     delta = np.sqrt((s * s - k / m).astype(complex))
     z = delta * t

@@ -2,8 +2,8 @@
 the incremental potential's inertia and damping at one vertex, the constraint filter, the determinant floor and the
 d x d solve, and the change of the inertia and damping when the vertex moves. Each system's colour sweep
 (mass_spring/vbd_kernels.py, fem/vbd_kernels.py, fem/shell_vbd_kernels.py) adds its own terms' g_i, H_i and change of P
-around these. They are inlined into the sweeps: a call per vertex that takes arrays costs numba their reference counts,
-and these calls had been 0.2 us per vertex of the tetrahedral sweep's 2.5.
+around these. They are inlined into the sweeps: a call per vertex that takes arrays costs numba their reference counts
+(docs/performance.md, "Vertex block descent and XPBD kernels").
 
 With E(y) = 1/2 (y - y~)^T M (y - y~) + s P(y) + w [1/2 (y - a)^T D (y - a)] (w = s/b, D the damping matrix):
 

@@ -1,4 +1,4 @@
-"""Predicted and measured behaviour of the integrators (issue 6): simrun.analysis.oscillator against theory.
+"""Predicted and measured behaviour of the integrators: simrun.analysis.oscillator against theory.
 
 Notation: the undamped test spring q'' + w^2 q = 0, x = h w. The predictions come from the
 amplification matrix that simrun.analysis.oscillator probes by stepping basis states through each method; the

@@ -1,4 +1,4 @@
-"""`make bench` prints each row as soon as it is measured (issue 31: it printed nothing for 9 minutes, then the table)."""
+"""`make bench` prints each row as soon as it is measured (not the whole table at the end, after minutes of silence)."""
 
 from __future__ import annotations
 

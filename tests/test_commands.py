@@ -1,4 +1,4 @@
-"""The subcommands' contract (issue 13): every refusal is one line `simrun: error: field: ...` with exit status 2
+"""The subcommands' contract: every refusal is one line `simrun: error: field: ...` with exit status 2
 and nothing half-written; options never swallow the results file; the run's labels, sweep, progress and
 provenance say what was run.
 

@@ -91,7 +91,7 @@ def test_the_cloth_converges_at_the_declared_orders_against_a_reference(tmp_path
 
 
 def test_a_cloth_nudged_at_rest_is_measured_against_m_g_l(tmp_path):
-    """The issue's cloth: at rest with a 1e-8 m/s nudge E0 ~ 1e-18 J. Its drift is relative to the cloth's
+    """cloth_hang's cloth: at rest with a 1e-8 m/s nudge E0 ~ 1e-18 J. Its drift is relative to the cloth's
     declared reference max(M |g| L, |KE0| + |PE0|) = 9.81 J (M = 1 kg, L = 1 m): below 1, and no run diverges."""
     results = simrun.run(f"{CONFIGS}/cloth_hang.yaml", output=tmp_path, jobs=2, progress=False, figures=False,
                          overrides=["system.resolution=[6,6]", "system.initial_velocity=[0,0,1.0e-8]",

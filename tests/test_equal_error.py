@@ -1,4 +1,4 @@
-"""simrun's Radau IIA against scipy's Radau at equal error (issue 28): the interpolation of a method's costs against
+"""simrun's Radau IIA against scipy's Radau at equal error: the interpolation of a method's costs against
 its error (simrun.analysis.equal_error), the overlap of two methods' error ranges, and the finding on a small sweep.
 
 On a power law cost = a error^(-b), log(cost) is linear in log(error), so the piecewise-linear interpolation in

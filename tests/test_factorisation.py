@@ -1,4 +1,4 @@
-"""Sparse direct solves keep the symmetric fill-reducing ordering (issue 30): the paths of solvers/linear.py's
+"""Sparse direct solves keep the symmetric fill-reducing ordering: the paths of solvers/linear.py's
 ``sparse_lu``, what a run records of them, and the cost of a mesh whose vertices come in no useful order.
 
 A Newton matrix M + h^2 K is symmetric, so SuperLU in symmetric mode (diagonal pivots in the MMD ordering of
@@ -153,4 +153,4 @@ def test_a_shuffled_grid_factors_with_the_fill_of_the_ordered_one(tmp_path):
             pivoting = scipy.sparse.linalg.splu(_as_transposed(matrix), permc_spec="MMD_AT_PLUS_A")
             fills["pivoting"] = pivoting.L.nnz + pivoting.U.nnz
     assert fills["shuffled"] <= 1.5 * fills["ordered"], fills
-    assert fills["pivoting"] > 1.5 * fills["shuffled"], fills  # what the path before issue 30 cost
+    assert fills["pivoting"] > 1.5 * fills["shuffled"], fills  # what partial pivoting in the MMD ordering costs

@@ -1,4 +1,4 @@
-"""The integrator library against theory (issue 3).
+"""The integrator library against theory.
 
 Everything here steps the integrators with a plain loop (``run`` below), independent of the runner.
 Tests are parametrised over the INTEGRATORS registry (plus a few parameter variants), so a new

@@ -1,4 +1,4 @@
-"""The mass-spring system against known answers (issue 14, "Theory and tests").
+"""The mass-spring system against known answers.
 
 Sections, one per theme:
 1. derivatives: finite differences of P and of its gradient, both spring laws, 2-D and 3-D; the damping

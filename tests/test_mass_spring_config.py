@@ -1,4 +1,4 @@
-"""`mass_spring` configs: every bad input of issue 14 is one line naming the config path and the problem,
+"""`mass_spring` configs: every bad input is one line naming the config path and the problem,
 exit status 2, nothing written; and the config forms that must work (files beside the config, generators,
 per-kind and per-region stiffness, mass rules, initial shapes) build the system they describe."""
 
@@ -31,7 +31,7 @@ def _write_config(tmp_path: Path, system: str) -> Path:
 
 
 def _bad_inputs(tmp_path: Path) -> list[tuple[str, str]]:
-    """(the system block, what the one line must say) for every bad input the issue lists."""
+    """(the system block, what the one line must say) for every bad input a user can write."""
     (tmp_path / "points.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
     (tmp_path / "garbage.ply").write_text("this is not a mesh\n")
     nan = _npz(tmp_path / "nan.npz", vertices=np.array([[0.0, 0.0], [np.nan, 0.0], [0.0, 1.0]]))

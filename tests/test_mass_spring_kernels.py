@@ -1,4 +1,4 @@
-"""The springs' compiled geometry and gradient at one state (systems/mass_spring/kernels.py, issue 29: projective
+"""The springs' compiled geometry and gradient at one state (systems/mass_spring/kernels.py: projective
 dynamics' local step and right-hand side, and every solver's gradient) against the numpy forms they replace, kept
 here as the reference:
 

@@ -1,4 +1,4 @@
-"""Meshes as a user has them (issue 30): OBJ files as Blender, Maya or a scanner write them, PLY with per-face
+"""Meshes as a user has them: OBJ files as Blender, Maya or a scanner write them, PLY with per-face
 colours, binary and ASCII STL, and scanned meshes with degenerate triangles. Every file here is written by the
 test itself; each loads with the default config, keeps its vertices in the file's order, and gets the springs
 docs/models.md promises."""

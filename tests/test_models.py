@@ -62,7 +62,7 @@ def test_grid_reproduces_the_cloth_springs_in_order(nx, ny):
 
 
 def test_grid_rest_shape_and_names_are_the_former_cloths():
-    """The cloth before issue 14 (Cloth.__init__, Cloth._pinned_vertices), written out as the known answer:
+    """The cloth before it became a grid mass_spring (Cloth.__init__, Cloth._pinned_vertices), written out as the known answer:
     vertices from linspace and meshgrid, row-major, z = height; pins as index expressions on (ny, nx)."""
     nx, ny, size, height = 6, 4, (1.5, 0.8), 0.25
     model = GridModel(resolution=(nx, ny), size=size, height=height).build()
@@ -341,7 +341,7 @@ def test_bad_mesh_files_raise_model_error_naming_the_file(tmp_path, case):
 
 def test_a_mesh_edge_of_zero_length_makes_no_spring(tmp_path):
     """A triangle with two coincident corners (a scan's degenerate face): its zero-length edge makes no spring, the
-    face counts no area, and the vertices keep their count (issue 30: mended with a warning, not refused)."""
+    face counts no area, and the vertices keep their count (mended with a warning, not refused)."""
     path = write_mesh(tmp_path / "collapsed.obj", [[0, 0, 0], [1, 0, 0], [1, 0, 0]], triangle=[[0, 1, 2]])
     model = load_model_file(path)
     assert len(model.vertices) == 3 and sorted(map(tuple, model.springs.tolist())) == [(0, 1), (0, 2)]

@@ -1,4 +1,4 @@
-"""Multicolour Gauss-Seidel (solvers/multicolour.py, issue 29) against its definition: forward Gauss-Seidel on the
+"""Multicolour Gauss-Seidel (solvers/multicolour.py) against its definition: forward Gauss-Seidel on the
 matrix ordered by colour, P A P^T.
 
 1. the colouring is proper (no two rows of a colour coupled) and covers every row once;

@@ -1,4 +1,4 @@
-"""scipy's solvers as peers (integrators/peers.py, runner/execution/peers.py, issue 28): simrun's Radau IIA equals
+"""scipy's solvers as peers (integrators/peers.py, runner/execution/peers.py): simrun's Radau IIA equals
 scipy's Radau on the spring to the tolerance, the first-order Jacobian handed to scipy is the derivative of its
 right-hand side, the peers' runs land on the duration and count scipy's own evaluations, and what a peer cannot run
 is refused in one line."""

@@ -109,7 +109,7 @@ def tiny_config(tmp_path) -> Path:
     return path
 
 
-# -- the issue's acceptance check --------------------------------------------------------------------------
+# -- the API and the command line agree --------------------------------------------------------------------------
 def test_run_and_the_command_line_write_the_same_file(tmp_path):
     """simrun.run(quickstart) and `simrun quickstart.yaml` give the same results file (timing aside).
 

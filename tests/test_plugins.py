@@ -1,4 +1,4 @@
-"""A user's own system joins without editing simrun (issue 14, "A plug-in point"): by its module path in the
+"""A user's own system joins without editing simrun: by its module path in the
 config (``type: pendulum_chain:ChainParams``) or by an entry point of group ``simrun.systems``; its parameters
 are validated and its errors reported like a built-in system's; it runs serially, on the process pool and
 on Dask; ``simrun check-system`` runs the contract on it. The example plug-in is the one of docs/systems.md,
@@ -371,7 +371,7 @@ def test_the_single_pendulum_swings_with_the_small_angle_period(on_path):
 
 
 def test_the_chain_released_from_horizontal_is_not_diverged_after_one_step(on_path):
-    """The issue's report: a user's chain released from horizontal (E0 = 0 by construction, |PE0| ~ 1e-16 J of
+    """A user's report: a chain released from horizontal (E0 = 0 by construction, |PE0| ~ 1e-16 J of
     round-off) was marked diverged after one step. It swings; symplectic Euler at a stable step keeps its energy."""
     (run,) = make_runs({"type": CHAIN, "angle": math.pi / 2}, ["symplectic_euler"], [2e-5], duration=0.01)
     result = simulate(run)

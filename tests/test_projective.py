@@ -1,4 +1,4 @@
-"""Projective dynamics, its Chebyshev acceleration and L-BFGS with the rest-shape initial Hessian (issue 16).
+"""Projective dynamics, its Chebyshev acceleration and L-BFGS with the rest-shape initial Hessian.
 
 For Hookean springs, projective dynamics (PD) is y_{k+1} = y_k - A^{-1} grad E(y_k) with the constant
 A = M + s K_r (+ (s/b) D) (Liu, Bouaziz & Kavan 2017, sec. 3), so the tests check it against theory:
@@ -204,14 +204,14 @@ def test_lbfgs_rest_takes_the_pd_step_first():
     np.testing.assert_allclose(iterates["lbfgs"][1], iterates["pd"][1], rtol=0, atol=1e-14)
 
 
-ISSUE_BAR = 100  # iterations per step the issue asks of a quasi-Newton solver on the hanging cloth
+LBFGS_BAR = 100  # iterations per step asked of a quasi-Newton solver on the hanging cloth (the real-time target)
 
 
 @pytest.mark.parametrize("initial_hessian", ["rest", "scaled_rest"])
 def test_lbfgs_with_the_rest_matrix_converges_on_every_step_of_a_hanging_cloth_but_misses_the_bar(initial_hessian,
                                                                                                   record_property):
     """cloth_hang at 10x10, backward Euler, dt = 0.02 s for 0.2 s, tolerance 1e-9: every step converges, and every
-    step needs more than the issue's bar of 100 iterations (measured 593-837 for rest, 385-488 for scaled_rest,
+    step needs more than the bar of 100 iterations (measured 593-837 for rest, 385-488 for scaled_rest,
     Newton 5-6): what docs/solvers.md quotes, so that a change that meets the bar has to say so here. The cause is
     the spectrum (test_the_rest_matrix_is_far_stiffer_than_the_hessian_across_the_hanging_cloth)."""
     system = {**load_experiment(CLOTH_HANG)[0].system.model_dump(), "resolution": [10, 10]}
@@ -223,7 +223,7 @@ def test_lbfgs_with_the_rest_matrix_converges_on_every_step_of_a_hanging_cloth_b
     message = f"lbfgs {initial_hessian}: iterations per step {iterations.tolist()}"
     record_property("lbfgs_iterations", message)
     print(message)
-    assert iterations.min() > ISSUE_BAR, message
+    assert iterations.min() > LBFGS_BAR, message
 
 
 def test_the_rest_matrix_is_far_stiffer_than_the_hessian_across_the_hanging_cloth():
@@ -275,8 +275,8 @@ def minimal_residuals(operator: np.ndarray, residual: np.ndarray, steps: int) ->
 
 
 @pytest.mark.parametrize("scale", [1.0, 0.1, 0.01])
-def test_no_method_preconditioned_by_the_rest_matrix_meets_the_issues_lbfgs_bar(scale):
-    """Issue 16's bar for L-BFGS with H_0 = A^{-1} (tolerance 1e-9 in at most 100 iterations on this cloth) is below
+def test_no_method_preconditioned_by_the_rest_matrix_meets_the_lbfgs_bar(scale):
+    """The bar for L-BFGS with H_0 = A^{-1} (tolerance 1e-9 in at most 100 iterations on this cloth) is below
     what any method that builds its steps from gradients and A^{-1} can reach. On the step's quadratic model at
     its minimiser, k iterations of such a method (L-BFGS, any memory, any line search; PCG; Chebyshev) move y
     within y_0 + A^{-1} K_k(H A^{-1}, g_0), and the smallest residual there (right-preconditioned GMRES) is
@@ -292,7 +292,7 @@ def test_no_method_preconditioned_by_the_rest_matrix_meets_the_issues_lbfgs_bar(
     rest = mass + scale * (problem.rest_hessian().toarray()[np.ix_(free, free)] - mass)
     hessian = problem.hessian(y).toarray()[np.ix_(free, free)]
     gradient = problem.gradient(start)[free]
-    minima = minimal_residuals(hessian @ np.linalg.inv(rest), gradient, ISSUE_BAR)
+    minima = minimal_residuals(hessian @ np.linalg.inv(rest), gradient, LBFGS_BAR)
     assert np.all(np.diff(minima) <= 1e-15)  # a minimum over growing spaces never grows
     best_max_norm = minima[-1] * np.linalg.norm(gradient) / np.sqrt(free.size) / np.abs(gradient).max()
     assert best_max_norm > 1e3 * 1e-9, (scale, minima[-1])
@@ -302,7 +302,7 @@ def test_no_method_preconditioned_by_the_rest_matrix_meets_the_issues_lbfgs_bar(
 
 @pytest.mark.parametrize("guess", ["start", "inertial"])
 @pytest.mark.parametrize("dt", [0.01, 0.02])
-def test_lbfgs_with_the_step_hessian_meets_the_issues_bar_on_the_hanging_cloth(dt, guess):
+def test_lbfgs_with_the_step_hessian_meets_the_bar_on_the_hanging_cloth(dt, guess):
     """The same cloth with H_0 = the abs-projected Hessian at the inertial guess x_n + h v_n, factorised once per
     step, from x_n or from that guess: at most 100 iterations per step (measured 15-51), where the rest matrix
     needs 500-850. The stale H_0
@@ -312,7 +312,7 @@ def test_lbfgs_with_the_step_hessian_meets_the_issues_bar_on_the_hanging_cloth(d
                      solver={"type": "lbfgs", "initial_hessian": "step", "initial_guess": guess,
                              "tolerance": 1e-9, "max_iterations": 100})
     assert result.status == "ok", result.message
-    assert result.per_step["newton_iterations"].max() <= ISSUE_BAR
+    assert result.per_step["newton_iterations"].max() <= LBFGS_BAR
 
 
 @pytest.mark.parametrize(("options", "converges"), [({}, True), ({"initial_hessian": "scalar"}, False)])

@@ -1,4 +1,4 @@
-"""The README is true (issue 31): its tour runs as written, in order, in a folder holding the repository's configs,
+"""The README is true: its tour runs as written, in order, in a folder holding the repository's configs,
 models and example plug-in, with the installed `simrun` on the path; its `make` lines name targets the Makefile has;
 and every run count a config's comment or the README states is the count its sweep expands to."""
 

@@ -1,4 +1,4 @@
-"""`simrun report`, `show` and `analyze` (issue 6), on results files the real pipeline wrote into tmp_path.
+"""`simrun report`, `show` and `analyze`, on results files the real pipeline wrote into tmp_path.
 
 The handlers are called directly (simrun.commands.<name>.handle), with the arguments their parsers give.
 """

@@ -1,4 +1,4 @@
-"""Reports that scale (issue 31): a sweep over many settings is answered across them, not setting by setting, and
+"""Reports that scale: a sweep over many settings is answered across them, not setting by setting, and
 the page of the shipped 42,000-run damping map opens on its answer and its figures, about three screens, with every
 table behind <details>. The page is measured in headless Chromium (skipped where it is not installed, unless
 SIMRUN_REQUIRE_CHROMIUM=1, as CI sets it)."""

@@ -1,4 +1,4 @@
-"""Newton that does not blow up, and the lectures' stopping rules (issue 16), against theory.
+"""Newton that does not blow up, and the lectures' stopping rules, against theory.
 
 - The safeguards fire on a constructed indefinite problem (a double well, whose raw Newton direction
   climbs) and never on a strictly convex one; each fired safeguard is a bit of SolveStats.safeguards.
@@ -268,7 +268,7 @@ def test_accepting_a_budget_keeps_the_run_ok_and_counts_the_steps():
 
 
 def test_the_cloth_dropped_on_a_penalty_sphere_ends_ok_with_few_newton_iterations():
-    """Issue 16's held-out scene, to just after first contact (t = 0.25 s) and through it: default solver."""
+    """The held-out scene of Newton's safeguards (docs/solvers.md, "Newton that does not blow up"), to just after first contact (t = 0.25 s) and through it: default solver."""
     system = {"type": "cloth", "resolution": [16, 16], "size": [1.0, 1.0], "mass": 1.0, "stretch_stiffness": 1.0e4,
               "shear_stiffness": 1.0e3, "bend_stiffness": 10.0, "damping": 0.1, "gravity": [0.0, 0.0, -9.81],
               "pinned": [], "contact": {"sphere": {"center": [0.5, 0.5, -0.6], "radius": 0.3, "stiffness": 1.0e5}}}

@@ -1,4 +1,4 @@
-"""simrun's Python API from a plain script (issue 31): `simrun.run` and `simrun.fit` at a script's top level, without
+"""simrun's Python API from a plain script: `simrun.run` and `simrun.fit` at a script's top level, without
 `if __name__ == "__main__":`, on the process pool. multiprocessing's workers would import the script again and start
 a pool inside each worker; simrun's start without it. Each script runs as a subprocess of its own, from a folder of
 its own, as a user runs it: `python my_script.py`."""

@@ -1,4 +1,4 @@
-"""Gaps in the solver tests found by an audit (issue 16), each checked against a property with a known answer.
+"""Gaps in the solver tests found by an audit, each checked against a property with a known answer.
 
 1. Newton's ``spd_projection: adaptive`` (solvers/newton.py ``_model_hessian``, ``ADAPTIVE_TRUST``): the problem's
    ``hessian`` is asked with ``project_spd="abs"`` while the last step's quadratic model is not trusted (the start of

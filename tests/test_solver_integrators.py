@@ -1,4 +1,4 @@
-"""The solvers of graphics practice with every incremental-potential integrator (review of issue 16).
+"""The solvers of graphics practice with every incremental-potential integrator.
 
 tests/test_solvers.py checks every solver on backward Euler's step only; the other implicit methods hand the
 solver an incremental potential with another scale c h^2, predictor y~ and point of evaluation (implicit

@@ -1,4 +1,4 @@
-"""The solvers against theory (issue 5).
+"""The solvers against theory.
 
 One backward Euler step of a small cloth (6x6, pinned corners, a stretched and bulged start so the
 step is nonlinear, the incremental potential strictly convex) is the common test problem: every
@@ -475,21 +475,21 @@ def test_eigen_projection_leaves_the_fixed_rows_alone():
 # The solver models: each solver's options are its constructor's arguments, and nothing else
 # ------------------------------------------------------------------------------------------------
 # The defaults of the one flat SolverParams that the per-solver models replaced: a config that sets
-# nothing must solve as before, except where an issue changed a default on purpose (NEW_DEFAULTS).
+# nothing must solve as before, except where a default was changed on purpose (NEW_DEFAULTS).
 FORMER_DEFAULTS = {"tolerance": 1e-10, "tolerance_mode": "residual", "max_iterations": 50, "line_search": "backtracking",
                    "spd_projection": "clamp", "history": 8, "chebyshev_rho": 0.99, "relaxation": 0.9,
                    "linear_solver": "direct", "linear_tolerance": 1e-10, "linear_max_iterations": 1000, "mpcg_start": "zero", "fallback": [],
                    "on_not_converged": "continue", "initial_guess": "start", "initial_hessian": "scalar",
                    "chebyshev_warmup": 10, "determinant_floor": 1e-20,
-                   # issue 18: Newton's lagged factorisation, off by default (a factorisation at every iteration)
+                   # Newton's lagged factorisation, off by default (a factorisation at every iteration)
                    "refactor": "every", "refactor_rate": 0.5,
                    # a frame's wall-time budget for the real-time solvers, off by default (not newton's: the reference)
                    "time_budget": None,
-                   # issue 29: the compiled kernels' threads, by default the run's worker's cores
+                   # the compiled kernels' threads, by default the run's worker's cores
                    "threads": None}
-# issue 16: newton gained a line search (backtracking) and safeguards; its own matrix stays the raw Hessian;
+# newton has a line search (backtracking) and safeguards; its own matrix stays the raw Hessian;
 # the new solvers' own defaults (plain PD and VBD: no Chebyshev; VBD starts from the paper's guess);
-# issue 26: L-BFGS's H_0 is the step's projected Hessian (the scalar one needed thousands of iterations on a cloth)
+# L-BFGS's H_0 is the step's projected Hessian (the scalar one needed thousands of iterations on a cloth)
 NEW_DEFAULTS = {"newton": {"spd_projection": "none"}, "projective_dynamics": {"chebyshev_rho": 0.0, "relaxation": 1.0},
                 "vbd": {"initial_guess": "adaptive", "chebyshev_rho": 0.0}, "lbfgs": {"initial_hessian": "step"}}
 
@@ -746,8 +746,8 @@ def test_a_stationary_iteration_that_cannot_converge_stops_within_a_few_windows(
 
 
 def test_lbfgs_two_loop_recursion_runs_on_one_blas_thread_and_gives_the_threads_back(monkeypatch):
-    """The recursion's ddot and daxpy on long vectors make OpenBLAS wake its other threads for each (3-5x slower on two
-    cores, docs/performance.md): they run on one BLAS thread, and the solve leaves the thread counts as it found them."""
+    """The recursion's ddot and daxpy on long vectors make OpenBLAS wake its other threads for each (slower on two
+    cores: docs/performance.md, "Threads and BLAS"): they run on one BLAS thread, and the solve leaves the thread counts as it found them."""
     import threadpoolctl
 
     from simrun.solvers import descent

@@ -1,4 +1,4 @@
-"""The fast paths of issue 8 give the generic results: bit for bit where the same operations run,
+"""The fast paths of the small systems and the cloth give the generic results: bit for bit where the same operations run,
 within round-off where LAPACK is called directly. No timing here: that is benchmarks/."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Adaptive steps (runner/execution/step_control.py, issue 28) against theory: each method's error estimate has its
+"""Adaptive steps (runner/execution/step_control.py) against theory: each method's error estimate has its
 local order, TR-BDF2's estimates its own local error, the runs meet their tolerance on the spring and on Kepler's
 orbit over four decades with O(1) rejected steps, land exactly on the duration and the error time, refine at
 contact, retry the steps that do not converge, count every evaluation, and end `failed` below dt_min; bad input is

@@ -1,4 +1,4 @@
-"""Vertex block descent against theory (issue 16; Chen et al., "Vertex block descent", SIGGRAPH 2024).
+"""Vertex block descent against theory (Chen et al., "Vertex block descent", SIGGRAPH 2024).
 
 1. the blocks: MassSpring's per-vertex gradient and Hessian blocks (from each vertex's springs) are the
    diagonal blocks of the full gradient and Hessian, and its energy changes the changes of P; the incremental

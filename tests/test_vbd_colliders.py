@@ -1,4 +1,4 @@
-"""The colliders' per-vertex terms in vertex block descent's compiled sweeps (systems/contact/point_kernels.py, issue 29)
+"""The colliders' per-vertex terms in vertex block descent's compiled sweeps (systems/contact/point_kernels.py)
 against the numpy forms they replace (contact/model.py ``point_terms`` and ``point_energy_changes``, kept as the
 reference here):
 

@@ -1,4 +1,4 @@
-"""Vertex block descent's compiled colour sweep (systems/mass_spring/vbd_kernels.py, issue 29) against the numpy sweep
+"""Vertex block descent's compiled colour sweep (systems/mass_spring/vbd_kernels.py) against the numpy sweep
 it replaces for mass-spring systems (solvers/vbd.py ``_sweep``, kept as the reference here):
 
 1. one sweep from the same iterate lands on the same positions (to 1e-12 of the largest move) and takes the same

@@ -1,4 +1,4 @@
-"""XPBD's compiled distance-constraint projection (integrators/xpbd_kernels.py, issue 29) against the vectorised numpy
+"""XPBD's compiled distance-constraint projection (integrators/xpbd_kernels.py) against the vectorised numpy
 update it replaced (kept here as the reference): each colour group's update of the displacements and multipliers to
 1e-12, with dampers, sliding ends (planes and lines), anchored springs (no shipped system has one of nonzero length: a group
 made here), in 2-D and 3-D; and the same with one thread
@@ -27,7 +27,7 @@ SYSTEMS = {
 
 
 def numpy_distance_update(group, start, displacement, multiplier, stiffness_h2, damping_h):
-    """The numpy form of one group's distance-constraint update (integrators/xpbd.py before issue 29)."""
+    """The numpy form of one group's distance-constraint update (integrators/xpbd.py's update before it was compiled)."""
     d = group.first_weight.shape[1]
     start, moves = start.reshape(-1, d), displacement.reshape(-1, d)
     moved = moves[group.first] - group._second_ends(moves, None)

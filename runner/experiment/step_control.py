@@ -1,4 +1,4 @@
-"""The ``step_control`` block of a config: adaptive steps chosen by a local error estimate (issue 28).
+"""The ``step_control`` block of a config: adaptive steps chosen by a local error estimate.
 
 The error of a step is measured as scipy's ``solve_ivp`` measures it, so that a sweep of tolerances means the same
 for simrun's methods and for scipy's: on u = (x, v), the estimate e of the step's local error, scaled per component by

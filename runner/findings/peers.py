@@ -1,4 +1,4 @@
-"""simrun's methods against scipy's on scipy's own ground: at equal error, what each one costs (issue 28).
+"""simrun's methods against scipy's on scipy's own ground: at equal error, what each one costs.
 
 For every setting of the swept keys (each system, in ``work_precision.yaml``) that has step-controlled runs of a
 simrun integrator and of its peer among ``solve_ivp``'s methods (``SCIPY_PEERS``), over a sweep of
@@ -26,7 +26,7 @@ SCIPY_PEERS = {"radau_iia": "Radau"}
 # how the counts are named in the sentences: measure -> (singular, plural)
 COUNT_NAMES = {"accepted_steps": ("step", "steps"), "jacobian_evaluations": ("Jacobian", "Jacobians"),
                "factorisations": ("factorisation", "factorisations")}
-# the ratios a sentence states after the wall time's: the costs the issue asks for
+# the ratios a sentence states after the wall time's: the costs a work-precision comparison weighs
 STATED_RATIOS = {"accepted_steps": "steps", "jacobian_evaluations": "Jacobians"}
 
 

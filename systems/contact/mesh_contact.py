@@ -30,14 +30,13 @@ import scipy.sparse
 
 # ipctk's TBB threads (process-wide). One: with two threads its parallel sums made the barrier energy,
 # gradient and Hessian differ from call to call at the same x (14 distinct energies in 20 calls, 64x64
-# cloth), and a sweep already runs one process per core, where 1 and 2 threads measured the same within
-# this 2-core machine's run-to-run noise (8x8 cloth: build + energy + gradient + Hessian 1.3-1.8 ms with
-# either; 64x64: 150-260 ms vs 140-215 ms). Alone on the machine, 2 threads were up to 1.7x faster (16x16).
+# cloth), and a sweep already runs one process per core, where two threads gain nothing measurable
+# (docs/performance.md, "Choices on the step path").
 IPCTK_THREADS = 1
 
-# Broad phase for building contacts, CCD and intersection tests: ipctk's default LBVH was the fastest with
-# one thread on the 64x64 cloth resting above a plane (building the contacts: 15 ms vs 35 ms HashGrid and
-# 42 ms SweepAndPrune; a CCD step: 49 ms vs 80 ms and 85 ms).
+# Broad phase for building contacts, CCD and intersection tests: ipctk's default LBVH, the fastest of ipctk's
+# broad phases with one thread, for building the contacts and for a CCD step (docs/performance.md, "Choices on the
+# step path").
 BROAD_PHASE = ipctk.LBVH
 
 # CCD (ipctk.TightInclusionCCD, provably conservative). min_distance 0: the barrier's own minimum
@@ -50,9 +49,9 @@ CCD_MIN_DISTANCE = 0.0
 CCD_TOLERANCE = 1e-6
 # Cap on Tight Inclusion's box refinements per pair; when reached it returns its lower bound of the time of
 # impact, still conservative, only earlier. A cloth pushed through the plane, its diagonal edges parallel
-# above the plane's diagonal edge, is its worst case: ipctk's default 1e7 took 29 s on an 8x8 cloth, 1e5
-# took 75 s on the 64x64 one; 1e4 takes 0.9 s there (fraction 0.19 instead of 0.20) and gave the same
-# fractions as 1e6 on near-contact Newton-like steps.
+# above the plane's diagonal edge, is its worst case, where ipctk's default 1e7 (and 1e5) cost a CCD call far more
+# than the step; 1e4 bounds it (the fraction 0.19 instead of 0.20 there) and gave the same fractions as 1e6 on
+# near-contact Newton-like steps (docs/performance.md, "Choices on the step path").
 CCD_MAX_ITERATIONS = 10_000
 # Fraction of the start distance a step may close (the 0.8 of ipctk and of IPC's line search).
 CCD_CONSERVATIVE_RESCALING = 0.8

@@ -1,4 +1,4 @@
-"""The colliders' per-vertex terms, compiled, for vertex block descent's colour sweeps (issue 29): the penalty and the
+"""The colliders' per-vertex terms, compiled, for vertex block descent's colour sweeps: the penalty and the
 IPC barrier of the plane, sphere, box, capsule and torus (colliders.py) at one point, moving and spinning (pose.py), as
 model.py's ``point_terms`` and ``point_energy_changes`` give them in numpy (the reference in the tests).
 

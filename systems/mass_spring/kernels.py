@@ -9,7 +9,7 @@ At one state: one pass over the springs for delta = x_i - x_j, L = |delta|, L - 
 
 At several states: one pass over the springs per state, the law's factor c_e(L) (dW_e/dx_i = c_e delta) scattered
 into the gradient in spring order. The numpy path makes the same numbers with a dozen array operations
-and two transposing copies (about 100 us for three states of the 16 x 16 cloth against 40 us here); its
+and two transposing copies, each a pass over memory where this loop makes one in all; its
 incidence product sums each vertex's springs in spring order too, so the two agree to round-off. A law enters the loop
 as its code (``LAW_CODES``): numba's cache does not keep a kernel that takes a compiled function as an argument (every
 process compiled it again, into a new cache entry).
@@ -63,9 +63,9 @@ def spring_gradients(X, first, second, stiffness, rest_length, rest_length_squar
 # The springs at one state, for every solver (projective dynamics' local step and right-hand side are these): one
 # pass over the springs for the geometry, one over the vertices for the gradient, which gathers each vertex's springs
 # in the order of the incidence matrix's row (what scipy's sparse product does): the numpy path's numbers bit for bit.
-# Single-threaded on purpose: a pass costs 0.25 ms on the 64 x 64 cloth (24k springs), and with numba's two OpenMP
-# threads the gradient took 1.2 ms instead of 0.48 (two parallel regions' wake-ups), and the energy's BLAS dot after
-# it 8.7 ms instead of 0.47 (OpenMP's spinning threads against OpenBLAS's on two cores).
+# Single-threaded on purpose: a pass is too short to pay for waking two parallel regions' threads, and numba's OpenMP
+# threads left spinning after it slow the energy's BLAS dot that follows (OpenBLAS's threads on the same cores;
+# docs/performance.md, "Projective dynamics and L-BFGS").
 @numba.njit(cache=True, error_model="numpy")
 def spring_geometry(x, first, second, stiffness, rest_length, dim, delta, length, stretch, tension):
     """delta_e = x_i - x_j, L_e = |delta_e|, L_e - l0_e and k_e (L_e - l0_e), written into the four arrays."""

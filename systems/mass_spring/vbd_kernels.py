@@ -1,4 +1,4 @@
-"""Vertex block descent's colour sweep of a mass-spring incremental potential, compiled (issue 29).
+"""Vertex block descent's colour sweep of a mass-spring incremental potential, compiled.
 
 E(y) = 1/2 (y - y~)^T M (y - y~) + s P(y) + (s/b) [damping], P the springs and gravity (solvers/vbd.py has the method,
 systems/mass_spring/blocks.py the numpy form of the blocks this reproduces). For each vertex i of one colour, in
