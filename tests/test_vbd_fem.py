@@ -1,4 +1,4 @@
-"""Vertex block descent on finite-element solids (systems/fem/vbd_kernels.py, issue 29) against theory and the generic
+"""Vertex block descent on finite-element solids (systems/fem/vbd_kernels.py) against theory and the generic
 paths it replaces:
 
 1. each vertex's block K = n^T A n in closed form equals the contraction of the material's exact tangent A, for every

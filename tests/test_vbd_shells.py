@@ -1,4 +1,4 @@
-"""Vertex block descent on shells (systems/fem/shell_vbd_kernels.py, issue 29) against theory and the generic paths it
+"""Vertex block descent on shells (systems/fem/shell_vbd_kernels.py) against theory and the generic paths it
 replaces:
 
 1. a triangle's vertex block in closed form is membrane.py's exact tangent A contracted with the shape gradient, for
