@@ -19,7 +19,7 @@ from collections import Counter
 from pathlib import Path
 
 from simrun.errors import ConfigError
-from simrun.execution.executors import EXECUTOR_FUNCTIONS, LANE_MODES, execute
+from simrun.execution.executors import LANE_MODES, ExecutorOptions, execute
 from simrun.execution.workers import default_jobs
 from simrun.experiment.config import config_file_of, load_experiment
 from simrun.experiment.sweep import config_hash, expand_runs, resolved_config
@@ -73,10 +73,7 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     ``figure_files`` (what was drawn) and ``ran`` (status -> count of the runs this call simulated).
     """
     jobs = default_jobs() if jobs is None else jobs
-    if jobs < 1:
-        raise ConfigError(f"--jobs: must be >= 1, got {jobs}")
-    if executor not in EXECUTOR_FUNCTIONS:
-        raise ConfigError(f"--executor: unknown {executor!r}; valid: " + ", ".join(EXECUTOR_FUNCTIONS))
+    options = ExecutorOptions(executor, jobs, scheduler).checked()
     if lanes not in LANE_MODES:
         raise ConfigError(f"--lanes: unknown {lanes!r}; valid: " + ", ".join(LANE_MODES))
     experiment, config_text = load_experiment(config, list(overrides))
@@ -121,7 +118,7 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
                 say(f"resuming: skipped {len(runs) - len(pending)} runs already in {path}; running {len(pending)}")
             view = _Progress(len(pending), progress)
             try:
-                for task, outcome in execute(pending, executor, jobs, scheduler, lanes):
+                for task, outcome in execute(pending, options, lanes):
                     chunk = isinstance(task, list)  # runs stepped together as lanes: a LaneBatch
                     try:
                         writer.write_lanes(task, outcome) if chunk else writer.write_run(task, outcome)

@@ -34,7 +34,7 @@ from conftest import needs_linear_solver
 from simrun.analysis import oscillator as analysis
 from simrun.cli import main
 from simrun.errors import ConfigError
-from simrun.execution.executors import execute
+from simrun.execution.executors import ExecutorOptions, execute
 from simrun.execution.lanes import LANE_INTEGRATORS, MIN_LANES, lane_chunks, lane_key, simulate_lanes
 from simrun.execution.measures import DECAY_FLOOR, decay_per_period
 from simrun.execution.simulate import simulate
@@ -372,7 +372,7 @@ def test_lanes_off_and_too_few_runs_step_every_run_alone():
 def test_execute_yields_chunks_as_lane_batches_and_runs_as_results():
     runs = reindexed(chunk_sweep())
     seen = []
-    for task, outcome in execute(runs, jobs=1, lanes="auto"):
+    for task, outcome in execute(runs, ExecutorOptions(jobs=1), lanes="auto"):
         if isinstance(task, list):
             assert [run.run_id for run in task] == outcome.run_ids and outcome.results_alone is None
             seen += [run.run_id for run in task]

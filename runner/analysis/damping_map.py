@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from simrun.format.record import run_attribute
 from simrun.analysis.runs import RunSet
 from simrun.format.summary import Status
 
@@ -25,11 +26,11 @@ def map_cells(data: RunSet) -> dict[str, list[tuple[float, float, float, Status]
     points: dict[str, list] = {}
     for run in data.runs:
         attrs = run.stored.attrs
-        frequency, ratio = attrs.get("natural_frequency", math.nan), attrs.get("damping_ratio", math.nan)
+        frequency, ratio = run_attribute(attrs, "natural_frequency"), run_attribute(attrs, "damping_ratio")
         if not (isinstance(frequency, float) and math.isfinite(frequency) and math.isfinite(ratio)):
             continue
         points.setdefault(run.label, []).append((_rounded(run.dt * frequency), _rounded(ratio),
-                                                 float(attrs.get("decay_per_period", math.nan)), run.status))
+                                                 float(run_attribute(attrs, "decay_per_period")), run.status))
     return {label: points[label] for label in data.labels if label in points
             and len({cell[0] for cell in points[label]}) >= MIN_HW and len({cell[1] for cell in points[label]}) >= MIN_ZETA}
 

@@ -20,14 +20,15 @@ import math
 
 import numpy as np
 
+from simrun.format.record import run_attribute
 from simrun.format.summary import Status
 
 # The costs compared at equal error: name -> the run's value (NaN where the run did not count it).
 COST_MEASURES = {
     "wall_time": lambda run: run.wall_time,
-    "accepted_steps": lambda run: float(run.stored.attrs.get("accepted_steps", math.nan)),
-    "jacobian_evaluations": lambda run: float(run.stored.attrs.get("jacobian_evaluations", math.nan)),
-    "factorisations": lambda run: float(run.stored.attrs.get("factorisations", math.nan)),
+    "accepted_steps": lambda run: float(run_attribute(run.stored.attrs, "accepted_steps")),
+    "jacobian_evaluations": lambda run: float(run_attribute(run.stored.attrs, "jacobian_evaluations")),
+    "factorisations": lambda run: float(run_attribute(run.stored.attrs, "factorisations")),
 }
 # At most this many errors per comparison (the loosest decade, the tightest, one between): a sentence, not a table.
 MAX_COMPARISON_ERRORS = 3

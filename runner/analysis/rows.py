@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simrun.format.record import run_attribute
 from simrun.analysis import oscillator as analysis
 from simrun.analysis.runs import (SOLVER_ITERATION_NAMES, RunSet, predictions_for, solver_text,
                                   test_equation_runs)
@@ -158,14 +159,14 @@ def summary_rows(data: RunSet) -> list[SummaryRow]:
             measured_damping=measured, measured_resolved=bool(fit is not None and fit.resolved),
             predicted_damping=predicted,
             real_time_factor=float(row["real_time_factor"]), wall_time_per_frame=float(row["wall_time_per_frame"]),
-            not_converged_steps=int(attrs.get("not_converged_steps", 0)),
+            not_converged_steps=int(run_attribute(attrs, "not_converged_steps")),
             accepted=run.stored.solver.get("on_not_converged") == "accept" and not run.explicit,
-            first_not_converged_step=int(attrs.get("first_not_converged_step", 0)),
-            diverged_step=int(attrs.get("diverged_step", 0)), t_diverged=float(attrs.get("t_diverged", math.nan)),
-            safeguard_steps=int(attrs.get("safeguard_steps", 0)),
-            min_contact_distance=float(attrs.get("min_contact_distance", math.nan)),
-            max_active_contacts=int(attrs.get("max_active_contacts", 0)),
-            friction_work=float(attrs.get("friction_work", math.nan)), message=run.stored.message,
+            first_not_converged_step=int(run_attribute(attrs, "first_not_converged_step")),
+            diverged_step=int(run_attribute(attrs, "diverged_step")), t_diverged=float(run_attribute(attrs, "t_diverged")),
+            safeguard_steps=int(run_attribute(attrs, "safeguard_steps")),
+            min_contact_distance=float(run_attribute(attrs, "min_contact_distance")),
+            max_active_contacts=int(run_attribute(attrs, "max_active_contacts")),
+            friction_work=float(run_attribute(attrs, "friction_work")), message=run.stored.message,
             tolerance=run.tolerance, final_velocity_error=float(row["final_velocity_error"]),
             max_error=float(row["max_error"]), max_velocity_error=float(row["max_velocity_error"]),
             velocity_error=velocity_errors.get(run.run_id, math.nan),
@@ -177,7 +178,7 @@ def _energy_reference(stored) -> tuple[float, str]:
     """(E_ref (J), its name) of a stored run; a reader without ``energy_reference`` (older simrun) has energy_scale."""
     if hasattr(stored, "energy_reference_name"):
         return float(stored.energy_reference), str(stored.energy_reference_name)
-    return float(stored.energy_scale), str(stored.attrs.get("energy_reference_name", "the system's energy scale"))
+    return float(stored.energy_scale), str(run_attribute(stored.attrs, "energy_reference_name"))
 
 
 def _predicted_damping(method, hw: float) -> float:

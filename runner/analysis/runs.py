@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from simrun.format.record import run_attribute
 from simrun.analysis.reference import ReferenceErrors
 from simrun.format.summary import Status
 from simrun.results import Results, StoredRun
@@ -149,7 +150,7 @@ class RunData:
     @property
     def function_evaluations(self) -> float:
         """Force evaluations of the whole run (``function_evaluations``); NaN in files from before they were counted."""
-        return float(self.stored.attrs.get("function_evaluations", math.nan))
+        return float(run_attribute(self.stored.attrs, "function_evaluations"))
 
     @property
     def tolerance(self) -> float:

@@ -12,8 +12,6 @@ they finish; then the predicted fits (the spring's root-find), the transfer tabl
 
 from __future__ import annotations
 
-import concurrent.futures
-import concurrent.futures.process
 import hashlib
 import math
 from collections.abc import Iterator
@@ -28,7 +26,8 @@ from simrun.calibration.observations import load_observations
 from simrun.calibration.predicted import predicted_values
 from simrun.errors import ConfigError, WorkerLost
 from simrun.execution.simulate import simulate
-from simrun.execution.workers import default_jobs, defined_in_main, process_pool, stop_workers
+from simrun.execution.executors import ExecutorOptions, execute_tasks
+from simrun.execution.workers import default_jobs
 from simrun.experiment.config import _build_integrator, config_file_of, load_experiment
 from simrun.experiment.sweep import config_hash, expand_runs, resolved_config
 from simrun.format.layout import RESULTS_NAME
@@ -42,16 +41,16 @@ EXACT_ID = "exact"  # the fit id of the fit with the system's exact solution
 
 def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: int | None = None, force: bool = False,
         progress: bool = True, figures: bool = True, svg: bool = False, overrides: list[str] | tuple[str, ...] = (),
-        command_line: str | None = None) -> Results:
+        command_line: str | None = None, executor: str = "process", scheduler: str | None = None) -> Results:
     """Fit the config's parameters for every integrator x dt of its sweep; returns the results (``results.fits``).
 
     config: a path, YAML text or a dict, with a ``fit`` block. output: the folder (default: the config's output,
-    else results/<name>). jobs: fits at once (default: one per core). force: start over whatever the folder holds.
+    else results/<name>). jobs: fits at once (default: one per core). executor, scheduler: where they run, as for
+    ``simrun.run``. force: start over whatever the folder holds.
     figures: draw them (PNG; with svg, SVG too).
     Raises ConfigError (one line naming the field or file) before anything is written."""
     jobs = default_jobs() if jobs is None else jobs
-    if jobs < 1:
-        raise ConfigError(f"--jobs: must be >= 1, got {jobs}")
+    options = ExecutorOptions(executor, jobs, scheduler).checked()
     experiment, config_text = load_experiment(config, list(overrides))
     if experiment.fit is None:
         raise ConfigError("fit: this config has no fit block (what was observed, which parameters); add one "
@@ -87,7 +86,7 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
                 writer.remove_runs(stale)
             say(f"simrun {__version__}: {experiment.name}: {len(tasks)} fits of {', '.join(tasks[0].keys)} -> {output}"
                 + (f" (resuming: {len(tasks) - len(pending)} done)" if done else ""))
-            for number, (task, outcome, result) in enumerate(_execute(pending, runs_by_id, jobs), start=1):
+            for number, (task, outcome, result) in enumerate(_execute(pending, runs_by_id, options), start=1):
                 if result is not None:
                     writer.write_run(runs_by_id[task.fit_id].model_copy(update={"system": result[0]}), result[1])
                 fits_writer.write_fit(writer.file, task, outcome)
@@ -96,7 +95,7 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
                     f"({outcome.simulations} simulations, {outcome.wall_time:.2g} s)")
             stored = load(path).fits
             fits_writer.write_predicted(writer.file, _predicted(experiment, tasks, stored, observations))
-            fits_writer.write_transfer(writer.file, _transfer(experiment, tasks, stored, transfer_steps, jobs))
+            fits_writer.write_transfer(writer.file, _transfer(experiment, tasks, stored, transfer_steps, list(runs_by_id.values()), options))
     results = load(path)
     if figures:
         from simrun.figures import draw_figures
@@ -184,28 +183,19 @@ def fit_and_simulate(task: FitTask, run):
     return task, outcome, (fitted, simulate(run.model_copy(update={"system": fitted})))
 
 
-def _execute(tasks: list[FitTask], runs_by_id: dict, jobs: int) -> Iterator[tuple]:
-    """(task, outcome, (fitted system, run result) or None) as the fits finish: serially or on a process pool."""
-    if jobs <= 1 or len(tasks) <= 1:
-        for task in tasks:
-            yield fit_and_simulate(task, runs_by_id.get(task.fit_id))
-        return
-    pool = process_pool(min(jobs, len(tasks)), needs_main=defined_in_main(
-        item for run in runs_by_id.values() for item in (run.system, run.system.system_class)))
-    finished = False
+def fit_pair(pair: tuple):
+    """An executor's task of a calibration: (the fit, its run or None) -> fit_and_simulate's outcome."""
+    return fit_and_simulate(*pair)
+
+
+def _execute(tasks: list[FitTask], runs_by_id: dict, options: ExecutorOptions) -> Iterator[tuple]:
+    """(task, outcome, (fitted system, run result) or None) as the fits finish, on the executor ``options`` names."""
+    pairs = [(task, runs_by_id.get(task.fit_id)) for task in tasks]
     try:
-        futures = [pool.submit(fit_and_simulate, task, runs_by_id.get(task.fit_id)) for task in tasks]
-        for future in concurrent.futures.as_completed(futures):
-            try:
-                outcome = future.result()
-            except concurrent.futures.process.BrokenProcessPool:
-                raise WorkerLost("fitting") from None
+        for _, outcome in execute_tasks(pairs, fit_pair, list(runs_by_id.values()), options):
             yield outcome
-        finished = True
-    finally:
-        if not finished:
-            stop_workers(pool)
-        pool.shutdown(wait=True, cancel_futures=True)
+    except WorkerLost:
+        raise WorkerLost("fitting") from None
 
 
 def _predicted(experiment, tasks: list[FitTask], stored, observations) -> dict[str, dict[str, float]]:
@@ -266,7 +256,7 @@ def transfer_rows(task: FitTask, values: np.ndarray, steps: list[tuple], solver,
     return rows
 
 
-def _transfer(experiment, tasks: list[FitTask], stored, steps: list[tuple], jobs: int) -> list[tuple]:
+def _transfer(experiment, tasks: list[FitTask], stored, steps: list[tuple], runs: list, options: ExecutorOptions) -> list[tuple]:
     table = stored.table.set_index("fit_id")
     factor = experiment.divergence.energy_factor
     work = []
@@ -276,20 +266,14 @@ def _transfer(experiment, tasks: list[FitTask], stored, steps: list[tuple], jobs
         values = np.array([table.loc[task.fit_id, key] for key in task.keys], dtype=float)
         if np.all(np.isfinite(values)):
             work.append((task, values))
-    if jobs <= 1 or len(work) <= 1:
-        return [row for task, values in work for row in transfer_rows(task, values, steps, experiment.solver, factor)]
-    # the project's workers: not forks holding the open results file
-    system = experiment.system
-    pool = process_pool(min(jobs, len(work)), needs_main=defined_in_main([system, system.system_class]))
-    try:
-        chunks = pool.map(transfer_rows, [task for task, _ in work], [values for _, values in work],
-                          [steps] * len(work), [experiment.solver] * len(work), [factor] * len(work))
-        return [row for chunk in chunks for row in chunk]
-    except BaseException:
-        stop_workers(pool)
-        raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    tasks_in_order = [(index, task, values, steps, experiment.solver, factor) for index, (task, values) in enumerate(work)]
+    rows_by_index = {task[0]: rows for task, rows in execute_tasks(tasks_in_order, transfer_task, runs, options)}
+    return [row for index in range(len(work)) for row in rows_by_index[index]]
+
+
+def transfer_task(task: tuple) -> list[tuple]:
+    """An executor's task of the transfer table: (its position, then transfer_rows' arguments) -> transfer_rows."""
+    return transfer_rows(*task[1:])
 
 
 __all__ = ["EXACT_ID", "fit", "fit_and_simulate", "prepare", "transfer_rows"]

@@ -16,6 +16,27 @@ def add_experiment_options(parser, example: str) -> None:
     add_svg_option(parser)
 
 
+def add_executor_options(parser, what: str) -> None:
+    """Where ``what`` (runs, fits) are done and how many at once: ``-j``, ``--executor`` and ``--scheduler``, which
+    ``executor_options`` turns into the one object the executors take."""
+    from simrun.execution.workers import EXECUTOR_ALIASES, EXECUTORS
+
+    parser.add_argument("-j", "--jobs", type=int,
+                        help=f"{what} at once: local processes or Dask workers (default: the number of cores; 1 = serial)")
+    parser.add_argument("--executor", choices=(*EXECUTORS, *EXECUTOR_ALIASES), default="process",
+                        help="process: a process pool on this machine (default; `local` is the same); "
+                             "dask: a Dask cluster (pip install 'simrun[dask]')")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="with --executor dask: an existing scheduler, e.g. tcp://host:8786 (default: a local cluster)")
+
+
+def executor_name(args) -> str:
+    """The executor the command line names (an alias as its executor)."""
+    from simrun.execution.workers import EXECUTOR_ALIASES
+
+    return EXECUTOR_ALIASES.get(args.executor, args.executor)
+
+
 def add_svg_option(parser) -> None:
     """``--svg``: every figure as SVG too (PNG alone by default)."""
     parser.add_argument("--svg", action="store_true", help="write each figure as SVG too, a vector copy for papers "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from simrun.commands._options import add_experiment_options
+from simrun.commands._options import add_executor_options, add_experiment_options, executor_name
 from simrun.commands.run import EXIT_INTERRUPTED  # 128 + SIGINT, as for a run
 
 
@@ -17,7 +17,7 @@ def add_parser(commands) -> None:
                     "fit's run) and OUTPUT/figures/. See docs/calibration.md.")
     fit.add_argument("config", help="the experiment's YAML file with a fit block, e.g. configs/calibrate_spring.yaml")
     add_experiment_options(fit, "--set fit.observed.synthetic.noise=0")
-    fit.add_argument("-j", "--jobs", type=int, help="fits at once (default: the number of cores; 1 = serial)")
+    add_executor_options(fit, "fits")
     fit.add_argument("--force", action="store_true", help="start over even if OUTPUT/results.h5 holds other results")
     fit.add_argument("-q", "--quiet", action="store_true", help="print only errors and the final paths")
     fit.set_defaults(handler=handle)
@@ -27,7 +27,8 @@ def handle(args) -> int:
     from simrun.calibration.pipeline import fit
 
     try:
-        results = fit(args.config, output=args.output, jobs=args.jobs, force=args.force, progress=not args.quiet,
+        results = fit(args.config, output=args.output, jobs=args.jobs, executor=executor_name(args),
+                      scheduler=args.scheduler, force=args.force, progress=not args.quiet,
                       figures=not args.no_plots, svg=args.svg, overrides=args.overrides, command_line=getattr(args, "command_line", None))
     except KeyboardInterrupt:
         print("simrun: interrupted: the finished fits are in the results file; run the same command again to finish "

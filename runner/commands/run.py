@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from simrun.commands._options import add_experiment_options
-from simrun.execution.workers import EXECUTORS, EXECUTOR_ALIASES
+from simrun.commands._options import add_executor_options, add_experiment_options, executor_name
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report Ctrl-C
 DEFAULT_MAX_SIZE_GB = 50.0  # = simrun.results.writer.DEFAULT_MAX_SIZE_GB (the writer is not imported before a run)
@@ -16,11 +15,7 @@ def add_parser(commands) -> None:
                               description="Run every run of CONFIG's sweep, write OUTPUT/results.h5 and draw OUTPUT/figures/.")
     run.add_argument("config", help="the experiment's YAML file, e.g. configs/quickstart.yaml")
     add_experiment_options(run, "--set system.stiffness=1000 --set sweep.dt=[0.01,0.02]")
-    run.add_argument("-j", "--jobs", type=int, help="runs at once: local processes or Dask workers (default: the number of cores; 1 = serial)")
-    run.add_argument("--executor", choices=(*EXECUTORS, *EXECUTOR_ALIASES), default="process",
-                     help="process: a process pool on this machine (default; `local` is the same); "
-                          "dask: a Dask cluster (pip install 'simrun[dask]')")
-    run.add_argument("--scheduler", metavar="ADDRESS", help="with --executor dask: an existing scheduler, e.g. tcp://host:8786 (default: a local cluster)")
+    add_executor_options(run, "runs")
     run.add_argument("--lanes", choices=("auto", "off"), default="auto",
                      help="auto: step many small runs of one kind (the spring's maps) together as lanes of one array, "
                           "each run's data what it would be alone (default); off: every run alone")
@@ -37,7 +32,7 @@ def handle(args) -> int:
 
     try:
         results = run(args.config, output=args.output, jobs=args.jobs,
-                      executor=EXECUTOR_ALIASES.get(args.executor, args.executor), scheduler=args.scheduler,
+                      executor=executor_name(args), scheduler=args.scheduler,
                       force=args.force, progress=not args.quiet, figures=not args.no_plots, svg=args.svg,
                       overrides=args.overrides, max_size_gb=args.max_size,
                       command_line=getattr(args, "command_line", None), lanes=args.lanes)

@@ -1,5 +1,5 @@
 """Counting what a run evaluates: the system's force (gradient) and Jacobian (Hessian) evaluations, the currencies of
-work-precision besides wall time (issue 28).
+work-precision besides wall time.
 
 The counts wrap the bound methods on the system instance (shadowing its class's), so that integrators and solvers,
 which call ``system.gradient`` and ``system.hessian`` / ``hessian_data``, are counted wherever they call them. A call

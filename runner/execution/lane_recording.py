@@ -14,10 +14,7 @@ import math
 import numpy as np
 
 from simrun.execution.measures import DECAY_FLOOR, decay_per_period
-
-PER_STEP_KEYS = ("newton_iterations", "linear_iterations", "line_search_steps", "residual", "solver_index", "safeguards")
-PER_STEP_TYPES = (np.int32, np.int32, np.int32, np.float64, np.int8, np.uint8)
-PER_STEP_FIELDS = ("iterations", "linear_iterations", "line_search_steps", "residual", "solver_index", "safeguards")  # SolveStats
+from simrun.format.record import SOLVER_STEP_COLUMNS
 
 
 class LaneSeries:
@@ -29,7 +26,7 @@ class LaneSeries:
         self.exact = exact  # the lane system's exact_states (None: no exact solution), for the error norms
         self.energy_scale = energy_scale  # E_ref per lane: the energy drift's unit
         self.series = {key: np.full((sample_rows, lanes) + shape, np.nan) for key, shape in layout.items()}
-        self.per_step = {key: np.zeros((step_count, lanes), dtype=kind) for key, kind in zip(PER_STEP_KEYS, PER_STEP_TYPES)}
+        self.per_step = {key: np.zeros((step_count, lanes), dtype=column.dtype) for key, column in SOLVER_STEP_COLUMNS.items()}
         self.per_step_count = step_count
         self.counts = np.zeros(lanes, dtype=np.int64)
         self.row = 0  # the next regular sample's row
@@ -57,8 +54,8 @@ class LaneSeries:
         self.counts[stopping] = self.row + 1
 
     def solver_step(self, n: int, stats, running) -> None:
-        for key, name in zip(PER_STEP_KEYS, PER_STEP_FIELDS):
-            value = getattr(stats, name)
+        for key, column in SOLVER_STEP_COLUMNS.items():
+            value = getattr(stats, column.stats_field)
             if value.flags.writeable or value.any():  # the solver's shared zeros: the record is zero already
                 self.per_step[key][n] = value
 

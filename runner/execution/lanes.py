@@ -24,6 +24,7 @@ from simrun.execution.lane_recording import LaneSeries, LaneSummary, lane_decays
 from simrun.execution.simulate import simulate
 from simrun.execution.workers import compiled_threads
 from simrun.experiment.config import Run
+from simrun.format.record import decide_status, not_converged_message
 from simrun.format.run_result import LaneBatch, lane_summary, lane_table
 from simrun.format.size import estimate_run_bytes
 from simrun.format.summary import Status
@@ -226,12 +227,11 @@ def _simulate_lanes(runs: list[Run]) -> LaneBatch:
     summary = {key: values.tolist() for key, values in kept["series_summary"].items()} if not record.series else {}
     statuses, attrs = [], []
     for lane in range(lanes):
-        lane_status = Status.DIVERGED if diverged[lane] else Status.OK
-        if lane_status is Status.OK and columns["not_converged_steps"][lane] and not accept_not_converged:
-            lane_status = Status.NOT_CONVERGED
-            if not messages[lane]:
-                messages[lane] = (f"{columns['not_converged_steps'][lane]} of {int(stopped_at[lane])} steps did not converge "
-                                  "within max_iterations")
+        lane_status = decide_status(failed=False, diverged=bool(diverged[lane]), over_budget=False,
+                                    not_converged_steps=columns["not_converged_steps"][lane],
+                                    accept_not_converged=accept_not_converged)
+        if lane_status is Status.NOT_CONVERGED and not messages[lane]:
+            messages[lane] = not_converged_message(columns["not_converged_steps"][lane], int(stopped_at[lane]))
         statuses.append(lane_status)
         lane_attrs = {key: values[lane] for key, values in columns.items()}
         lane_attrs.update(shared)

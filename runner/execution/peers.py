@@ -1,4 +1,4 @@
-"""A peer's run: scipy's ``solve_ivp`` method on the system, stepped by scipy itself (integrators/peers.py, issue 28).
+"""A peer's run: scipy's ``solve_ivp`` method on the system, stepped by scipy itself (integrators/peers.py).
 
 The solver object (``scipy.integrate.Radau``, ``BDF``, ``LSODA``, ...) is stepped here rather than through
 ``solve_ivp``, so that each accepted step's size is recorded. The samples and frames are kept at step ends at the cadence of
@@ -17,12 +17,13 @@ import scipy.integrate
 import scipy.sparse
 
 from simrun.experiment.config import Run
+from simrun.format.record import decide_status
 from simrun.format.run_result import RunResult
-from simrun.format.summary import Status
 from simrun.integrators.peers import IMPLICIT_PEERS
 
 from .measures import add_outcome, final_error, moving_dofs, path_power, vertex_constraint_kinds
-from .recording import Recorder, SampleCadence
+from .recording import STEP_ROWS, Recorder, SampleCadence
+from .step_log import StepLog
 
 SOLVERS = {"Radau": scipy.integrate.Radau, "BDF": scipy.integrate.BDF, "LSODA": scipy.integrate.LSODA,
            "RK45": scipy.integrate.RK45, "DOP853": scipy.integrate.DOP853}
@@ -73,14 +74,16 @@ def simulate_peer(run: Run) -> RunResult:
     energy0 = system.total_energy(system.x0, system.v0)
     energy_bound = run.divergence.energy_factor * system.energy_scale()
     constraint_kinds = vertex_constraint_kinds(system)
-    sizes: list[float] = []
+    log = StepLog(["dt"], STEP_ROWS)  # each accepted step's size
+    steps = 0
     counts = {"function_evaluations": 0, "jacobian_evaluations": 0, "factorisations": 0}
     state = np.concatenate([system.x0, system.v0])
     dissipated = work = 0.0
     recorder.record(0.0, state[:n], state[n:], 0.0, 0.0)
     if with_frames:
         recorder.record_frame(0.0, state[:n])
-    status, message, t_diverged, error_state = Status.OK, "", None, None
+    failed = diverged = over_budget = False
+    message, t_diverged, error_state = "", None, None
     options = {"rtol": control.tolerance, "atol": control.atol}
     if control.dt_max is not None:
         options["max_step"] = control.dt_max
@@ -104,7 +107,9 @@ def simulate_peer(run: Run) -> RunResult:
                     break
                 t, state = solver.t, solver.y
                 size = t - previous_t
-                sizes.append(size)
+                log.grow_to(steps + 1)
+                log.put(steps, dt=size)
+                steps += 1
                 if system.is_damped:  # as simulate books it: the step's mean velocity, D at its mean position
                     mean_v = 0.5 * (previous[n:] + state[n:])
                     dissipated += size * float(mean_v @ (system.damping_matrix(0.5 * (previous[:n] + state[:n])) @ mean_v))
@@ -117,16 +122,16 @@ def simulate_peer(run: Run) -> RunResult:
                     error_state = (error_time, u[:n].copy(), u[n:].copy())
                 last = t >= run.duration
                 # samples and frames at step ends, at the cadence of simrun's step-controlled runs
-                if cadence.sample_due(len(sizes), t) or last:
+                if cadence.sample_due(steps, t) or last:
                     energy = recorder.record(t, state[:n], state[n:], dissipated, work)
                     if not math.isfinite(energy) or abs(energy - work - energy0) > energy_bound:
-                        status, t_diverged = Status.DIVERGED, t
+                        diverged, t_diverged = True, t
                         message = f"energy {energy:.3g} J left the bound |E - E0| <= {energy_bound:.3g} J at t = {t:.6g} s"
                         break
-                if with_frames and (cadence.frame_due(len(sizes), t) or last):
+                if with_frames and (cadence.frame_due(steps, t) or last):
                     recorder.record_frame(t, state[:n])
                 if run.record.max_wall_time is not None and time.perf_counter() - start > run.record.max_wall_time:
-                    status = Status.NOT_CONVERGED
+                    over_budget = True
                     message = (f"stopped at t = {t:.6g} s: {time.perf_counter() - start:.3g} s of wall time, over "
                                f"record.max_wall_time {run.record.max_wall_time:g} s")
                     break
@@ -134,20 +139,23 @@ def simulate_peer(run: Run) -> RunResult:
             counts["jacobian_evaluations"] += getattr(solver, "njev", 0)
             counts["factorisations"] += getattr(solver, "nlu", 0)
             if solver.status == "failed":
-                status, message = Status.FAILED, f"scipy's {peer.method}: {message}"
-            if status is not Status.OK:
+                failed, message = True, f"scipy's {peer.method}: {message}"
+            if failed or diverged or over_budget:
                 break
             system = system.released(end)
         else:
             message = ""
     except Exception as error:  # a failing run is a result, never the end of the sweep
-        status, message = Status.FAILED, f"{type(error).__name__}: {error}"
+        failed, message = True, f"{type(error).__name__}: {error}"
     wall_time = time.perf_counter() - start
+    status = decide_status(failed=failed, diverged=diverged, over_budget=over_budget, not_converged_steps=0,
+                           accept_not_converged=False)
     samples = recorder.result()
-    steps = len(sizes)
+    per_step = log.result(steps)
     attrs = {"final_error": final_error(system, samples), "not_converged_steps": 0, "first_not_converged_step": 0,
              "diverged_step": 0, "safeguard_steps": 0, "accepted_steps": steps, "planned_steps": steps,
-             "dt": sum(sizes) / steps if steps else math.nan, **counts, **system.capabilities.as_attrs()}
+             "dt": sum(per_step["dt"].tolist()) / steps if steps else math.nan, **counts,
+             **system.capabilities.as_attrs()}
     model = add_outcome(system, samples, attrs, error_state, with_frames, constraint_kinds)
     return RunResult(run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples,
-                     per_step={"dt": np.array(sizes)}, t_diverged=t_diverged, message=message, attrs=attrs, model=model)
+                     per_step=per_step, t_diverged=t_diverged, message=message, attrs=attrs, model=model)

@@ -1,4 +1,4 @@
-"""Adaptive steps: the step controller that ``simulate`` asks for each step of a step-controlled run (issue 28).
+"""Adaptive steps: the step controller that ``simulate`` asks for each step of a step-controlled run.
 
 A step from (t, u) of the proposed size h is taken with the method's own error estimate (``step_with_error``) or,
 on request, Richardson's: one step of h against two of h/2, e = (u_{h/2,h/2} - u_h) / (2^p - 1), the two half steps

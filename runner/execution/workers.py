@@ -14,16 +14,28 @@ import multiprocessing.context
 import multiprocessing.forkserver
 import multiprocessing.spawn
 import os
+import pkgutil
 import select
 import signal
 import sys
 import threading
 import time
 import warnings
+from pathlib import Path
 
 import threadpoolctl
 
-EXECUTORS = ("process", "dask")  # the names of simrun.execution.executors.EXECUTOR_FUNCTIONS, light for the command line
+
+
+def _executor_names() -> tuple[str, ...]:
+    """The executors: one module each in execution/executors/, named as ``--executor`` names it, found without
+    importing any (the command line offers them before it imports the stepping code); the default first."""
+    folder = Path(__file__).resolve().parent / "executors"
+    names = sorted(module.name for module in pkgutil.iter_modules([str(folder)]) if not module.name.startswith("_"))
+    return tuple(sorted(names, key=lambda name: name != "process"))
+
+
+EXECUTORS = _executor_names()
 # what the command line also accepts: `--executor local` (the name before the pipeline API) is the process pool
 EXECUTOR_ALIASES = {"local": "process"}
 # The warning multiprocessing's resource tracker gives when it unlinks the semaphores of a pool whose process died
@@ -121,8 +133,8 @@ def _limit_blas_threads(threads: int) -> None:
 
 def _limit_compiled_threads(threads: int) -> None:
     """The same share of the cores for the compiled element loops (numba's prange, systems/fem/kernels.py): two
-    workers of two OpenMP threads each on two cores spin against each other, which made a 25-vertex run take 23 ms
-    per Newton iteration instead of 0.05 ms. A user who set NUMBA_NUM_THREADS chose the count."""
+    workers of two OpenMP threads each on two cores spin against each other, a small run's Newton iteration hundreds of
+    times slower than alone. A user who set NUMBA_NUM_THREADS chose the count."""
     if "NUMBA_NUM_THREADS" in os.environ:
         return
     global _COMPILED_SHARE

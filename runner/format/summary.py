@@ -8,30 +8,16 @@ imports h5py and numpy only.
 
 from __future__ import annotations
 
-import enum
 import math
 
 import h5py
 import numpy as np
 
 from simrun.format.layout import ERROR_NORMS
+from simrun.format.record import SERIES_SUMMARY_KEYS, Status, run_attribute
 
-
-class Status(str, enum.Enum):
-    """How a run ended (the ``status`` attribute); a ``str``, so ``Status.OK == "ok"``."""
-
-    OK = "ok"  # reached the end time
-    DIVERGED = "diverged"  # energy non-finite or beyond the bound (``t_diverged`` says when)
-    NOT_CONVERGED = "not_converged"  # some step's solver hit max_iterations
-    FAILED = "failed"  # an exception; its message is stored
-
-    def __str__(self) -> str:
-        return self.value
-
-    @property
-    def stopped(self) -> bool:
-        """The run did not reach its end time with data to trust (diverged or failed)."""
-        return self in (Status.DIVERGED, Status.FAILED)
+__all__ = ["SERIES_SUMMARY_KEYS", "SUMMARY_COLUMNS", "SUMMARY_DTYPE", "Status", "energy_drift", "energy_reference",
+           "real_time_factor", "series_summary", "summary_row", "summary_row_of", "wall_time_per_frame"]
 
 
 # -- energy drift: the one definition ---------------------------------------------------------------
@@ -42,7 +28,7 @@ def energy_reference(attrs, energy: np.ndarray, kinetic: np.ndarray, potential: 
     e.g. E0 for the spring and M |g| L for a cloth at rest, whose E0 is round-off. Format 1 did not store
     it: its drifts were relative to ``drift_scale``, which stays its reference."""
     if "energy_scale" in attrs:
-        return float(attrs["energy_scale"]), as_text(attrs.get("energy_reference_name", "the system's energy scale"))
+        return float(attrs["energy_scale"]), as_text(run_attribute(attrs, "energy_reference_name"))
     return drift_scale(energy, kinetic, potential), "|E0| (format 1)"
 
 
@@ -97,9 +83,6 @@ def wall_time_per_frame(steps: int, dt: float, wall_time: float) -> float:
     return wall_time * FRAME_TIME / simulated if simulated > 0.0 else math.nan
 
 
-# the summary's numbers that come from a run's series; a run recorded without them (record.series: false) stores
-# them as attributes instead
-SERIES_SUMMARY_KEYS = ("max_rel_energy_drift", "final_rel_energy_drift", "mean_newton_iterations", "mean_linear_iterations")
 
 
 def series_summary(attrs, read) -> dict[str, float]:
@@ -126,9 +109,9 @@ def summary_row_of(run_id: str, attrs, read) -> tuple:
     steps, dt, wall_time = int(attrs["steps"]), float(attrs["dt"]), float(attrs["wall_time"])
     return (
         run_id, as_text(attrs["integrator_label"]), dt, as_text(attrs["status"]), steps,
-        series["max_rel_energy_drift"], series["final_rel_energy_drift"], float(attrs.get("final_error", math.nan)),
-        float(attrs.get("error_time", math.nan)), float(attrs.get("error", math.nan)),
-        *(float(attrs.get(key, math.nan)) for key in ERROR_NORMS), series["mean_newton_iterations"], series["mean_linear_iterations"], wall_time,
+        series["max_rel_energy_drift"], series["final_rel_energy_drift"], float(run_attribute(attrs, "final_error")),
+        float(run_attribute(attrs, "error_time")), float(run_attribute(attrs, "error")),
+        *(float(run_attribute(attrs, key)) for key in ERROR_NORMS), series["mean_newton_iterations"], series["mean_linear_iterations"], wall_time,
         real_time_factor(steps, dt, wall_time), wall_time_per_frame(steps, dt, wall_time),
     )
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from simrun.format.record import run_attribute
 from simrun.errors import ResultsFileError
 from simrun.format.layout import LANES_GROUP, READABLE_VERSIONS, RESULTS_NAME
 from simrun.format.summary import (SUMMARY_COLUMNS, SUMMARY_DTYPE, Status, as_text, attribute_value, energy_reference,
@@ -33,7 +34,7 @@ from simrun.format.summary import (SUMMARY_COLUMNS, SUMMARY_DTYPE, Status, as_te
 from simrun.results.fits import read_fits
 from simrun.results.lanes import lane_runs
 
-# the params that set a run's steps: its fixed dt, or the tolerance its step control chooses them by (issue 28)
+# the params that set a run's steps: its fixed dt, or the tolerance its step control chooses them by
 STEP_KEYS = ("dt", "step_control.tolerance")
 
 # -- one run ----------------------------------------------------------------------------------------
@@ -163,22 +164,22 @@ class StoredRun:
     @property
     def final_error(self) -> float:
         """m: max |x - x_exact| at the last sample (NaN without an exact solution)."""
-        return float(self.attrs.get("final_error", math.nan))
+        return float(run_attribute(self.attrs, "final_error"))
 
     @property
     def final_velocity_error(self) -> float:
         """m/s: max |v - v_exact| at the last sample (NaN without an exact solution, and in files before it)."""
-        return float(self.attrs.get("final_velocity_error", math.nan))
+        return float(run_attribute(self.attrs, "final_velocity_error"))
 
     @property
     def max_error(self) -> float:
         """m: max |x - x_exact| over every stored sample and dof (NaN without an exact solution, and in files before it)."""
-        return float(self.attrs.get("max_error", math.nan))
+        return float(run_attribute(self.attrs, "max_error"))
 
     @property
     def max_velocity_error(self) -> float:
         """m/s: max |v - v_exact| over every stored sample and dof (NaN without an exact solution, and in files before it)."""
-        return float(self.attrs.get("max_velocity_error", math.nan))
+        return float(run_attribute(self.attrs, "max_velocity_error"))
 
     @property
     def error_time(self) -> float:
@@ -187,7 +188,7 @@ class StoredRun:
         if self.format_version == 1:
             t = self.series("t")
             return float(t[-1]) if t.size else math.nan
-        return float(self.attrs.get("error_time", math.nan))
+        return float(run_attribute(self.attrs, "error_time"))
 
     @property
     def error(self) -> float:
@@ -195,7 +196,7 @@ class StoredRun:
         else max |x - x_exact|); NaN without an exact solution or before error_time. Format 1: final_error."""
         if self.format_version == 1:
             return self.final_error
-        return float(self.attrs.get("error", math.nan))
+        return float(run_attribute(self.attrs, "error"))
 
     # -- what its system declared (format 2; restated for format 1) ------------------------------
     @property
@@ -209,7 +210,7 @@ class StoredRun:
         """rad/s: the frequency that bounds the run's stable step at (h w)*/w, at the start shape (an explicit
         method's stiffest, IMEX Euler's of K_E - K_I; 0: no bound); None for an implicit method, on the test
         equation, and in files written before it was stored."""
-        value = float(self.attrs.get("explicit_frequency", math.nan))
+        value = float(run_attribute(self.attrs, "explicit_frequency"))
         return value if math.isfinite(value) else None
 
     @property
@@ -250,7 +251,7 @@ class StoredRun:
         From the attribute ``vertex_dim``; files written before it (cloth frames) hold (frames, vertices, 3)."""
         if "frames" not in self.datasets:
             return 0
-        if int(self.attrs.get("vertex_dim", 0)) > 0:
+        if int(run_attribute(self.attrs, "vertex_dim")) > 0:
             return int(self.attrs["vertex_dim"])
         if "frames" in self._cache:
             return int(self._cache["frames"].shape[-1])

@@ -26,6 +26,7 @@ import numpy as np
 from simrun.errors import ConfigError, ResultsFileError
 from simrun.experiment.config import RecordParams, Run
 from simrun.format.layout import FORMAT_VERSION, LANES_GROUP, LANE_TABLE, OPTIONAL_LANE_COLUMNS
+from simrun.format.record import check_record
 from simrun.format.run_result import RunResult
 from simrun.format.size import estimate_run_parts
 from simrun.format.summary import SUMMARY_DTYPE, as_text, summary_row
@@ -223,6 +224,7 @@ class ResultsWriter:
         return done
 
     def write_run(self, run: Run, result: RunResult) -> None:
+        check_record(result.attrs)
         group = self.file["runs"].create_group(run.run_id)
         attrs = group.attrs
         attrs["index"] = run.index
@@ -269,6 +271,7 @@ class ResultsWriter:
         group = self.file.require_group(LANES_GROUP).create_group(f"{first.index:06d}+{len(runs)}")
         shared, table = batch.table
         columns = table.dtype.names
+        check_record({**shared, **dict.fromkeys(column for column in columns if column != "run_id")})
         for key, value in shared.items():
             group.attrs[key] = value
         group.create_dataset(LANE_TABLE, data=table)
