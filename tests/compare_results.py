@@ -119,8 +119,10 @@ def package_tree(source: Path, into: Path) -> Path:
 
 
 def run_config(tree: Path, config: Path, output: Path, jobs: int) -> None:
-    """One config by the code at ``tree``, in a process of its own (figures left out: they read the file alone)."""
-    script = (f"import simrun; simrun.run({str(config)!r}, output={str(output)!r}, jobs={jobs}, progress=False, "
+    """One config by the code at ``tree``, in a process of its own: ``simrun.fit`` for a calibration, else
+    ``simrun.run`` (figures left out: they read the file alone)."""
+    entry = "fit" if any(line.startswith("fit:") for line in config.read_text().splitlines()) else "run"
+    script = (f"import simrun; simrun.{entry}({str(config)!r}, output={str(output)!r}, jobs={jobs}, progress=False, "
               "figures=False)")
     done = subprocess.run([sys.executable, "-c", script], env={**_environment(), "PYTHONPATH": str(tree)},
                           cwd=output.parent, capture_output=True, text=True)

@@ -554,3 +554,31 @@ def test_observations_past_the_last_step_are_stepped_to_not_extrapolated():
     assert steps_covering(1.0, 0.3333334, 1.0) == 3  # 3 steps end at 1.0000002 s
     assert steps_covering(1.0, 0.3, 1.0) == 4  # 3 steps end at 0.9 s: a fourth reaches 1.0 s
     assert steps_covering(1.0, 0.25, 1.0) == 4
+
+
+def test_a_fit_is_done_by_the_executor_it_names(tmp_path, monkeypatch):
+    """simrun.fit runs its fits and its transfer table through the executors' registry (EXECUTOR_FUNCTIONS), as a
+    sweep does: an executor planted there under a new name does every task, and the fits equal the serial ones."""
+    import simrun.execution.executors as executors
+    import simrun.execution.executors._options as options_module
+
+    done = []
+
+    def recording(tasks, work, runs, options):
+        for task in tasks:
+            done.append(work.__name__)
+            yield task, work(task)
+
+    monkeypatch.setitem(executors.EXECUTOR_FUNCTIONS, "recording", recording)
+    monkeypatch.setattr(options_module, "EXECUTORS", (*options_module.EXECUTORS, "recording"))
+    observed = write_observations(tmp_path / "q.csv", 0.1, 2.0)
+    text = spring_config(observed, ["backward_euler"], [0.1], 2.0)
+    planted = fit(text, output=tmp_path / "planted", jobs=2, executor="recording", progress=False, figures=False)
+    serial = fit(text, output=tmp_path / "serial", jobs=1, progress=False, figures=False)
+    # the exact solution's fit and the method's, then the transfer table's rows of each
+    assert done == ["fit_pair", "fit_pair", "transfer_task", "transfer_task"]
+    keys = ["fit_id", *SPRING_KEYS]
+    assert planted.fits.table[keys].equals(serial.fits.table[keys])
+    with pytest.raises(ConfigError, match=r"--executor: unknown 'threads'; valid: process, dask, recording"):
+        fit(text, output=tmp_path / "refused", executor="threads", progress=False, figures=False)
+    assert not (tmp_path / "refused").exists()
