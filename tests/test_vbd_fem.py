@@ -28,7 +28,7 @@ from simrun.solvers.vbd import IncrementalParts, colour_plans
 from simrun.systems import SYSTEMS
 from simrun.systems.base import System
 from simrun.systems.fem import energies, kernels, vbd_kernels
-from simrun.systems.fem.materials import MATERIALS
+from simrun.systems.fem.materials import CODES as MATERIALS
 from simrun.systems.fem.system import KEPT_VOLUME
 
 MODELS = [pytest.param(BOX, id="tets"), pytest.param(SQUARE, id="triangles")]

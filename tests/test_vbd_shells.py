@@ -29,7 +29,7 @@ from simrun.solvers.vbd import IncrementalParts, colour_plans
 from simrun.systems import SYSTEMS
 from simrun.systems.base import System
 from simrun.systems.fem import bending, membrane, shell_terms, shell_vbd_kernels
-from simrun.systems.fem.materials import MATERIALS
+from simrun.systems.fem.materials import CODES as MATERIALS
 from simrun.systems.fem.system import KEPT_VOLUME
 
 MEMBRANES = ["stvk", "corotated", "neo_hookean", "stable_neo_hookean"]

@@ -1,7 +1,7 @@
 """Compiled element loops of the finite-element system: deformation gradients, the elements' energies, forces and
 Hessian blocks, their scatter into the gradient and into the Hessian's fixed CSR pattern, volume ratios and the step
-filter. The energy densities are in energies.py, the SPD projection in projection.py, the small dense algebra in
-linalg.py.
+filter. The energy densities are in energies.py (each material's in materials/), the SPD projection in projection.py,
+the small dense algebra in linalg.py.
 
 Piecewise-linear simplices (triangles in 2-D, tetrahedra in 3-D) with one-point quadrature, which is exact: F is
 constant on an element. With the rest shape's edge matrix D_m = [X_1 - X_0, ..., X_d - X_0] and g_a the rows of
@@ -26,8 +26,8 @@ import numba
 import numpy as np
 
 from ..compiled_cache import keep_fresh
-from .energies import WORK_SLOTS, _cofactor, material_terms
-from .linalg import _determinant
+from .energies import WORK_SLOTS, material_terms
+from .linalg import _cofactor, _determinant
 from .projection import project_tangent, projection_scratch
 
 # elements per chunk of the parallel loops: the scratch arrays are made once per chunk, not once per element

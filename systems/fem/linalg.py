@@ -1,6 +1,7 @@
 """Dense linear algebra of one element's small matrices (2 x 2 and 3 x 3), compiled with numba and allocating nothing:
-the determinant, F^T F, closed-form symmetric eigensystems and the rotation-variant SVD that the co-rotated energy and
-the analytic SPD projection (projection.py) need. No LAPACK call: from numba it costs microseconds per matrix."""
+the determinant, the cofactor matrix J F^-T and its derivative (the volume terms of the energies), F^T F, closed-form
+symmetric eigensystems and the rotation-variant SVD that the co-rotated energy and the analytic SPD projection
+(projection.py) need. No LAPACK call: from numba it costs microseconds per matrix."""
 
 from __future__ import annotations
 
@@ -19,6 +20,51 @@ def _determinant(F, d):
         return F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
     return (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
             + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
+
+
+@numba.njit(cache=True)
+def _epsilon2(i, j):
+    return 0.0 if i == j else (1.0 if i < j else -1.0)
+
+
+@numba.njit(cache=True)
+def _epsilon3(i, j, k):
+    return (i - j) * (j - k) * (k - i) / 2.0
+
+
+@numba.njit(cache=True)
+def _cofactor(F, d, C):
+    """C = det(F) F^-T, written without the inverse (defined for every F)."""
+    if d == 2:
+        C[0, 0], C[0, 1], C[1, 0], C[1, 1] = F[1, 1], -F[1, 0], -F[0, 1], F[0, 0]
+        return
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            C[i, j] = F[i1, j1] * F[i2, j2] - F[i1, j2] * F[i2, j1]
+
+
+@numba.njit(cache=True)
+def _cofactor_derivative(F, d, i, j, k, l):
+    """dC_ij / dF_kl: eps_ik eps_jl in 2-D; eps_ikm eps_jln F_mn in 3-D, whose only term is m, n the third indices of
+    (i, k) and (j, l)."""
+    if d == 2:
+        return _epsilon2(i, k) * _epsilon2(j, l)
+    if i == k or j == l:
+        return 0.0
+    m, n = 3 - i - k, 3 - j - l
+    return _epsilon3(i, k, m) * _epsilon3(j, l, n) * F[m, n]
+
+
+@numba.njit(cache=True)
+def _others(sigma, d, i):
+    """J / sigma_i, as the product of the other singular values (defined at sigma_i = 0)."""
+    value = 1.0
+    for m in range(d):
+        if m != i:
+            value *= sigma[m]
+    return value
 
 
 @numba.njit(cache=True)

@@ -4,24 +4,10 @@ numba (docs/fem.md, "Shells").
 A triangle of a surface in 3-D has, at rest, a 2-D frame in its own plane (t_1 along its first edge, t_2 = n x t_1);
 D_m holds its edges in that frame, and g_a are the rows of D_m^-1 as for a 2-D solid, so that F = sum_a x_a g_a^T is
 3 x 2 and maps the rest plane onto the deformed triangle. C = F^T F (2 x 2) is all a membrane energy sees, which makes
-it invariant to rotations of the deformed triangle, turning it over included. With I_1 = tr C and J = sqrt(det C)
-(the area ratio):
-
-- STVK:        mu E:E + lambda/2 tr(E)^2, E = (C - I)/2
-- NEO_HOOKEAN: mu/2 (I_1 - 2) - mu ln J + lambda/2 (ln J)^2
-- COROTATED:   mu ||F - R||^2 + lambda/2 (J - 1)^2 = mu (I_1 - 2 (sigma_1 + sigma_2) + 2) + lambda/2 (J - 1)^2, with
-               sigma_1 + sigma_2 = sqrt(I_1 + 2 J)
-- STABLE_NEO_HOOKEAN: mu/2 (I_1 - 2) + lambda/2 (J - alpha)^2 - mu/2 ln((I_1 + 1)/3), alpha = 1 + 2 mu / (3 lambda),
-               less its value at rest
-
-The last three are psi = f(I_1, J). With H = dJ/dF = F adj(C) / J and Q = F C^-1 F^T (the projector onto the deformed
-triangle's plane):
-
-    P = 2 f_1 F + f_J H,
-    A_ijkl = 2 f_1 d_ik d_jl + 4 f_11 F_ij F_kl + 2 f_1J (F_ij H_kl + H_ij F_kl) + f_JJ H_ij H_kl
-             + f_J [(H_ij H_kl - H_il H_kj) / J + (d_ik - Q_ik) adj(C)_lj / J],
-
-the last bracket being J's own second derivative. A flattens F_ij (i < 3, j < 2) to 2 i + j.
+it invariant to rotations of the deformed triangle, turning it over included. Each material's membrane form is in its
+module (materials/): St. Venant-Kirchhoff's in Green's strain E = (C - I)/2, the others' as f(I_1, J) with I_1 = tr C
+and J = sqrt(det C), the area ratio (materials/invariant_membrane.py derives P and A of those). A flattens F_ij
+(i < 3, j < 2) to 2 i + j.
 """
 
 from __future__ import annotations
@@ -32,46 +18,20 @@ import numba
 import numpy as np
 
 from ..compiled_cache import keep_fresh
-from .energies import COROTATED, NEO_HOOKEAN, STVK
 from .kernels import cubic_crossings
 from .linalg import project_dense
+from .materials.dispatch import membrane_terms as material_membrane_terms
 
-# J below this is taken as this in the terms that divide by it: a triangle collapsed to a segment, where J is not
-# differentiable (it is |.|-like across rank 1)
-AREA_FLOOR = 1e-12
 # an eigenvalue of the tangent above -PSD_SHIFT of the largest counts as 0 (as the solids' projection has it)
 PSD_SHIFT = 1e-12
 CHUNK = 256
 
 
 @numba.njit(cache=True)
-def _invariant_derivatives(model, I1, J, mu, lam):
-    """(psi, f_1, f_J, f_11, f_1J, f_JJ) of psi = f(I_1, J) for the energies written through the invariants."""
-    if model == NEO_HOOKEAN:
-        if not J > 0.0:
-            return math.inf, math.nan, math.nan, math.nan, math.nan, math.nan
-        log_J = math.log(J)
-        psi = 0.5 * mu * (I1 - 2.0) - mu * log_J + 0.5 * lam * log_J * log_J
-        return psi, 0.5 * mu, (lam * log_J - mu) / J, 0.0, 0.0, (mu + lam * (1.0 - log_J)) / (J * J)
-    if model == COROTATED:
-        total = math.sqrt(max(I1 + 2.0 * J, AREA_FLOOR))  # sigma_1 + sigma_2
-        psi = mu * (I1 - 2.0 * total + 2.0) + 0.5 * lam * (J - 1.0) * (J - 1.0)
-        cube = total * total * total
-        return (psi, mu * (1.0 - 1.0 / total), -2.0 * mu / total + lam * (J - 1.0), 0.5 * mu / cube, mu / cube,
-                2.0 * mu / cube + lam)
-    # STABLE_NEO_HOOKEAN
-    alpha = 1.0 + 2.0 * mu / (3.0 * lam)
-    psi = (0.5 * mu * (I1 - 2.0) + 0.5 * lam * ((J - alpha) * (J - alpha) - (1.0 - alpha) * (1.0 - alpha))
-           - 0.5 * mu * math.log((I1 + 1.0) / 3.0))
-    return (psi, 0.5 * mu * (1.0 - 1.0 / (I1 + 1.0)), lam * (J - alpha), 0.5 * mu / ((I1 + 1.0) * (I1 + 1.0)), 0.0,
-            lam)
-
-
-@numba.njit(cache=True)
 def membrane_terms(model, F, mu, lam, P, A, want_tangent, work):
     """psi(F) (J/m^3) of a 3 x 2 F, P = dpsi/dF into P (3, 2), and with want_tangent A = d^2 psi / dF^2 into A (6, 6);
-    work (4, 3, 3) is scratch (C, adj C, H, Q)."""
-    C, adjugate, H, Q = work[0], work[1], work[2], work[3]
+    work (4, 3, 3) is scratch (C and the material's: S, or adj C, H, Q)."""
+    C = work[0]
     for i in range(2):
         for j in range(2):
             value = 0.0
@@ -79,67 +39,7 @@ def membrane_terms(model, F, mu, lam, P, A, want_tangent, work):
                 value += F[p, i] * F[p, j]
             C[i, j] = value
     I1 = C[0, 0] + C[1, 1]
-    if model == STVK:
-        E00, E01, E11 = 0.5 * (C[0, 0] - 1.0), 0.5 * C[0, 1], 0.5 * (C[1, 1] - 1.0)
-        trace = E00 + E11
-        psi = mu * (E00 * E00 + 2.0 * E01 * E01 + E11 * E11) + 0.5 * lam * trace * trace
-        S = adjugate  # the second Piola-Kirchhoff stress 2 mu E + lambda tr(E) I
-        S[0, 0], S[0, 1], S[1, 0], S[1, 1] = 2.0 * mu * E00 + lam * trace, 2.0 * mu * E01, 2.0 * mu * E01, 2.0 * mu * E11 + lam * trace
-        for i in range(3):
-            for j in range(2):
-                P[i, j] = F[i, 0] * S[0, j] + F[i, 1] * S[1, j]
-        if want_tangent:
-            for i in range(3):
-                for k in range(3):
-                    Q[i, k] = F[i, 0] * F[k, 0] + F[i, 1] * F[k, 1]  # F F^T
-            # dP_ij/dF_kl = d_ik S_lj + mu (F_il F_kj + (F F^T)_ik d_lj) + lambda F_ij F_kl, as for a solid
-            for i in range(3):
-                for j in range(2):
-                    for k in range(3):
-                        for l in range(2):
-                            value = mu * F[i, l] * F[k, j] + lam * F[i, j] * F[k, l]
-                            if i == k:
-                                value += S[l, j]
-                            if l == j:
-                                value += mu * Q[i, k]
-                            A[2 * i + j, 2 * k + l] = value
-        return psi
-    determinant = C[0, 0] * C[1, 1] - C[0, 1] * C[1, 0]
-    J = math.sqrt(max(determinant, 0.0))
-    if model == NEO_HOOKEAN and not J > 0.0:
-        for i in range(3):
-            for j in range(2):
-                P[i, j] = math.nan
-        return math.inf
-    psi, f1, fJ, f11, f1J, fJJ = _invariant_derivatives(model, I1, J, mu, lam)
-    floor = max(J, AREA_FLOOR)
-    adjugate[0, 0], adjugate[0, 1], adjugate[1, 0], adjugate[1, 1] = C[1, 1], -C[0, 1], -C[1, 0], C[0, 0]
-    for i in range(3):
-        for j in range(2):
-            H[i, j] = (F[i, 0] * adjugate[0, j] + F[i, 1] * adjugate[1, j]) / floor
-            P[i, j] = 2.0 * f1 * F[i, j] + fJ * H[i, j]
-    if not want_tangent:
-        return psi
-    for i in range(3):
-        for k in range(3):
-            value = 0.0
-            for m in range(2):
-                for n in range(2):
-                    value += F[i, m] * adjugate[m, n] * F[k, n]
-            Q[i, k] = value / (floor * floor)
-    for i in range(3):
-        for j in range(2):
-            for k in range(3):
-                for l in range(2):
-                    value = (4.0 * f11 * F[i, j] * F[k, l] + 2.0 * f1J * (F[i, j] * H[k, l] + H[i, j] * F[k, l])
-                             + fJJ * H[i, j] * H[k, l])
-                    curvature = (H[i, j] * H[k, l] - H[i, l] * H[k, j]) / floor
-                    curvature += ((1.0 if i == k else 0.0) - Q[i, k]) * adjugate[l, j] / floor
-                    value += fJ * curvature
-                    if i == k and j == l:
-                        value += 2.0 * f1
-                    A[2 * i + j, 2 * k + l] = value
-    return psi
+    return material_membrane_terms(model, F, C, I1, mu, lam, P, A, want_tangent, work)
 
 
 @numba.njit(cache=True)

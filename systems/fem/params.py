@@ -24,7 +24,7 @@ from ..mass_spring.files import file_digest, find_file
 from ..mass_spring.laws import Damping
 from ..mass_spring.model import ModelError
 from ..mass_spring.params import Box, DampingTerm, InitialShape, Prescribed, Selector, Sliding, Vector
-from .materials import MATERIALS, energy_parameters
+from .materials import MATERIALS, energy_parameters, shell_materials
 from .mesh import MeshFile, SimplexMesh, TetrahedralizedSurface, mesh_source, read_mesh_file
 from .system import Fem
 
@@ -267,9 +267,10 @@ def _check_shell_keys(params: FemParams, mesh: SimplexMesh) -> None:
         if params.thickness is None:
             raise ModelError(f"thickness: {mesh.source or 'the model'} is a shell (triangles in 3-D), whose membrane "
                              "energy is thickness x area x psi: give thickness (m)")
-        if params.material.model == "linear":
-            raise ModelError("material.model: linear elasticity is not rotation invariant, and a shell's triangles "
-                             "turn out of their plane: take stvk, corotated, neo_hookean or stable_neo_hookean")
+        material = MATERIALS[params.material.model]
+        if not material.shells:
+            *others, last = shell_materials()
+            raise ModelError(f"material.model: {material.not_for_shells}: take {', '.join(others)} or {last}")
         return
     if params.thickness is not None:
         raise ModelError(f"thickness: the model is {kind}, whose elements have their own volume; thickness is for "

@@ -10,10 +10,10 @@ import math
 import numba
 import numpy as np
 
-from .energies import COROTATED, LINEAR, NEO_HOOKEAN, ROTATION_FLOOR, STABLE_NEO_HOOKEAN
 from ..compiled_cache import keep_fresh
 from .linalg import (_closed_form_eigenvalues, _positive_definite_small, _signed_svd, _singular_values, _symmetric_eigen,
                      largest_magnitude, rank_one_update)
+from .materials.dispatch import pair_eigenvalues, positive_semidefinite_everywhere, singular_hessian
 
 # A + PSD_SHIFT max|lambda| I: eigenvalues above -PSD_SHIFT of the largest count as 0 (round-off: the rotation-invariant
 # energies' tangent is singular at rest, where rigid rotations cost nothing), and leave the exact tangent as it is
@@ -31,98 +31,24 @@ def projection_scratch(d):
 
 
 @numba.njit(cache=True)
-def _others(sigma, d, i):
-    """J / sigma_i, as the product of the other singular values (defined at sigma_i = 0)."""
-    value = 1.0
-    for m in range(d):
-        if m != i:
-            value *= sigma[m]
-    return value
-
-
-@numba.njit(cache=True)
 def _singular_terms(model, sigma, d, mu, lam, H, pairs):
     """psi as a function of the signed singular values: H = d^2 psi / d sigma^2 into H (d, d), and per pair (i, j),
     i < j in the order (0, 1), (0, 2), (1, 2), the tangent's two eigenvalues on the pair's "flip" (symmetric,
     (psi_i - psi_j) / (sigma_i - sigma_j)) and "twist" (antisymmetric, (psi_i + psi_j) / (sigma_i + sigma_j)) modes
-    into pairs (pair, 2), each quotient written out per energy so that it has no cancellation at sigma_i = sigma_j
-    (Smith, de Goes & Kim 2019, "Analytic eigensystems for isotropic distortion energies"). False for an
-    element where the energy is undefined (neo-Hookean at J <= 0)."""
+    into pairs (pair, 2), each quotient written out per energy (its material's module) so that it has no cancellation
+    at sigma_i = sigma_j (Smith, de Goes & Kim 2019, "Analytic eigensystems for isotropic distortion energies"). False
+    for an element where the energy is undefined (neo-Hookean at J <= 0)."""
     J = 1.0
     for m in range(d):
         J *= sigma[m]
-    if model == NEO_HOOKEAN:
-        if not J > 0.0:
-            return False
-        log_J = math.log(J)
-        for i in range(d):
-            for j in range(d):
-                if i == j:
-                    H[i, i] = mu + (mu + lam * (1.0 - log_J)) / (sigma[i] * sigma[i])
-                else:
-                    H[i, j] = lam / (sigma[i] * sigma[j])
-    elif model == STABLE_NEO_HOOKEAN:
-        invariant = 0.0
-        for m in range(d):
-            invariant += sigma[m] * sigma[m]
-        alpha = 1.0 + mu * d / ((d + 1.0) * lam)
-        shrink = mu / (invariant + 1.0)
-        curvature = 2.0 * mu / ((invariant + 1.0) * (invariant + 1.0))
-        for i in range(d):
-            for j in range(d):
-                if i == j:
-                    H[i, i] = mu - shrink + curvature * sigma[i] * sigma[i] + lam * _others(sigma, d, i) ** 2
-                else:
-                    third = 1.0 if d == 2 else sigma[3 - i - j]
-                    H[i, j] = (curvature * sigma[i] * sigma[j]
-                               + lam * (_others(sigma, d, i) * _others(sigma, d, j) + (J - alpha) * third))
-    elif model == COROTATED:
-        for i in range(d):
-            for j in range(d):
-                if i == j:
-                    H[i, i] = 2.0 * mu + lam * _others(sigma, d, i) ** 2
-                else:
-                    third = 1.0 if d == 2 else sigma[3 - i - j]
-                    H[i, j] = lam * (_others(sigma, d, i) * _others(sigma, d, j) + (J - 1.0) * third)
-    else:  # STVK
-        trace = 0.0
-        for m in range(d):
-            trace += 0.5 * (sigma[m] * sigma[m] - 1.0)
-        for i in range(d):
-            for j in range(d):
-                if i == j:
-                    H[i, i] = (2.0 * mu * (sigma[i] * sigma[i] + 0.5 * (sigma[i] * sigma[i] - 1.0))
-                               + lam * (sigma[i] * sigma[i] + trace))
-                else:
-                    H[i, j] = lam * sigma[i] * sigma[j]
+    if not singular_hessian(model, sigma, d, J, mu, lam, H):
+        return False
     pair = 0
     for i in range(d):
         for j in range(i + 1, d):
             third = 1.0 if d == 2 else sigma[3 - i - j]
             si, sj = sigma[i], sigma[j]
-            if model == NEO_HOOKEAN:
-                flip = mu + (mu - lam * math.log(J)) / (si * sj)
-                twist = mu + (lam * math.log(J) - mu) / (si * sj)
-            elif model == STABLE_NEO_HOOKEAN:
-                invariant = 0.0
-                for m in range(d):
-                    invariant += sigma[m] * sigma[m]
-                alpha = 1.0 + mu * d / ((d + 1.0) * lam)
-                base = mu - mu / (invariant + 1.0)
-                flip = base - lam * (J - alpha) * third
-                twist = base + lam * (J - alpha) * third
-            elif model == COROTATED:
-                total = si + sj
-                if abs(total) < ROTATION_FLOOR:
-                    total = ROTATION_FLOOR if total >= 0.0 else -ROTATION_FLOOR
-                flip = 2.0 * mu - lam * (J - 1.0) * third
-                twist = 2.0 * mu - 4.0 * mu / total + lam * (J - 1.0) * third
-            else:
-                trace = 0.0
-                for m in range(d):
-                    trace += 0.5 * (sigma[m] * sigma[m] - 1.0)
-                flip = mu * (si * si + si * sj + sj * sj - 1.0) + lam * trace
-                twist = mu * (si * si - si * sj + sj * sj - 1.0) + lam * trace
+            flip, twist = pair_eigenvalues(model, sigma, d, si, sj, third, J, mu, lam)
             pairs[pair, 0], pairs[pair, 1] = flip, twist
             pair += 1
     return True
@@ -135,9 +61,9 @@ def project_tangent(model, F, d, mu, lam, A, mode, scratch):
     From the analytic eigensystem of an isotropic energy: with F = U diag(sigma) V^T, d scaling modes U diag(z) V^T
     (z the eigenvectors of d^2 psi / d sigma^2) and per pair of singular values a flip and a twist mode,
     U (e_i e_j^T +- e_j e_i^T) V^T / sqrt 2 (``_singular_terms``). Only the negative modes' eigenvectors are formed,
-    as a low-rank update A + (lambda' - lambda) q q^T of each. Mode 0 and the linear energy (whose constant tangent is
-    PSD for every nu in (-1, 0.5)) never project."""
-    if mode == 0 or model == LINEAR:
+    as a low-rank update A + (lambda' - lambda) q q^T of each. Mode 0 and the energies whose tangent is PSD at every F
+    (linear elasticity's, constant, for every nu in (-1, 0.5)) never project."""
+    if mode == 0 or positive_semidefinite_everywhere(model):
         return False
     U, V, S, sigma, H, Z, curvatures, pairs, values, vector = scratch
     # screening: the eigenvalues need the singular values alone, which the closed form gives at a fraction of the

@@ -11,8 +11,7 @@ import numba
 
 from ..compiled_cache import keep_fresh
 from ..vertex_kernels import filtered_eigenvalue
-from .energies import NEO_HOOKEAN, STVK
-from .membrane import AREA_FLOOR, _invariant_derivatives
+from .materials.dispatch import membrane_vertex_terms as material_membrane_vertex_terms
 from .vbd_kernels import project_block
 
 
@@ -143,59 +142,13 @@ def _projected(k00, k01, k02, k11, k12, k22, projection):
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def membrane_vertex_terms(model, F, n0, n1, mu, lam, stress, K):
     """P n (into stress) and K = n^T A n (into K) of a triangle's 3 x 2 F at its corner with shape gradient n, in closed
-    form. St. Venant-Kirchhoff's as a solid's, K = (n^T S n) I + (mu + lambda) w w^T + mu |n|^2 F F^T (w = F n); the
-    energies psi = f(I_1, J) contract membrane.py's A with n n, where (H_ij H_kl - H_il H_kj) vanishes:
-
-        P n = 2 f_1 w + f_J c,
-        K = 2 f_1 |n|^2 I + 4 f_11 w w^T + 2 f_1J (w c^T + c w^T) + f_JJ c c^T + f_J (n^T adj(C) n / J) (I - Q),
-
-    with c = H n = F adj(C) n / J and Q = F adj(C) F^T / J^2 (the projector onto the deformed triangle's plane)."""
+    form (each material's: St. Venant-Kirchhoff's as a solid's, the others' from f(I_1, J),
+    materials/invariant_membrane.py)."""
     squared = n0 * n0 + n1 * n1
     C00 = F[0, 0] * F[0, 0] + F[1, 0] * F[1, 0] + F[2, 0] * F[2, 0]
     C01 = F[0, 0] * F[0, 1] + F[1, 0] * F[1, 1] + F[2, 0] * F[2, 1]
     C11 = F[0, 1] * F[0, 1] + F[1, 1] * F[1, 1] + F[2, 1] * F[2, 1]
-    if model == STVK:
-        E00, E01, E11 = 0.5 * (C00 - 1.0), 0.5 * C01, 0.5 * (C11 - 1.0)
-        trace = E00 + E11
-        Sn0 = (2.0 * mu * E00 + lam * trace) * n0 + 2.0 * mu * E01 * n1
-        Sn1 = 2.0 * mu * E01 * n0 + (2.0 * mu * E11 + lam * trace) * n1
-        along = n0 * Sn0 + n1 * Sn1
-        for i in range(3):
-            stress[i] = F[i, 0] * Sn0 + F[i, 1] * Sn1
-        for i in range(3):
-            w_i = F[i, 0] * n0 + F[i, 1] * n1
-            for k in range(i, 3):
-                w_k = F[k, 0] * n0 + F[k, 1] * n1
-                value = (mu + lam) * w_i * w_k + mu * squared * (F[i, 0] * F[k, 0] + F[i, 1] * F[k, 1])
-                if i == k:
-                    value += along
-                K[i, k] = K[k, i] = value
-        return
-    J = math.sqrt(max(C00 * C11 - C01 * C01, 0.0))
-    if model == NEO_HOOKEAN and not J > 0.0:  # a collapsed triangle: infinite energy, no force to take
-        for i in range(3):
-            stress[i] = math.nan
-            for k in range(3):
-                K[i, k] = math.nan
-        return
-    _, f1, fJ, f11, f1J, fJJ = _invariant_derivatives(model, C00 + C11, J, mu, lam)
-    floor = max(J, AREA_FLOOR)
-    adjoint0, adjoint1 = C11 * n0 - C01 * n1, -C01 * n0 + C00 * n1  # adj(C) n
-    curvature = fJ * (n0 * adjoint0 + n1 * adjoint1) / floor
-    for i in range(3):
-        w_i = F[i, 0] * n0 + F[i, 1] * n1
-        c_i = (F[i, 0] * adjoint0 + F[i, 1] * adjoint1) / floor
-        stress[i] = 2.0 * f1 * w_i + fJ * c_i
-        for k in range(i, 3):
-            w_k = F[k, 0] * n0 + F[k, 1] * n1
-            c_k = (F[k, 0] * adjoint0 + F[k, 1] * adjoint1) / floor
-            plane = (C11 * F[i, 0] * F[k, 0] - C01 * (F[i, 0] * F[k, 1] + F[i, 1] * F[k, 0])
-                     + C00 * F[i, 1] * F[k, 1]) / (floor * floor)  # Q_ik
-            value = (4.0 * f11 * w_i * w_k + 2.0 * f1J * (w_i * c_k + c_i * w_k) + fJJ * c_i * c_k
-                     - curvature * plane)
-            if i == k:
-                value += 2.0 * f1 * squared + curvature
-            K[i, k] = K[k, i] = value
+    material_membrane_vertex_terms(model, F, n0, n1, squared, C00, C01, C11, mu, lam, stress, K)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")

@@ -46,8 +46,7 @@ from ..compiled_cache import keep_fresh
 from ..contact.point_kernels import (add_vertex_terms, beyond_reach, may_reach, point_scratch, vertex_change,
                                      vertex_impact_fraction)
 from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
-from .energies import COROTATED, NEO_HOOKEAN, STVK
-from .membrane import AREA_FLOOR
+from .materials.dispatch import membrane_change
 from .shell_terms import _hinge_angle, _wing_block, hinge_angle_block, membrane_vertex_terms, project_block_3
 
 # vertices per chunk of the parallel loops: the scratch arrays are made once per chunk, not per vertex
@@ -111,46 +110,6 @@ def _hinges_at(i, y, hinge_indptr, hinges, corners, stiffness, rest_angles, proj
                 H[r, k] += K[r, k]
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _membrane_density_change(model, C00, C01, C11, D00, D01, D11, mu, lam):
-    """psi(C + dC) - psi(C) of the membrane energies (membrane.py) from C = F^T F and its change dC (2 x 2, symmetric),
-    without cancellation (the module docstring)."""
-    if model == STVK:
-        E00, E01, E11 = 0.5 * (C00 - 1.0), 0.5 * C01, 0.5 * (C11 - 1.0)
-        d00, d01, d11 = 0.5 * D00, 0.5 * D01, 0.5 * D11
-        product = E00 * d00 + 2.0 * E01 * d01 + E11 * d11
-        squared = d00 * d00 + 2.0 * d01 * d01 + d11 * d11
-        trace, trace_change = E00 + E11, d00 + d11
-        return mu * (2.0 * product + squared) + 0.5 * lam * trace_change * (2.0 * trace + trace_change)
-    invariant, invariant_change = C00 + C11, D00 + D11
-    determinant = C00 * C11 - C01 * C01
-    determinant_change = C11 * D00 + C00 * D11 - 2.0 * C01 * D01 + (D00 * D11 - D01 * D01)
-    J = math.sqrt(max(determinant, 0.0))
-    moved = math.sqrt(max(determinant + determinant_change, 0.0))
-    if determinant >= 0.0 and determinant + determinant_change >= 0.0:
-        J_change = determinant_change / (J + moved) if J + moved > 0.0 else 0.0
-    else:
-        J_change = moved - J
-    if model == NEO_HOOKEAN:
-        if not (J > 0.0 and moved > 0.0):
-            return math.inf  # a collapsed triangle: the energy is infinite there
-        log_ratio = math.log1p(J_change / J)
-        return (0.5 * mu * invariant_change - mu * log_ratio
-                + 0.5 * lam * log_ratio * (2.0 * math.log(J) + log_ratio))
-    if model == COROTATED:
-        # sigma_1 + sigma_2 = sqrt(I_1 + 2 J), floored as membrane.py floors it
-        before, after = invariant + 2.0 * J, invariant + invariant_change + 2.0 * (J + J_change)
-        if before >= AREA_FLOOR and after >= AREA_FLOOR:
-            total_change = (invariant_change + 2.0 * J_change) / (math.sqrt(before) + math.sqrt(after))
-        else:
-            total_change = math.sqrt(max(after, AREA_FLOOR)) - math.sqrt(max(before, AREA_FLOOR))
-        return mu * (invariant_change - 2.0 * total_change) + 0.5 * lam * J_change * (2.0 * (J - 1.0) + J_change)
-    # STABLE_NEO_HOOKEAN, alpha = 1 + 2 mu / (3 lambda) as membrane.py has it
-    alpha = 1.0 + 2.0 * mu / (3.0 * lam)
-    return (0.5 * mu * invariant_change + 0.5 * lam * J_change * (2.0 * (J - alpha) + J_change)
-            - 0.5 * mu * math.log1p(invariant_change / (invariant + 1.0)))
-
-
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _membrane_change(i, u, indptr, shape_gradients, weights, mu, lam, model, scratch):
     """The change of vertex i's triangles' energy when it alone moves by u, from the F ``_membrane_at`` kept."""
@@ -168,7 +127,7 @@ def _membrane_change(i, u, indptr, shape_gradients, weights, mu, lam, model, scr
         D00 = 2.0 * n0 * v0 + squared_u * n0 * n0
         D01 = n0 * v1 + n1 * v0 + squared_u * n0 * n1
         D11 = 2.0 * n1 * v1 + squared_u * n1 * n1
-        total += weights[p] * _membrane_density_change(model, C00, C01, C11, D00, D01, D11, mu[p], lam[p])
+        total += weights[p] * membrane_change(model, C00, C01, C11, D00, D01, D11, mu[p], lam[p])
     return total
 
 

@@ -22,7 +22,7 @@ from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
 from . import bending, kernels, membrane, split
-from .materials import MATERIALS
+from .materials import CODES, MATERIALS
 from .mesh import SimplexMesh
 from .vertex import FemSweep, ShellSweep
 
@@ -64,7 +64,7 @@ class Fem(ContactHooks, System):
         self.rest = mesh.vertices
         self.elements = mesh.elements
         self.material = material
-        self._model = MATERIALS[material]
+        self._model = CODES[material]
         self.mu, self.lam = np.ascontiguousarray(mu, dtype=float), np.ascontiguousarray(lam, dtype=float)
         self.youngs_modulus, self.poisson_ratio = youngs_modulus, poisson_ratio
         self.x0 = np.ascontiguousarray(x0, dtype=float).ravel()
@@ -308,10 +308,11 @@ class Fem(ContactHooks, System):
         (w/2) dist(F, SO(d))^2 with w = 2 mu, projective dynamics' own element constraint (Bouaziz et al. 2014),
         whose local step is the polar rotation. Its solver's step y - A^-1 grad E is then exactly its local-global
         step. Every other energy, a bending term or contact: the reason."""
-        if self.material != "corotated" or np.any(self.lam != 0.0):
+        rigid = MATERIALS[self.material].as_rigid_as_possible
+        if not rigid or np.any(self.lam != 0.0):
             return ("projective dynamics' element constraint is the distance of F to the rotations: the co-rotated "
                     "energy with poisson_ratio 0 (as-rigid-as-possible), not "
-                    + (f"{self.material}" if self.material != "corotated" else "a volume term (poisson_ratio != 0)"))
+                    + (f"{self.material}" if not rigid else "a volume term (poisson_ratio != 0)"))
         if len(self.hinges):
             return "the discrete-shell hinges are not of projective form"
         if not self.includes_elements:

@@ -2,18 +2,17 @@
 docstring derives them): P n and K = d^2 psi / dx_i^2 straight from J, I_C, w = F n and c = cof(F) n, with no tangent
 and no full P (``invariant_terms``); the same for a tetrahedron written out in scalars, with K's projection in closed
 form (``invariant_terms_3d``), and a vertex's sum over its tetrahedra kept in registers (``invariant_elements_3d``);
-the energy's change when the vertex alone moves, from the exact changes of I_C and J (``invariant_change``,
-``invariant_change_3d``). All but ``invariant_terms`` are inlined into the sweep."""
+the energy's change when the vertex alone moves, from the exact changes of I_C and J (``invariant_change_3d``). Each
+material's own coefficients and change are in its module (materials/), through the dispatch's
+``invariant_coefficients`` and ``invariant_change``. All but ``invariant_terms`` are inlined into the sweep."""
 
 from __future__ import annotations
-
-import math
 
 import numba
 
 from ..compiled_cache import keep_fresh
-from .energies import NEO_HOOKEAN, _cofactor
-from .linalg import _determinant
+from .linalg import _cofactor, _determinant
+from .materials.dispatch import invariant_change, invariant_coefficients
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -74,7 +73,8 @@ def invariant_terms_3d(y, elements, shape_gradients, p, model, mu, lam, alpha, p
     if projection != 0 and spread < 0.0:
         # K = shear |n|^2 I + stretch w w^T + spread c c^T with shear, stretch >= 0. Only the neo-Hookean K (stretch 0)
         # gets here: its eigenvalue along c is shear |n|^2 + spread |c|^2 (across c: shear |n|^2), so the projection
-        # moves that one. The stable neo-Hookean spread is its lambda, above 0 for every nu > -1 (materials.py).
+        # moves that one. The stable neo-Hookean spread is its lambda, above 0 for every nu > -1
+        # (materials/stable_neo_hookean.py).
         along = a0 * a0 + a1 * a1 + a2 * a2
         lowest = diagonal + spread * along
         if lowest < 0.0:
@@ -123,25 +123,9 @@ def set_blocks(g, H, g0, g1, g2, h00, h01, h02, h11, h12, h22):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def invariant_coefficients(model, J, invariant, mu, lam, alpha):
-    """The neo-Hookean energies' P n = shear w + volume_stress c and K = shear |n|^2 I + stretch w w^T + spread c c^T
-    (w = F n, c = cof(F) n): (shear, stretch, spread, volume_stress, kept), kept what their energy change reads
-    besides J: ln J (neo-Hookean), 1 / (I_C + 1) (stable neo-Hookean, whose alpha = 1 + mu d / ((d + 1) lambda) is
-    the element's, made once)."""
-    if model == NEO_HOOKEAN:
-        # P n = mu w + (lambda ln J - mu) / J c
-        log_J = math.log(J) if J > 0.0 else math.nan
-        inverse = 1.0 / J
-        return mu, 0.0, (mu + lam * (1.0 - log_J)) * inverse * inverse, (lam * log_J - mu) * inverse, log_J
-    # STABLE_NEO_HOOKEAN: P n = (mu - mu / (I_C + 1)) w + lambda (J - alpha) c
-    kept = 1.0 / (invariant + 1.0)
-    return mu - mu * kept, 2.0 * mu * kept * kept, lam, lam * (J - alpha), kept
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
 def invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, stress, K):
     """P n (into stress) and K of the neo-Hookean energies from J, I_C, |n|^2, w and c; returns the kept value
-    (``invariant_coefficients``)."""
+    (the dispatch's ``invariant_coefficients``)."""
     shear, stretch, spread, volume_stress, kept = invariant_coefficients(model, J, invariant, mu, lam, alpha)
     diagonal = shear * squared
     for i in range(d):
@@ -150,19 +134,6 @@ def invariant_blocks(model, J, invariant, squared, d, mu, lam, alpha, w, c, stre
             K[i, k] = stretch * w[i] * w[k] + spread * c[i] * c[k]
         K[i, i] += diagonal
     return kept
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def invariant_change(model, J, kept, invariant_change, volume_change, mu, lam, alpha):
-    """psi' - psi of the neo-Hookean energies from the exact changes of I_C and J; kept: ln J (neo-Hookean) or
-    1 / (I_C + 1) (stable neo-Hookean), as ``invariant_blocks`` left it."""
-    if model == NEO_HOOKEAN:
-        if not (J > 0.0 and J + volume_change > 0.0):
-            return math.inf  # inverted or flat: the energy is infinite there, and no step is taken to it
-        log_ratio = math.log1p(volume_change / J)
-        return 0.5 * mu * invariant_change - mu * log_ratio + 0.5 * lam * log_ratio * (2.0 * kept + log_ratio)
-    return (0.5 * mu * invariant_change + 0.5 * lam * volume_change * (2.0 * (J - alpha) + volume_change)
-            - 0.5 * mu * math.log1p(invariant_change * kept))
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")

@@ -7,14 +7,15 @@ element's deformation gradient by a rank-one term, F' = F + u n^T, so
 
     dPsi_e/dx_i = V P n,    d^2 Psi_e / dx_i^2 = V K,  K_ik = sum_jl n_j A_(ij)(kl) n_l  (A = d^2 psi / dF^2).
 
-K has a closed form for the invariant-based energies (docs/fem.md, "Vertex block descent"); with w = F n, c = cof(F) n
+K has a closed form for the invariant-based energies (docs/fem.md, "Vertex block descent"; each material's module has
+its own); with w = F n, c = cof(F) n
 (cof(F) = J F^-T), |n|^2 = n . n, and the cofactor's derivative contracted with n n vanishing (eps_jkl n_j n_k = 0):
 
 - LINEAR:             mu |n|^2 I + (mu + lambda) n n^T
 - STVK:               (n^T S n) I + (mu + lambda) w w^T + mu |n|^2 F F^T,   S = 2 mu E + lambda tr(E) I
 - NEO_HOOKEAN:        mu |n|^2 I + (mu + lambda (1 - ln J)) / J^2 c c^T
 - STABLE_NEO_HOOKEAN: (mu - mu / (I_C + 1)) |n|^2 I + 2 mu / (I_C + 1)^2 w w^T + lambda c c^T
-- COROTATED:          the contraction of its exact tangent A (energies.py), which needs the SVD's rotation derivative.
+- COROTATED:          the contraction of its exact tangent A, which needs the SVD's rotation derivative.
 
 Each element's K is projected to SPD on its own (clamp or mirror its negative eigenvalues), as the springs' blocks are
 in the mass-spring sweep (Chen et al., "Vertex block descent", 2024: the vertex's Hessian is the sum of its elements'
@@ -44,10 +45,12 @@ from ..compiled_cache import keep_fresh
 from ..contact.point_kernels import (add_vertex_terms, beyond_reach, may_reach, point_scratch, vertex_change,
                                      vertex_impact_fraction)
 from ..vertex_kernels import damping_change, finish_blocks, inertia_change, newton_step, take_step
-from .energies import COROTATED, LINEAR, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, WORK_SLOTS, _cofactor, material_terms
-from .linalg import _determinant, _symmetric_eigen
-from .tet_terms import (invariant_change, invariant_change_3d, invariant_elements_3d, invariant_terms,
-                        set_blocks)
+from .energies import WORK_SLOTS, material_terms
+from .linalg import _cofactor, _determinant, _symmetric_eigen
+from .materials.dispatch import (invariant_change, vertex_energy_change, vertex_stiffness_needs_tangent,
+                                 vertex_terms_from_invariants)
+from .materials.dispatch import vertex_stiffness as material_vertex_stiffness
+from .tet_terms import invariant_change_3d, invariant_elements_3d, invariant_terms, set_blocks
 
 # vertices per chunk of the parallel loops: the scratch arrays are made once per chunk, not per vertex (their 30-odd
 # allocations cost about 3 us a chunk)
@@ -81,82 +84,15 @@ def _element_gradient(x, elements, shape_gradients, e, d, F):
 
 @numba.njit(cache=True, error_model="numpy")
 def vertex_stiffness(model, F, n, d, mu, lam, A, K, work):
-    """K = n^T A n (d, d) at F, in closed form but for the co-rotated energy, whose A the caller has computed."""
+    """K = n^T A n (d, d) at F, in closed form but where the material contracts its exact tangent A (the co-rotated
+    energy's: ``vertex_stiffness_needs_tangent``), which the caller has computed."""
     squared = 0.0
     for j in range(d):
         squared += n[j] * n[j]
     for i in range(d):
         for k in range(d):
             K[i, k] = 0.0
-    if model == COROTATED:
-        for i in range(d):
-            for k in range(d):
-                total = 0.0
-                for j in range(d):
-                    for m in range(d):
-                        total += n[j] * A[i * d + j, k * d + m] * n[m]
-                K[i, k] = total
-        return
-    if model == LINEAR:
-        for i in range(d):
-            K[i, i] += mu * squared
-            for k in range(d):
-                K[i, k] += (mu + lam) * n[i] * n[k]
-        return
-    w = work[0, 0]
-    for i in range(d):
-        total = 0.0
-        for j in range(d):
-            total += F[i, j] * n[j]
-        w[i] = total
-    if model == STVK:
-        E = work[1]
-        trace = 0.0
-        for i in range(d):
-            for j in range(d):
-                value = 0.0
-                for p in range(d):
-                    value += F[p, i] * F[p, j]
-                E[i, j] = 0.5 * (value - (1.0 if i == j else 0.0))
-            trace += E[i, i]
-        stress = 0.0  # n^T S n
-        for i in range(d):
-            for j in range(d):
-                stress += n[i] * (2.0 * mu * E[i, j] + (lam * trace if i == j else 0.0)) * n[j]
-        for i in range(d):
-            K[i, i] += stress
-            for k in range(d):
-                gram = 0.0
-                for m in range(d):
-                    gram += F[i, m] * F[k, m]
-                K[i, k] += (mu + lam) * w[i] * w[k] + mu * squared * gram
-        return
-    C = work[2]
-    _cofactor(F, d, C)
-    c = work[0, 1]
-    for i in range(d):
-        total = 0.0
-        for j in range(d):
-            total += C[i, j] * n[j]
-        c[i] = total
-    if model == NEO_HOOKEAN:
-        J = _determinant(F, d)
-        factor = (mu + lam * (1.0 - math.log(J))) / (J * J) if J > 0.0 else math.nan
-        for i in range(d):
-            K[i, i] += mu * squared
-            for k in range(d):
-                K[i, k] += factor * c[i] * c[k]
-        return
-    invariant = 0.0
-    for i in range(d):
-        for j in range(d):
-            invariant += F[i, j] * F[i, j]
-    shrink = mu / (invariant + 1.0)
-    curvature = 2.0 * mu / ((invariant + 1.0) * (invariant + 1.0))
-    for i in range(d):
-        K[i, i] += (mu - shrink) * squared
-        for k in range(d):
-            K[i, k] += curvature * w[i] * w[k] + lam * c[i] * c[k]
+    material_vertex_stiffness(model, F, n, d, squared, mu, lam, A, K, work)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -195,7 +131,7 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
     value into the scratch (what ``_elastic_change`` and ``_kept_fraction`` read). Incidence p is vertex i's element
     with vertex i as its corner 0 (vertex.py)."""
     Fs, ws, cs, Js, kept, P, A, work, K, copy, values, vectors, _, stress, F, n, w, c = scratch
-    invariant_based = model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN
+    invariant_based = vertex_terms_from_invariants(model)
     if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars: F itself is not kept
         g0, g1, g2, h00, h01, h02, h11, h12, h22 = invariant_elements_3d(
             i, y, indptr, elements, shape_gradients, volumes, mu, lam, alpha, model, projection, ws, cs, Js, kept)
@@ -215,7 +151,7 @@ def _elements_at(i, y, d, indptr, elements, shape_gradients, volumes, mu, lam, a
         if invariant_based:
             J, value = invariant_terms(model, F, n, d, mu[e], lam[e], alpha[e], copy, w, c, stress, K)
         else:
-            material_terms(model, F, d, mu[e], lam[e], P, A, model == COROTATED, work)
+            material_terms(model, F, d, mu[e], lam[e], P, A, vertex_stiffness_needs_tangent(model), work)
             vertex_stiffness(model, F, n, d, mu[e], lam[e], A, K, work)
             _cofactor(F, d, copy)
             J, value = _determinant(F, d), 0.0
@@ -247,53 +183,19 @@ def _density_change(model, F, n, w, c, J, kept, u, d, mu, lam, alpha, moved, P, 
         squared_u += u[j] * u[j]
         turned += u[j] * n[j]
         volume_change += c[j] * u[j]
-    if model == COROTATED:
-        for i in range(d):
-            for j in range(d):
-                moved[i, j] = F[i, j] + u[i] * n[j]
-        return (material_terms(model, moved, d, mu, lam, P, A, False, work)
-                - material_terms(model, F, d, mu, lam, P, A, False, work))
-    if model == LINEAR:
-        # eps' - eps = (u n^T + n u^T)/2: mu (2 u^T eps n + (|u|^2 |n|^2 + (u . n)^2)/2) + lambda/2 dtr (2 tr eps + dtr)
-        strain, trace = 0.0, 0.0
-        for i in range(d):
-            trace += F[i, i] - 1.0
-            for j in range(d):
-                strain += u[i] * (0.5 * (F[i, j] + F[j, i]) - (1.0 if i == j else 0.0)) * n[j]
-        return (mu * (2.0 * strain + 0.5 * (squared_u * squared_n + turned * turned))
-                + 0.5 * lam * turned * (2.0 * trace + turned))
-    if model == STVK:
-        # E' - E = (v n^T + n v^T + |u|^2 n n^T)/2 with v = F^T u
-        v, E, change = work[0, 0], work[1], work[2]
+    if vertex_terms_from_invariants(model):
+        along = 0.0
         for j in range(d):
-            total = 0.0
-            for m in range(d):
-                total += F[m, j] * u[m]
-            v[j] = total
-        trace, trace_change, product, squared_change = 0.0, 0.0, 0.0, 0.0
-        for i in range(d):
-            for j in range(d):
-                value = 0.0
-                for p in range(d):
-                    value += F[p, i] * F[p, j]
-                E[i, j] = 0.5 * (value - (1.0 if i == j else 0.0))
-                change[i, j] = 0.5 * (v[i] * n[j] + n[i] * v[j] + squared_u * n[i] * n[j])
-                product += E[i, j] * change[i, j]
-                squared_change += change[i, j] * change[i, j]
-            trace += E[i, i]
-            trace_change += change[i, i]
-        return mu * (2.0 * product + squared_change) + 0.5 * lam * trace_change * (2.0 * trace + trace_change)
-    along = 0.0
-    for j in range(d):
-        along += u[j] * w[j]
-    return invariant_change(model, J, kept, 2.0 * along + squared_u * squared_n, volume_change, mu, lam, alpha)
+            along += u[j] * w[j]
+        return invariant_change(model, J, kept, 2.0 * along + squared_u * squared_n, volume_change, mu, lam, alpha)
+    return vertex_energy_change(model, F, n, u, d, squared_n, squared_u, turned, mu, lam, moved, P, A, work)
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _elastic_change(i, u, d, indptr, shape_gradients, volumes, mu, lam, alpha, model, scratch):
     """The change of the elements' energy when vertex i alone moves by u, from the scratch ``_elements_at`` filled."""
     Fs, ws, cs, Js, kept, P, A, work, _, _, _, _, moved, _, F, n, w, c = scratch
-    invariant_based = model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN
+    invariant_based = vertex_terms_from_invariants(model)
     total = 0.0
     if invariant_based and d == 3:  # the real-time case in a loop of its own, in scalars
         return invariant_change_3d(i, u[0], u[1], u[2], indptr, shape_gradients, volumes, mu, lam, alpha, model, ws,
@@ -345,7 +247,7 @@ def _chunk(first_vertex, last_vertex, d, max_degree, y, vertices, constrained, p
     filtered = np.empty((d, d))
     # the real-time case's terms inlined here: a call that takes the scratch tuple costs numba the reference counts of
     # its arrays, per vertex and per backtracking round
-    tetrahedra_in_scalars = d == 3 and (model == NEO_HOOKEAN or model == STABLE_NEO_HOOKEAN)
+    tetrahedra_in_scalars = d == 3 and vertex_terms_from_invariants(model)
     ws, cs, Js, kept = scratch[1], scratch[2], scratch[3], scratch[4]
     for k in range(first_vertex, last_vertex):
         i = vertices[k]

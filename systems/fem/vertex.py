@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .materials import MATERIALS
+
 
 class _CompiledTerms:
     """What the solid's and the shell's sweeps share: one colour's compiled sweep, and the same terms for given vertices
@@ -65,7 +67,7 @@ class FemSweep(_CompiledTerms):
     volumes: np.ndarray
     mu: np.ndarray
     lam: np.ndarray
-    alpha: np.ndarray  # the stable neo-Hookean energy's rest volume term 1 + mu d / ((d + 1) lambda) (0 for the others)
+    alpha: np.ndarray  # the material's rest volume term (the stable neo-Hookean's 1 + mu d / ((d + 1) lambda)), or 0
     model: int
     gravity_force: np.ndarray
     kept_volume: float
@@ -82,10 +84,8 @@ class FemSweep(_CompiledTerms):
         indptr, element, corner = _incidences(elements, system.vertex_count)  # each vertex's elements in element order
         turned = (corner[:, None] + np.arange(corners)) % corners  # the vertex's corner first, the others in turn
         mu, lam, d = system.mu[element], system.lam[element], system.dim
-        alpha = np.zeros_like(mu)
-        if system.material == "stable_neo_hookean":
-            with np.errstate(divide="ignore"):  # lambda = 0: alpha infinite, as the energy's own formula has it
-                alpha = 1.0 + mu * d / ((d + 1.0) * lam)
+        rest_volume_term = MATERIALS[system.material].rest_volume_term
+        alpha = np.zeros_like(mu) if rest_volume_term is None else rest_volume_term(mu, lam, d)
         return cls(indptr, int(np.diff(indptr).max(initial=0)),
                    np.ascontiguousarray(elements[element[:, None], turned], dtype=np.uint64),
                    np.ascontiguousarray(system.shape_gradients[element[:, None], turned]),
