@@ -19,7 +19,7 @@ from collections import Counter
 from pathlib import Path
 
 from simrun.errors import ConfigError
-from simrun.execution.executors import LANE_MODES, ExecutorOptions, execute
+from simrun.execution.executors import LANE_MODES, ExecutorOptions, checked, execute
 from simrun.execution.workers import default_jobs
 from simrun.experiment.config import config_file_of, load_experiment
 from simrun.experiment.sweep import config_hash, expand_runs, resolved_config
@@ -73,7 +73,7 @@ def run(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     ``figure_files`` (what was drawn) and ``ran`` (status -> count of the runs this call simulated).
     """
     jobs = default_jobs() if jobs is None else jobs
-    options = ExecutorOptions(executor, jobs, scheduler).checked()
+    options = checked(ExecutorOptions(executor, jobs, scheduler))
     if lanes not in LANE_MODES:
         raise ConfigError(f"--lanes: unknown {lanes!r}; valid: " + ", ".join(LANE_MODES))
     experiment, config_text = load_experiment(config, list(overrides))

@@ -560,7 +560,6 @@ def test_a_fit_is_done_by_the_executor_it_names(tmp_path, monkeypatch):
     """simrun.fit runs its fits and its transfer table through the executors' registry (EXECUTOR_FUNCTIONS), as a
     sweep does: an executor planted there under a new name does every task, and the fits equal the serial ones."""
     import simrun.execution.executors as executors
-    import simrun.execution.executors._options as options_module
 
     done = []
 
@@ -570,7 +569,6 @@ def test_a_fit_is_done_by_the_executor_it_names(tmp_path, monkeypatch):
             yield task, work(task)
 
     monkeypatch.setitem(executors.EXECUTOR_FUNCTIONS, "recording", recording)
-    monkeypatch.setattr(options_module, "EXECUTORS", (*options_module.EXECUTORS, "recording"))
     observed = write_observations(tmp_path / "q.csv", 0.1, 2.0)
     text = spring_config(observed, ["backward_euler"], [0.1], 2.0)
     planted = fit(text, output=tmp_path / "planted", jobs=2, executor="recording", progress=False, figures=False)

@@ -26,7 +26,7 @@ from simrun.calibration.observations import load_observations
 from simrun.calibration.predicted import predicted_values
 from simrun.errors import ConfigError, WorkerLost
 from simrun.execution.simulate import simulate
-from simrun.execution.executors import ExecutorOptions, execute_tasks
+from simrun.execution.executors import ExecutorOptions, checked, execute_tasks
 from simrun.execution.workers import default_jobs
 from simrun.experiment.config import _build_integrator, config_file_of, load_experiment
 from simrun.experiment.sweep import config_hash, expand_runs, resolved_config
@@ -50,7 +50,7 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
     figures: draw them (PNG; with svg, SVG too).
     Raises ConfigError (one line naming the field or file) before anything is written."""
     jobs = default_jobs() if jobs is None else jobs
-    options = ExecutorOptions(executor, jobs, scheduler).checked()
+    options = checked(ExecutorOptions(executor, jobs, scheduler))
     experiment, config_text = load_experiment(config, list(overrides))
     if experiment.fit is None:
         raise ConfigError("fit: this config has no fit block (what was observed, which parameters); add one "
@@ -101,7 +101,7 @@ def fit(config: str | Path | dict, *, output: str | Path | None = None, jobs: in
         from simrun.figures import draw_figures
 
         with filling(output / FIGURES_NAME, "output") as folder:
-            written = draw_figures(results, folder, jobs=jobs, svg=svg)
+            written = draw_figures(results, folder, jobs=jobs if options.name == "process" else 1, svg=svg)
         results.figure_files = [output / FIGURES_NAME / drawn.name for drawn in written]
     return results
 
@@ -267,7 +267,10 @@ def _transfer(experiment, tasks: list[FitTask], stored, steps: list[tuple], runs
         if np.all(np.isfinite(values)):
             work.append((task, values))
     tasks_in_order = [(index, task, values, steps, experiment.solver, factor) for index, (task, values) in enumerate(work)]
-    rows_by_index = {task[0]: rows for task, rows in execute_tasks(tasks_in_order, transfer_task, runs, options)}
+    try:
+        rows_by_index = {task[0]: rows for task, rows in execute_tasks(tasks_in_order, transfer_task, runs, options)}
+    except WorkerLost:
+        raise WorkerLost("computing the transfer table") from None
     return [row for index in range(len(work)) for row in rows_by_index[index]]
 
 

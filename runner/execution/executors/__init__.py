@@ -22,7 +22,7 @@ from simrun.experiment.config import Run
 
 from ._options import ExecutorOptions
 
-__all__ = ["EXECUTORS", "EXECUTOR_FUNCTIONS", "LANE_MODES", "ExecutorOptions", "execute", "execute_tasks",
+__all__ = ["EXECUTORS", "EXECUTOR_FUNCTIONS", "LANE_MODES", "ExecutorOptions", "checked", "execute", "execute_tasks",
            "simulate_task"]
 
 LANE_MODES = ("auto", "off")  # --lanes: step many small runs of one kind together (auto), or every run alone (off)
@@ -38,10 +38,21 @@ def simulate_task(task):
 EXECUTOR_FUNCTIONS = {name: importlib.import_module(f"{__name__}.{name}").run for name in EXECUTORS}
 
 
+def checked(options: ExecutorOptions) -> ExecutorOptions:
+    """``options``, or ConfigError naming the option that is not allowed (before anything runs or is written)."""
+    if options.jobs < 1:
+        raise ConfigError(f"--jobs: must be >= 1, got {options.jobs}")
+    if options.name not in EXECUTOR_FUNCTIONS:
+        raise ConfigError(f"--executor: unknown {options.name!r}; valid: " + ", ".join(EXECUTOR_FUNCTIONS))
+    return options
+
+
 def execute_tasks(tasks: list, work, runs: list[Run], options: ExecutorOptions) -> Iterator[tuple]:
     """``work`` (a module-level function, so that it pickles) done on every task by the executor ``options`` names;
-    yields (task, outcome) as each task finishes."""
-    return EXECUTOR_FUNCTIONS[options.checked().name](tasks, work, runs, options)
+    yields (task, outcome) as each task finishes. No task: no executor is started (a Dask cluster costs seconds)."""
+    if not tasks:
+        return iter(())
+    return EXECUTOR_FUNCTIONS[checked(options).name](tasks, work, runs, options)
 
 
 def execute(runs: list[Run], options: ExecutorOptions = ExecutorOptions(), lanes: str = "auto") -> Iterator[tuple]:

@@ -1,11 +1,10 @@
-"""What every executor is given besides its tasks: where they run and how many at once, as one object."""
+"""What every executor is given besides its tasks: where they run and how many at once, as one object (checked
+against the registry by ``simrun.execution.executors.checked``)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from simrun.errors import ConfigError
-from simrun.execution.workers import EXECUTORS
 
 
 @dataclass(frozen=True)
@@ -16,11 +15,3 @@ class ExecutorOptions:
     name: str = "process"
     jobs: int = 1
     scheduler: str | None = None  # dask: an existing scheduler's address (None: a local cluster of ``jobs`` workers)
-
-    def checked(self) -> "ExecutorOptions":
-        """These options, or ConfigError naming the option that is not allowed."""
-        if self.jobs < 1:
-            raise ConfigError(f"--jobs: must be >= 1, got {self.jobs}")
-        if self.name not in EXECUTORS:
-            raise ConfigError(f"--executor: unknown {self.name!r}; valid: " + ", ".join(EXECUTORS))
-        return self
