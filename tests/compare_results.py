@@ -33,8 +33,10 @@ FAST_CONFIGS = ("quickstart", "spring_stability", "circular_orbits", "damping_cu
                 "course_square", "xpbd_damping", "fem_square")
 
 # what measures the machine or the moment, not the run: left out of the comparison
-# (``config``: the config's text, whose comments may change; ``resolved_config`` and ``config_hash`` hold what it means)
+# (``config``: the config's text, whose comments may change, and ``config_hash``, which hashes the model files' absolute
+# paths: ``resolved_config`` holds what they mean, compared with the two checkouts' paths made one)
 VOLATILE_ATTRIBUTES = frozenset({"wall_time", "created", "host", "cpu", "command_line", "package_versions", "config",
+                                 "config_hash",
                                  "simrun_version", "config_git_commit", "threads", "real_time_factor",
                                  "wall_time_per_frame", "time_per_step"})
 VOLATILE_COLUMNS = frozenset({"wall_time", "real_time_factor", "wall_time_per_frame"})
@@ -42,8 +44,15 @@ VOLATILE_COLUMNS = frozenset({"wall_time", "real_time_factor", "wall_time_per_fr
 VOLATILE_DATASETS = frozenset({"step_wall_time", "frame_wall_time", "solve_wall_time"})
 
 
-def _equal(a, b) -> bool:
-    """Bit for bit where both are arrays of one dtype (NaN equal to NaN at the same place); equal values otherwise."""
+def _equal(a, b, aliases=()) -> bool:
+    """Bit for bit where both are arrays of one dtype (NaN equal to NaN at the same place); equal values otherwise,
+    texts after each (old, new) of ``aliases`` is replaced in the old one (the checkouts' folders)."""
+    if isinstance(a, bytes) and isinstance(b, bytes):
+        a, b = a.decode(), b.decode()
+    if isinstance(a, str) and isinstance(b, str):
+        for old, new in aliases:
+            a = a.replace(old, new)
+        return a == b
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         a, b = np.asarray(a), np.asarray(b)
         if a.dtype != b.dtype or a.shape != b.shape:
@@ -62,8 +71,9 @@ def _attributes(node) -> dict:
     return {key: node.attrs[key] for key in node.attrs if key not in VOLATILE_ATTRIBUTES}
 
 
-def differences(old_path: Path, new_path: Path) -> list[str]:
-    """Every way the two results files differ, one line each (empty: the same results)."""
+def differences(old_path: Path, new_path: Path, aliases=()) -> list[str]:
+    """Every way the two results files differ, one line each (empty: the same results); ``aliases``: (old, new)
+    pairs of texts that stand for the same thing (the two checkouts' folders in a file path)."""
     found: list[str] = []
     with h5py.File(old_path, "r") as old, h5py.File(new_path, "r") as new:
         def compare(name: str, a, b) -> None:
@@ -72,7 +82,7 @@ def differences(old_path: Path, new_path: Path) -> list[str]:
             for key in sorted(attrs_a.keys() | attrs_b.keys()):
                 if key not in attrs_a or key not in attrs_b:
                     found.append(f"{where}: attribute {key!r} only in {'new' if key in attrs_b else 'old'}")
-                elif not _equal(attrs_a[key], attrs_b[key]):
+                elif not _equal(attrs_a[key], attrs_b[key], aliases):
                     found.append(f"{where}: attribute {key!r}: {attrs_a[key]!r} != {attrs_b[key]!r}")
             if isinstance(a, h5py.Dataset) or isinstance(b, h5py.Dataset):
                 if not (isinstance(a, h5py.Dataset) and isinstance(b, h5py.Dataset)):
@@ -158,7 +168,8 @@ def compare_revision(revision: str, configs: list[Path], jobs: int, keep: Path |
                 # the old side runs the old revision's copy of the config, so that a config's own change shows
                 source_config = (old_source if side == "old" else ROOT) / "configs" / config.name
                 run_config(tree, source_config, outputs[side], jobs)
-            found = differences(outputs["old"] / "results.h5", outputs["new"] / "results.h5")
+            found = differences(outputs["old"] / "results.h5", outputs["new"] / "results.h5",
+                                aliases=[(str(old_source), str(ROOT))])
             print(f"{config.stem}: {'the same' if not found else f'{len(found)} differences'}")
             for line in found[:50]:
                 print(f"  {line}")
