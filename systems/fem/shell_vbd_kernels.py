@@ -1,4 +1,4 @@
-"""Vertex block descent on a shell, compiled (issue 29): each vertex's gradient and 3 x 3 Hessian block from its
+"""Vertex block descent on a shell, compiled: each vertex's gradient and 3 x 3 Hessian block from its
 membrane triangles (membrane.py) and its discrete-shell hinges (bending.py), the change of their energy when the vertex
 alone moves, the fraction of its step that keeps its triangles' areas, and one colour's sweep (solvers/vbd.py has the
 method; fem/vbd_kernels.py is the same for solids).

@@ -1,4 +1,4 @@
-"""Vertex block descent on a finite-element solid, compiled (issue 29): each vertex's gradient and d x d Hessian
+"""Vertex block descent on a finite-element solid, compiled: each vertex's gradient and d x d Hessian
 block from the elements around it, the change of the elastic energy when the vertex alone moves, the fraction of its
 step that keeps those elements' volumes, and one colour's sweep (solvers/vbd.py has the method).
 
@@ -53,7 +53,7 @@ from .materials.dispatch import vertex_stiffness as material_vertex_stiffness
 from .tet_terms import invariant_change_3d, invariant_elements_3d, invariant_terms, set_blocks
 
 # vertices per chunk of the parallel loops: the scratch arrays are made once per chunk, not per vertex (their 30-odd
-# allocations cost about 3 us a chunk)
+# allocations cost as much as several vertices' terms)
 CHUNK = 64
 
 
