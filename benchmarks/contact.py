@@ -90,8 +90,8 @@ def _resting_cloth():
 def rows() -> list[tuple[str, float, str, str]]:
     system, x = _resting_cloth()
     v = np.zeros_like(x)
-    system.begin_run(DT, x)
-    system.begin_step(0.0, DT, x)
+    system.contact_form().begin_run(DT, x)
+    system.contact_form().begin_step(0.0, DT, x)
     solver = solver_params(type="projected_newton", tolerance=1e-6, max_iterations=100).build()
     with _Clock() as clock:
         began = time.perf_counter()

@@ -63,7 +63,7 @@ def rows() -> list[tuple[str, float, str, str]]:
         per_iteration = result.wall_time / iterations
         paths = {key: value for key, value in result.attrs.items() if key.startswith("factorisations_")}
         system = run.system.build()
-        system.begin_run(DT, system.x0)
+        system.contact_form().begin_run(DT, system.x0)
         problem = IncrementalPotential(system, system.x0 + DT * system.v0, DT * DT, velocity_origin=system.x0,
                                        velocity_divisor=DT, damping_at=system.x0)
         matrix = problem.hessian(system.x0).tocsr()

@@ -90,8 +90,8 @@ def _timed_sweeps(system, problem, start):
     function of y, {threads: the best time of a sweep}) at 1 and, where there are 2, 2 threads."""
     import numba
 
-    sweep, parts = system.vertex_sweep(), IncrementalParts.of(problem)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
+    sweep, parts = system.vertex_form().sweep(), IncrementalParts.of(problem)
+    plans = colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
                          system.dim)
     rounds = np.zeros(max(plan.vertices.size for plan in plans), dtype=np.int64)
     gradient_norms = np.zeros(rounds.size)

@@ -209,10 +209,11 @@ def contact_refusal(integrator: Integrator, system: System) -> str | None:
     that no position crosses a surface: only the incremental-potential methods whose unknown is x_{n+1} itself
     have such steps (a line search cuts them); friction is a dissipative potential of the step's velocity map, which
     only the incremental-potential problems carry."""
-    if not system.has_contact:
+    contact = system.contact_form()
+    if not contact:
         return None
     kind = integrator.problem_kind
-    if system.contact_needs_step_filter:
+    if contact.needs_step_filter:
         if integrator.explicit or kind is None:
             return ("takes explicit steps, which nothing cuts short of a collision: IPC contact needs an "
                     "incremental-potential method (backward_euler, bdf2, newmark) whose line search CCD filters")
@@ -224,7 +225,7 @@ def contact_refusal(integrator: Integrator, system: System) -> str | None:
             return (f"solves for the position at t_n + {integrator.unknown_fraction:g} h and extrapolates x_{{n+1}} from it, "
                     "which CCD cannot keep out of a collider: IPC contact needs a method whose unknown is x_{n+1} "
                     "(backward_euler, bdf2, newmark; generalized_alpha only with rho_inf = 0)")
-    if getattr(system, "has_friction", False):
+    if contact.has_friction:
         if kind not in ("incremental_potential", "newton_step"):
             return ("applies no friction: friction is a dissipative potential of the step's velocity map, which only "
                     "the incremental-potential methods carry")
@@ -380,7 +381,7 @@ class IncrementalPotential:
     """
 
     fresh_gradient = True  # gradient() builds a new float64 array each call (M is float64): no copy needed
-    projective = True  # the form projective dynamics minimises (with a system whose projective_form is None)
+    projective = True  # the form projective dynamics minimises (with a system whose projective form is exact)
 
     def __init__(self, system: System, y_tilde: np.ndarray, scale: float,
                  velocity_origin: np.ndarray | None = None, velocity_divisor: float = 1.0,
@@ -406,12 +407,13 @@ class IncrementalPotential:
         # the residual M (y - y~) + ... cannot resolve differences below round-off of its largest term
         self.residual_floor = residual_floor(system.mass, y_tilde)
         # friction: a dissipative potential of the velocity map v(y) = (y - a)/b, lagged at the step's start
+        self.contact = contact = system.contact_form()
         self.friction = None
         self.relags = 0
-        if system.has_contact and step_start is not None and velocity_origin is not None:
-            self.friction = system.friction_term(step_start[0], velocity_origin, velocity_divisor)
-            self.relags = system.contact.friction_relags if self.friction is not None else 0
-        self.quadratic = self.quadratic and self.friction is None and not system.has_contact
+        if contact and step_start is not None and velocity_origin is not None:
+            self.friction = contact.friction_term(step_start[0], velocity_origin, velocity_divisor)
+            self.relags = contact.model.friction_relags if self.friction is not None else 0
+        self.quadratic = self.quadratic and self.friction is None and not contact
         self.requires_step_filter = system.requires_step_filter
         self.prescribed = None  # the unknown on the prescribed paths' dofs (StepPlan.problem sets it), else y~ there
 
@@ -428,8 +430,7 @@ class IncrementalPotential:
     def relag(self, y: np.ndarray) -> None:
         """Friction's normal forces and tangent bases taken at y instead, with the colliders where they are at the
         step's end, where y is (``solve_step``)."""
-        self.friction = self.system.friction_term(y, self.velocity_origin, self.velocity_divisor,
-                                                  self.system.contact.time)
+        self.friction = self.contact.friction_term(y, self.velocity_origin, self.velocity_divisor, self.contact.model.time)
 
     def max_step(self, y: np.ndarray, direction: np.ndarray) -> float:
         """The largest fraction in [0, 1] of the step y -> y + direction that no contact crosses (IPC's filter)."""
@@ -469,7 +470,7 @@ class IncrementalPotential:
         value there, since no force acts on it (a pinned vertex: x_n; a vertex on a prescribed path at
         constant velocity: its exact position)."""
         if self.requires_step_filter:  # IPC: begin where no moving collider has overtaken a vertex
-            start = self.system.contact_start(start)
+            start = self.contact.start(start) if self.contact else start
         return constrained_start(self.system, start, self.y_tilde, self.prescribed)
 
     def direction_guess(self, y: np.ndarray) -> np.ndarray:
@@ -481,15 +482,15 @@ class IncrementalPotential:
         return initial_guess(self, kind, self.scale)
 
     def rest_hessian(self):
-        """M + s K_r + (s/b) D, K_r the system's ``rest_stiffness`` and D this step's damping matrix (taken at
+        """M + s K_r + (s/b) D, K_r the rest stiffness of the system's projective form and D this step's damping matrix (taken at
         ``damping_at``, so constant within the step): the matrix of projective dynamics' global step and of
         L-BFGS's rest-shape initial Hessian; None where the system has no rest stiffness. ``rest_key`` names it
         (equal keys, equal matrices) so that a solver keeps one factorisation for every step of a run, or, where
         D depends on x (spring damping), one per step."""
-        stiffness = self.system.rest_stiffness()
-        if stiffness is None:
+        form = self.system.projective_form()
+        if not form:
             return None
-        matrix = self.scale * stiffness
+        matrix = self.scale * form.rest_stiffness()
         if self.damping is not None:
             matrix = matrix + self.damping_weight * self.damping
         return add_mass(matrix, self.system)
@@ -516,9 +517,9 @@ class IncrementalPotential:
             if self.friction is not None:
                 vertices, blocks = self.friction.vertex_blocks(y)
                 if vertices.size:
-                    system.add_vertex_blocks(data, vertices, self.scale * blocks)
+                    self.contact.add_vertex_blocks(data, vertices, self.scale * blocks)
             hessian = system.pattern_matrix(data)
-            coupling = system.off_pattern_hessian(y, project_spd)  # mesh contact (IPC)
+            coupling = self.contact.coupling_hessian(y, project_spd) if self.contact else None  # mesh contact (IPC)
             if coupling is not None:
                 extra.append(self.scale * coupling)
         else:
@@ -546,7 +547,7 @@ class IncrementalPotential:
     # -- vertex by vertex: what vertex block descent needs (solvers/vbd.py) ------------------------------
     def vertex_colouring(self) -> list[np.ndarray]:
         """The system's colours: no two vertices of a colour share a term of P or of D (D lies in P's pattern)."""
-        return self.system.vertex_colouring()
+        return self.system.vertex_form().colouring()
 
     def vertex_blocks(self, y: np.ndarray, vertices: np.ndarray, project_spd=False) -> tuple[np.ndarray, np.ndarray]:
         """E's gradient and Hessian blocks at the vertices i (k,): shapes (k, d) and (k, d, d),
@@ -558,7 +559,7 @@ class IncrementalPotential:
         system, d = self.system, self.system.dim
         vertices = np.asarray(vertices, dtype=np.intp)
         dofs = d * vertices[:, None] + np.arange(d)
-        gradient, hessian = system.vertex_blocks(y, vertices, project_spd)
+        gradient, hessian = system.vertex_form().blocks(y, vertices, project_spd)
         mass = system.mass[dofs]
         gradient = mass * (y[dofs] - self.y_tilde[dofs]) + self.scale * gradient
         hessian = self.scale * hessian
@@ -571,20 +572,20 @@ class IncrementalPotential:
         return gradient, hessian
 
     def vertex_step_fractions(self, y, vertices, steps):  # the system's step filter per vertex: E adds no bound
-        return self.system.vertex_step_fractions(y, vertices, steps)
+        return self.system.vertex_form().step_fractions(y, vertices, steps)
 
     def vertex_energy_changes(self, y: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """The change of E (J), shape (k,), when vertex i moves by u = steps[i] ((k, d), m) and the others stay at y,
 
             dE_i = u^T M_i (y_i - y~_i + u/2) + s dP_i + (s/b) [u^T (D (y - a))_i + u^T D_ii u / 2],
 
-        dP_i the system's ``vertex_energy_changes``; each term formed without cancellation, so that the change is
+        dP_i the system's vertex form's ``energy_changes``; each term formed without cancellation, so that the change is
         resolved long after it has dropped below the round-off of E. The vertices must not interact (one colour)."""
         system, d = self.system, self.system.dim
         vertices = np.asarray(vertices, dtype=np.intp)
         dofs = d * vertices[:, None] + np.arange(d)
         changes = np.einsum("ij,ij->i", system.mass[dofs] * steps, y[dofs] - self.y_tilde[dofs] + 0.5 * steps)
-        changes += self.scale * system.vertex_energy_changes(y, vertices, steps)
+        changes += self.scale * system.vertex_form().energy_changes(y, vertices, steps)
         if self.damping is not None:
             rows, damping_blocks = self._damping_rows(vertices, dofs)
             rates = (rows @ (y - self.velocity_origin)).reshape(-1, d)

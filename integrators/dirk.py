@@ -38,6 +38,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simrun.solvers import SolveStats
+from simrun.systems.forms import contact_needs_step_filter
 
 from .base import Integrator, State, StepPlan, solve_step
 from .explicit import weighted_error, weighted_step
@@ -169,7 +170,7 @@ class DiagonallyImplicitRungeKutta(Integrator):
     def refusal(self, system):
         """A stiffly accurate method's last stage is x_{n+1} itself, which IPC's CCD keeps out of the colliders as it
         does every stage; any other's x_{n+1} combines the stages, which no line search cuts."""
-        if system.has_contact and system.contact_needs_step_filter and not self.dirk_tableau.stiffly_accurate:
+        if contact_needs_step_filter(system) and not self.dirk_tableau.stiffly_accurate:
             return ("ends the step at a combination of its stages, which CCD does not keep out of a collider: IPC "
                     "contact needs a stiffly accurate tableau (b = the last row of A)")
         return super().refusal(system)

@@ -48,6 +48,7 @@ import numpy as np
 from pydantic import Field
 
 from simrun.solvers.base import EXPLICIT_STEP
+from simrun.systems.forms import contact_needs_step_filter
 
 from .base import Integrator, State, StepPlan, mass_refusal, solve_step
 from .dirk import ORDER_TOLERANCE, _add
@@ -139,7 +140,7 @@ class IMEX(Integrator):
         reason = mass_refusal(self.name, system)
         if reason is not None:
             return reason
-        if system.has_contact and system.contact_needs_step_filter and "contact" not in self.implicit_terms(system):
+        if contact_needs_step_filter(system) and "contact" not in self.implicit_terms(system):
             return ("takes IPC contact explicitly, which nothing cuts short of a collision: name contact in implicit, "
                     "where each stage's line search is CCD-filtered")
         return super().refusal(system)

@@ -14,6 +14,8 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
+from simrun.systems.forms import contact_needs_step_filter
+
 from .base import Integrator, State, StepPlan, on_paths, solve_step
 from .segment import SegmentPotential
 from .euler import BackwardEuler
@@ -151,7 +153,7 @@ class BDF(Integrator):
         return self.order
 
     def refusal(self, system):
-        if self.order == 5 and system.has_contact and system.contact_needs_step_filter:
+        if self.order == 5 and contact_needs_step_filter(system):
             return ("starts with Richardson-extrapolated steps, combinations of states that CCD does not keep out of a "
                     "collider: IPC contact takes bdf up to order 4")
         return super().refusal(system)

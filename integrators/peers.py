@@ -49,7 +49,7 @@ class SolveIVP(Integrator):
     def refusal(self, system):
         if system.mass_correction is not None:
             return "takes u' = (v, M^-1 f) with a lumped mass (M^-1 per dof): use mass: lumped"
-        if system.has_contact:
+        if system.contact_form():
             return ("contact is no smooth force of an ODE (IPC's barrier is a potential of the step, a penalty's derivative "
                     "jumps at every touch): scipy's solvers are compared on systems without contact")
         if getattr(system, "lane_count", None) is not None:

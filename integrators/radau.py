@@ -39,6 +39,7 @@ from pydantic import Field
 
 from simrun.solvers import SolveStats
 from simrun.solvers.base import max_norm
+from simrun.systems.forms import contact_needs_step_filter
 
 from .base import Integrator, State
 from .multistep import lagrange_weights
@@ -101,7 +102,7 @@ class RadauIIA(Integrator):
         return 2 * self.stages - 1
 
     def refusal(self, system):
-        if system.has_contact and system.contact_needs_step_filter:
+        if contact_needs_step_filter(system):
             return ("solves its stages together by a Newton iteration without a line search, which CCD cannot cut: "
                     "IPC contact needs an incremental-potential method (backward_euler, sdirk2, bdf2)")
         return super().refusal(system)

@@ -67,10 +67,10 @@ class SegmentPotential:
 
     def rest_hessian(self):
         """M + h^2 sum_j c_j s_j K_r (+ (h^2/b) D_end when D does not depend on x): the Hessian's form at rest."""
-        stiffness = self.system.rest_stiffness()
-        if stiffness is None:
+        form = self.system.projective_form()
+        if not form:
             return None
-        matrix = self._rest_scale * stiffness
+        matrix = self._rest_scale * form.rest_stiffness()
         if self.damping_end is not None and self.system.damping_is_constant:
             matrix = matrix + (self.h2 / self.velocity_divisor) * self.damping_end
         return add_mass(matrix, self.system)

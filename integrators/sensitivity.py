@@ -32,7 +32,7 @@ def exact_refusal(system: System, integrator: Integrator) -> str | None:
     """Why the forward sensitivities of ``integrator`` on ``system`` are not offered (one line), or None."""
     if type(integrator).plan is Integrator.plan:
         return f"{integrator.label} takes no incremental-potential steps"
-    if system.has_contact:
+    if system.contact_form():
         return "contact (barriers, CCD-cut steps and lagged friction) is not differentiated"
     if system.sliding is not None:
         return "sliding constraints are not differentiated"

@@ -3,7 +3,7 @@
 Macklin, Mueller & Chentanez, "XPBD: position-based simulation of compliant constrained dynamics", MIG 2016
 (the compliant constraint update, eq. 18, and its damping, eq. 26); Macklin, Storey, Lu, Terdiman,
 Chentanez, Jeschke & Mueller, "Small steps in physics simulation", SCA 2019 (many substeps of one iteration
-each instead of many iterations in one step). The springs come from ``System.compliant_springs()``
+each instead of many iterations in one step). The springs come from ``System.compliant_form()``
 (systems/compliant.py); the constraint projection is Gauss-Seidel over groups of springs that share no
 vertex, each group one compiled parallel pass (xpbd_kernels.py; vector constraints one vectorised update).
 """
@@ -21,6 +21,7 @@ from pydantic import Field
 
 from simrun.solvers import EXPLICIT_STEP
 from simrun.systems.compliant import ANCHORED
+from simrun.systems.forms import refusal_reason
 
 from .base import Integrator, State, mass_refusal
 from .xpbd_kernels import project_distance
@@ -49,7 +50,7 @@ class XPBD(Integrator):
     exactly and the substep is backward Euler with h_s (damper included); on the test spring
     rho = (1 + (h w / substeps)^2)^(-substeps/2): artificial damping ~ h w / substeps at small steps. Explicit
     forces in f_other keep their explicit stability limits on h_s (stiff contact or rayleigh damping need
-    enough substeps). Systems without ``compliant_springs()`` are refused, with ``System.compliant_form``.
+    enough substeps). Systems without a compliant form are refused, with its reason.
     """
 
     name: ClassVar[str] = "xpbd"
@@ -64,9 +65,9 @@ class XPBD(Integrator):
     iterations: int = Field(1, ge=1, le=1_000, description="constraint projection sweeps per substep (small steps: 1)")
 
     def refusal(self, system):
-        reason = system.compliant_form
-        if reason is not None:
-            return f"xpbd needs the system's springs as compliant constraints: {reason}"
+        springs = system.compliant_form()
+        if not springs:
+            return f"xpbd needs the system's springs as compliant constraints: {_not_compliant(system, springs)}"
         return mass_refusal(self.name, system) or super().refusal(system)
 
     def step(self, system, state, dt, solver):
@@ -206,14 +207,18 @@ def _weight_blocks(weights: np.ndarray, sliding) -> np.ndarray:
     return blocks
 
 
+def _not_compliant(system, form) -> str:
+    return refusal_reason(form, f"{type(system).__name__} does not declare its springs as compliant constraints")
+
+
 class SpringProjection:
     """What XPBD needs of one system, prepared once: the spring groups (colours x kinds), the inverse masses
     with the vertex filters, the dofs on prescribed paths and the explicit acceleration of the other forces."""
 
     def __init__(self, system):
-        springs = system.compliant_springs()
-        if springs is None:
-            raise ValueError(f"xpbd needs the system's springs as compliant constraints: {system.compliant_form}")
+        springs = system.compliant_form()
+        if not springs:
+            raise ValueError(f"xpbd needs the system's springs as compliant constraints: {_not_compliant(system, springs)}")
         self.springs = springs
         d = springs.dim
         inverse_mass = 1.0 / np.asarray(system.mass, dtype=float)

@@ -19,6 +19,8 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
+from simrun.systems.forms import refusal_reason
+
 from .base import Advance, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
 from .line_search import accept, has_value
@@ -45,23 +47,41 @@ def refusal(solver_name: str, requires: tuple[str, ...], system, projective: boo
 
     ``projective``: is the integrator's problem an incremental potential (``IncrementalPotential.projective``;
     False for the methods that sample the force along the step, whose ``SegmentPotential`` is not the
-    energy projective dynamics minimises). Requirements: ``projective`` (the problem is an incremental
-    potential, the system's potential Hookean springs plus linear terms:
-    ``System.projective_form`` None, and it has a rest stiffness) and ``rest_stiffness`` (the system has a
-    K_r: ``System.rest_stiffness()`` not None)."""
-    reason = _projective_refusal(solver_name, system, projective) if "projective" in requires else None
-    if reason is None and ("projective" in requires or "rest_stiffness" in requires) and _rest_stiffness(system) is None:
-        reason = f"{solver_name} needs the rest stiffness K_r of the system, and {_system_label(system)} has none"
-    return reason
+    energy projective dynamics minimises). Requirements (the system's ``projective_form()``, systems/forms.py):
+    ``projective`` (the problem is an incremental potential, and the system's projective form exact: its
+    potential Hookean springs plus linear terms) and ``rest_stiffness`` (the system has a projective form: a K_r)."""
+    if "projective" in requires and not projective:
+        return _not_incremental(solver_name)
+    if "projective" not in requires and "rest_stiffness" not in requires:
+        return None
+    form = _projective_form(system)
+    if "projective" in requires and (not form or form.inexact):
+        return _not_hookean(solver_name, form.inexact if form else _reason(system, form))
+    if not form:
+        return _no_rest_stiffness(solver_name, system, form)
+    return None
 
 
-def _projective_refusal(solver_name: str, system, projective: bool) -> str | None:
-    """The ``projective`` requirement without the rest stiffness (which costs an assembly to judge)."""
-    if not projective:
-        return (f"{solver_name} needs an incremental potential, and this integrator samples the force along the step "
-                "(as average_vector_field and bdf2_midpoint_mix do)")
-    reason = getattr(system, "projective_form", f"{type(system).__name__} does not declare its potential as Hookean springs")
-    return None if reason is None else f"{solver_name} minimises the incremental potential of Hookean springs only: {reason}"
+def _no_rest_stiffness(solver_name: str, system, form) -> str:
+    return f"{solver_name} needs the rest stiffness K_r of the system, and {type(system).__name__} ({_reason(system, form)}) has none"
+
+
+def _not_incremental(solver_name: str) -> str:
+    return (f"{solver_name} needs an incremental potential, and this integrator samples the force along the step "
+            "(as average_vector_field and bdf2_midpoint_mix do)")
+
+
+def _not_hookean(solver_name: str, reason: str) -> str:
+    return f"{solver_name} minimises the incremental potential of Hookean springs only: {reason}"
+
+
+def _projective_form(system):
+    method = getattr(system, "projective_form", None)
+    return method() if callable(method) else None
+
+
+def _reason(system, form) -> str:
+    return refusal_reason(form, f"{type(system).__name__} does not declare its potential as Hookean springs")
 
 
 def solver_refusal(solver, system, projective: bool) -> str | None:
@@ -78,16 +98,6 @@ def _requirement_label(solver) -> str:
     return f"{solver.name} with initial_hessian {initial_hessian}" if initial_hessian in ("rest", "scaled_rest") else solver.name
 
 
-def _rest_stiffness(system):
-    method = getattr(system, "rest_stiffness", None)
-    return method() if callable(method) else None
-
-
-def _system_label(system) -> str:
-    reason = getattr(system, "projective_form", None)
-    return f"{type(system).__name__} ({reason})" if reason else type(system).__name__
-
-
 def problem_refusal(solver_name: str, requires: tuple[str, ...], problem) -> str | None:
     """``refusal`` for the problem a solver is handed, as far as the problem tells without building a matrix
     (the rest stiffness is judged when ``RestFactor.prepare`` asks for the problem's ``rest_hessian``)."""
@@ -96,7 +106,7 @@ def problem_refusal(solver_name: str, requires: tuple[str, ...], problem) -> str
     system = getattr(problem, "system", None)
     if system is None:
         return f"{solver_name} needs an integrator's incremental potential; this problem is not one"
-    return _projective_refusal(solver_name, system, bool(getattr(problem, "projective", False)))
+    return refusal(solver_name, ("projective",), system, bool(getattr(problem, "projective", False)))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -131,7 +141,7 @@ class RestFactor:
             return
         matrix = rest_hessian()
         if matrix is None:
-            raise ValueError(f"{solver_name} needs the rest stiffness K_r of the system, and {_system_label(problem.system)} has none")
+            raise ValueError(_no_rest_stiffness(solver_name, problem.system, _projective_form(problem.system)))
         self._solve = None  # a failing factorisation leaves no stale factor behind
         self.matrix = free.restrict_matrix(free.filter_matrix(matrix))
         self._solve = factorise_spd(self.matrix)
@@ -253,8 +263,8 @@ class ProjectiveDynamics(NonlinearSolver):
     line-search step. Each global solve (a back-substitution) counts as one linear iteration.
 
     Refused (ValueError, one line: ``refusal``): problems that are not an incremental potential
-    (``problem.projective`` False), systems whose ``projective_form`` is not None (squared-length springs,
-    penalty contact) and systems without a rest stiffness. Where D depends on x (spring damping) A changes
+    (``problem.projective`` False), systems whose projective form is inexact (squared-length springs,
+    penalty contact) and systems without one. Where D depends on x (spring damping) A changes
     from step to step, and ``rest_key`` says so: one factorisation per step instead of per run.
     """
 

@@ -21,6 +21,8 @@ from typing import ClassVar
 import numpy as np
 import scipy.sparse
 
+from simrun.systems.forms import contact_needs_step_filter
+
 from .base import Advance, NonlinearSolver, chebyshev_weight
 from .dofs import FreeDofs
 from .line_search import collision_free
@@ -112,7 +114,8 @@ def _crosses_no_collider(problem, y: np.ndarray, moved: np.ndarray) -> bool:
     """Whether the move y -> moved, every vertex at once along its straight line, reaches no collider under IPC (the
     sweep's own moves are cut vertex by vertex; the Chebyshev extrapolation is not); True without IPC. (A finite-
     element system's step filter also bounds its volumes, which the extrapolation's energy check already guards.)"""
-    if not getattr(getattr(problem, "system", None), "contact_needs_step_filter", False):
+    system = getattr(problem, "system", None)
+    if system is None or not contact_needs_step_filter(system):
         return True
     return collision_free(problem, y, moved - y) >= 1.0
 
@@ -189,7 +192,8 @@ class VertexBlockDescent(NonlinearSolver):
         dim = getattr(system, "dim", None)
         if not isinstance(dim, (int, np.integer)) or dim < 1 or system.dof_count % dim:
             return f"vbd updates one vertex at a time, and {type(system).__name__} has no vertices (dim {dim!r}, {system.dof_count} dofs)"
-        if getattr(system, "has_friction", False) or system.off_pattern_hessian(system.x0) is not None:
+        contact = system.contact_form()
+        if contact and (contact.has_friction or contact.coupling_hessian(system.x0) is not None):
             return ("vbd's vertex blocks hold the springs and the colliders, not friction or mesh contact (which couple "
                     "vertices through ipctk): use newton, projected_newton or lbfgs")
         if system.mass_correction is not None:
@@ -201,7 +205,7 @@ class VertexBlockDescent(NonlinearSolver):
     def _begin(self, problem, current, free):
         if self.rho > 0.0:
             current.energy = problem.value(current.y)
-        sweep = problem.system.vertex_sweep() if hasattr(problem, "y_tilde") else None
+        sweep = problem.system.vertex_form().sweep() if hasattr(problem, "y_tilde") else None
         compiled = None if sweep is None else (sweep, IncrementalParts.of(problem))
         return _SweepState(self._plans(problem, free, current.y.size), current.y, compiled)
 
@@ -281,7 +285,7 @@ class VertexBlockDescent(NonlinearSolver):
         return swept, halvings, residual if math.isfinite(residual) else math.inf
 
     def _compiled_sweep(self, y: np.ndarray, plans: list[ColourPlan], sweep, parts) -> tuple[np.ndarray, int, float]:
-        """The same sweep by the system's compiled kernel (``System.vertex_sweep``): each colour's vertices in parallel,
+        """The same sweep by the system's compiled kernel (the system's vertex form's ``sweep``): each colour's vertices in parallel,
         the same numbers as ``_sweep`` to round-off. A colour's backtracking rounds are its vertices' most."""
         swept = np.array(y, dtype=float)  # a new iterate: the solve keeps its iterates by reference
         halvings = 0

@@ -4,25 +4,30 @@ A system is static: it describes the mechanics (mass, potential, damping, constr
 holds the changing state. Integrators and the runner pass positions ``x`` and velocities ``v``
 (arrays of shape ``(dof_count,)``, SI units) into it.
 
-Implementers supply
+Required, the whole of it:
 - ``dof_count``, ``dim`` (spatial dimension), ``mass`` (lumped diagonal mass, ``(dof_count,)``, kg),
   ``x0`` and ``v0``;
 - ``potential_energy(x)`` (J), ``gradient(x)`` (dP/dx, N) and ``hessian(x, project_spd=False)``
-  (d^2P/dx^2, N/m; a dense array for small systems, a scipy sparse matrix for large ones);
-- optionally, faster versions of derived quantities on their step path (``acceleration``, ``kick``,
-  ``total_energy``, ``write_observables``), equal to the generic ones to round-off;
-- optionally ``damping_matrix(x)`` (D in f_d = -D(x) v, N s/m; ``None`` when undamped),
-  ``fixed_dofs`` (indices that never move), ``observables(x, v)`` and ``exact_solution(t)``;
-- optionally, for large sparse systems, ``hessian_pattern`` (a CSR matrix whose pattern holds every
-  entry of the Hessian and of D, and the whole diagonal), ``diagonal_positions`` (where the diagonal
-  sits in its data array) and ``hessian_data(x, project_spd)`` (the Hessian's values in that pattern):
-  implicit methods then assemble M + s K + ... in one data array instead of adding sparse matrices;
-- optionally, what it declares about itself (``capabilities``, stored with every run): ``test_frequency``,
-  ``length_scale``, ``energy_scale()``, ``frame_shape`` and ``planar``, each with a neutral default;
-- optionally, for the solvers of graphics practice: ``rest_stiffness()`` (a constant SPD matrix, the
-  rest-shape stiffness of projective dynamics and of L-BFGS's initial Hessian), ``projective_form``
-  (None when the potential is Hookean springs plus linear terms, else why not), ``damping_is_constant``
-  and ``external_acceleration`` (the constant acceleration of gravity per dof).
+  (d^2P/dx^2, N/m; a dense array for small systems, a scipy sparse matrix for large ones).
+
+Optional, each with a neutral default:
+- damping: ``damping_matrix(x)`` (D in f_d = -D(x) v, N s/m; None when undamped), ``damping_is_constant``;
+- constraints: ``fixed_dofs`` (indices that never move), ``sliding``, ``constraints`` (prescribed paths);
+- the Hessian's pattern, for large sparse systems: ``hessian_pattern`` (a CSR matrix whose pattern holds every
+  entry of the Hessian and of D, and the whole diagonal), ``diagonal_positions`` (where the diagonal sits in
+  its data array) and ``hessian_data(x, project_spd)`` (the Hessian's values in that pattern): implicit methods
+  then assemble M + s K + ... in one data array instead of adding sparse matrices;
+- what it declares about itself (``capabilities``, stored with every run): ``test_frequency``,
+  ``length_scale``, ``energy_scale()``, ``frame_shape`` and ``planar``; ``observables``' own terms
+  (``extra_observables(x, v)``) and ``exact_solution(t)``;
+- what some methods use: ``external_acceleration`` (gravity per dof), ``quadratic_potential``, the step filter
+  (``requires_step_filter``, ``max_step``), IMEX's named terms (``energy_terms``, ``with_terms``), calibration's
+  ``parameter_derivative`` and ``damping_derivative``;
+- the forms of the solver families (systems/forms.py): ``vertex_form()`` (VBD; a generic one by default),
+  ``projective_form()`` (projective dynamics, L-BFGS's rest Hessian), ``compliant_form()`` (XPBD) and
+  ``contact_form()`` (a contact block);
+- faster versions of derived quantities on a system's step path (``acceleration``, ``kick``, ``total_energy``,
+  ``write_observables``), equal to the generic ones to round-off.
 
 ``hessian(x, project_spd)``: ``project_spd`` is False (the exact Hessian), True or ``"clamp"`` (the
 system's own cheap SPD projection: negative eigenvalues of its blocks set to 0) or ``"abs"`` (the
@@ -31,6 +36,7 @@ filtering for projected Newton", SIGGRAPH Asia 2024). A system that knows one pr
 answer every true value with it.
 
 A system's config is a ``SystemParams`` model whose ``system_class`` is the System subclass it builds.
+docs/systems.md is the guide; runner/contracts (``simrun check-system``) measures a system against this contract.
 """
 
 from __future__ import annotations
@@ -48,13 +54,11 @@ import scipy.sparse
 from pydantic import BaseModel, ConfigDict
 
 from .capabilities import Capabilities  # noqa: F401  (re-exported: what a system declares)
-from .patterns import colour_vertices, diagonal_blocks
+from .forms import NotOffered, ProjectiveForm, VertexForm, kept_form
 
 
 # |KE0| + |PE0| below this fraction of the work of the initial forces over the length scale is round-off
 ENERGY_ROUND_OFF = 1e-8
-# P sums terms of both signs: a difference of two values of P below this fraction of them is round-off
-ENERGY_DIFFERENCE_ROUNDOFF = 1024 * np.finfo(float).eps
 
 
 @dataclass(frozen=True)
@@ -84,58 +88,13 @@ def vertex_energy_reference(system, elastic: float, stretch_energy: float, parts
 class System(ABC):
     """Base class of the systems: derived quantities written once, in terms of the primitives."""
 
+    # -- required: the state's size, the mass, the initial state, and P with its derivatives -------------------
     dof_count: int
     dim: int
     mass: np.ndarray
-    # a consistent mass matrix's part off its lumped diagonal, M - diag(mass) (a CSR matrix in the Hessian's pattern,
-    # whose data adds to a Hessian's entry for entry, and whose rows sum to 0), or None: M is the diagonal ``mass``. Only methods that take M as a matrix step such a
-    # system (``mass_refusal``); ``mass`` stays the lumped diagonal, what scales and safeguards read.
-    mass_correction = None
     x0: np.ndarray
     v0: np.ndarray
-    fixed_dofs: np.ndarray = np.zeros(0, dtype=np.intp)
-    # the filters of vertices that slide along directions that are not coordinate axes (systems/constraints.py)
-    sliding = None
-    # vertices on a prescribed path (systems/constraints.py: VertexConstraints), or None
-    constraints = None
-    vertex_dim: int = 3  # coordinates per vertex in a frame (systems that keep frames)
-    frame_edges: np.ndarray | None = None  # (m, 2) vertex pairs drawn as lines in pictures (the springs)
-    frame_triangles: np.ndarray | None = None  # (t, 3) vertex triples drawn as a shaded surface
-    # small systems keep x and v in every sample; large ones (cloth) keep them as `frames` instead
-    records_state_per_sample: bool = True
 
-    def released(self, t: float) -> System:
-        """This system from time t (s) on, once prescribed paths have ended (their ``until``): a shallow copy whose
-        constraints no longer hold the ended paths' vertices, which are free from here, with the velocity their
-        path gave them. self is left as it was, and caches keyed by the system (XPBD's projection, the VBD
-        blocks) start afresh for the copy. A system without such paths is returned as it is."""
-        if self.constraints is None or not self.constraints.release_times:
-            return self
-        released = copy.copy(self)
-        released.constraints = constraints = self.constraints.released(t)
-        released.fixed_dofs, released.sliding = constraints.fixed_dofs, constraints.sliding
-        released._moving = constraints.moving_dofs
-        released.__dict__.pop("_vertex_blocks", None)
-        released._prepare_paths()
-        return released
-
-    # -- named parts of the energy, for IMEX splits (integrators/imex.py) -------------------------
-    @property
-    def energy_terms(self) -> tuple[str, ...]:
-        """The names of the parts of P (and of the damping) that a split may put on one side. A system without parts
-        of its own has one, ``potential``: all of P and f_d."""
-        return ("potential",)
-
-    def with_terms(self, names: tuple[str, ...], complement: bool = False) -> "System | None":
-        """This system with only the named terms of ``energy_terms`` (``complement``: with every other term), for
-        the parts of an IMEX split; None where that leaves no force at all. Here: all of it, or nothing."""
-        return self if ("potential" in names) != complement else None
-
-    def _prepare_paths(self) -> None:
-        """What a system precomputes for its vertices on prescribed paths (the springs that drive them), after
-        ``released`` changed them; nothing by default."""
-
-    # -- primitives every system provides ------------------------------------------------------
     @abstractmethod
     def potential_energy(self, x: np.ndarray) -> float:
         """P(x) (J)."""
@@ -148,7 +107,53 @@ class System(ABC):
     def hessian(self, x: np.ndarray, project_spd: bool = False):
         """d^2P/dx^2 (N/m), (dof_count, dof_count); SPD-projected on request."""
 
-    # -- optional parts with neutral defaults --------------------------------------------------
+    # -- optional: the mass matrix off its diagonal, and the constraints ------------------------------------
+    # a consistent mass matrix's part off its lumped diagonal, M - diag(mass) (a CSR matrix in the Hessian's pattern,
+    # whose data adds to a Hessian's entry for entry, and whose rows sum to 0), or None: M is the diagonal ``mass``.
+    # Only methods that take M as a matrix step such a system (``mass_refusal``); ``mass`` stays the lumped diagonal,
+    # what scales and safeguards read.
+    mass_correction = None
+    fixed_dofs: np.ndarray = np.zeros(0, dtype=np.intp)
+    # the filters of vertices that slide along directions that are not coordinate axes (systems/constraints.py)
+    sliding = None
+    # vertices on a prescribed path (systems/constraints.py: VertexConstraints), or None
+    constraints = None
+
+    def released(self, t: float) -> System:
+        """This system from time t (s) on, once prescribed paths have ended (their ``until``): a shallow copy whose
+        constraints no longer hold the ended paths' vertices, which are free from here, with the velocity their
+        path gave them. self is left as it was, and caches keyed by the system (XPBD's projection, the VBD
+        blocks) start afresh for the copy. A system without such paths is returned as it is."""
+        if self.constraints is None or not self.constraints.release_times:
+            return self
+        released = copy.copy(self)
+        released.constraints = constraints = self.constraints.released(t)
+        released.fixed_dofs, released.sliding = constraints.fixed_dofs, constraints.sliding
+        released._moving = constraints.moving_dofs
+        released._prepare_paths()
+        return released
+
+    def _prepare_paths(self) -> None:
+        """What a system precomputes for its vertices on prescribed paths (the springs that drive them), after
+        ``released`` changed them; nothing by default."""
+
+    # -- optional: damping ---------------------------------------------------------------------------------
+    def damping_matrix(self, x: np.ndarray):
+        """D(x) in the damping force f_d = -D(x) v, or None for an undamped system."""
+        return None
+
+    @property
+    def damping_is_constant(self) -> bool:
+        """Is D(x) the same at every x (or is there no damping)?"""
+        return not self.is_damped
+
+    @functools.cached_property
+    def is_damped(self) -> bool:
+        """Does the system have physical damping? Decided once (at x0), so that undamped systems skip
+        ``damping_matrix`` on every force and step; a system's damping model does not switch on and off with x."""
+        return self.damping_matrix(self.x0) is not None
+
+    # -- optional: the Hessian's fixed pattern, for large sparse systems ------------------------------
     hessian_pattern = None  # a scipy CSR matrix: the fixed pattern of hessian_data (see the module docstring)
     diagonal_positions: np.ndarray
 
@@ -166,41 +171,38 @@ class System(ABC):
         pattern = self.hessian_pattern
         return matrix.format == "csr" and _same(matrix.indptr, pattern.indptr) and _same(matrix.indices, pattern.indices)
 
-    def damping_matrix(self, x: np.ndarray):
-        """D(x) in the damping force f_d = -D(x) v, or None for an undamped system."""
+    # -- what the solver families of graphics practice take: one form each (systems/forms.py) -----------------
+    def vertex_form(self) -> VertexForm | None:
+        """Vertex block descent's per-vertex blocks: the generic form, read off the whole gradient and Hessian."""
+        return kept_form(self, "_vertex_form", VertexForm)
+
+    def projective_form(self) -> ProjectiveForm | None:
+        """Projective dynamics' rest stiffness K_r, and whether it minimises the incremental potential exactly."""
+        return NotOffered(f"{type(self).__name__} does not declare its potential as Hookean springs")
+
+    def compliant_form(self):
+        """The Hookean springs and their dampers as XPBD's compliant constraints (systems/compliant.py)."""
+        return NotOffered(f"{type(self).__name__} does not declare its springs as compliant constraints")
+
+    def contact_form(self):
+        """What the runner, the problems and the line search ask of a contact block (systems/contact/hooks.py)."""
         return None
 
-    # -- what projective dynamics, L-BFGS's rest-shape Hessian and VBD's initial guess use -------------
-    def rest_stiffness(self):
-        """K_r (N/m): a constant symmetric positive semi-definite matrix, sum_e kappa_e (L_e kron I_d) over
-        the springs e (kappa_e the spring's stiffness along itself at rest, L_e its graph Laplacian), the
-        matrix of projective dynamics' global step (Liu et al. 2013) and of the rest-shape initial Hessian of
-        L-BFGS (Liu, Bouaziz & Kavan 2017); in the Hessian's pattern where the system has one. None: the
-        system has none (the solvers that need it are refused)."""
-        return None
+    # -- optional: what some methods use (the line search's step filter, a quadratic P, gravity, P's round-off) ----
+    # every step a line search takes is cut to the fraction ``max_step`` allows: IPC's collision-free one, or (finite
+    # elements) the one that keeps every element's volume
+    requires_step_filter: bool = False
 
-    @property
-    def projective_form(self) -> str | None:
-        """None when P is a sum of Hookean springs (k/2 (|x_i - x_j| - l0)^2, or k/2 |x - a|^2 to an anchor)
-        plus terms linear in x (any damping: D is taken once per step): projective dynamics then minimises the
-        incremental potential exactly. Otherwise the reason, in a few words, for the one-line refusal."""
-        return f"{type(self).__name__} does not declare its potential as Hookean springs"
+    def max_step(self, x: np.ndarray, direction: np.ndarray) -> float:
+        """The largest fraction in [0, 1] of the step x -> x + direction that the system allows (read where
+        ``requires_step_filter``)."""
+        return 1.0
 
-    # -- what position-based integrators (XPBD) use --------------------------------------------------
-    def compliant_springs(self):
-        """The system's Hookean springs and their dampers as compliant constraints (a
-        ``systems.compliant.CompliantSprings``), or None: XPBD is then refused with ``compliant_form``."""
-        return None
+    # P is quadratic in x with a constant positive definite Hessian (the spring, the linear central force): the
+    # incremental potential is then a convex quadratic, one full Newton step solves it, and Newton skips its line search
+    quadratic_potential: bool = False
 
-    @property
-    def compliant_form(self) -> str | None:
-        """None when ``compliant_springs()`` declares the springs; otherwise why not, in a few words."""
-        return f"{type(self).__name__} does not declare its springs as compliant constraints"
-
-    @property
-    def damping_is_constant(self) -> bool:
-        """Is D(x) the same at every x (or is there no damping)?"""
-        return not self.is_damped
+    external_acceleration: np.ndarray | None = None  # (dof_count,) m/s^2 of the constant external field (gravity), or None
 
     def potential_magnitude(self, x: np.ndarray) -> float:
         """J: the scale of P(x)'s round-off over eps. A term W(x) is computed from differences of
@@ -208,6 +210,18 @@ class System(ABC):
         a nearly relaxed spring (W ~ stretch^2) is far above eps W. The default is |P| + sum_i |g_i x_i|;
         a line search cannot judge changes of E below ENERGY_ROUNDOFF times this."""
         return abs(self.potential_energy(x)) + float(np.abs(self.gradient(x) * x).sum())
+
+    # -- named parts of the energy, for IMEX splits (integrators/imex.py) -------------------------
+    @property
+    def energy_terms(self) -> tuple[str, ...]:
+        """The names of the parts of P (and of the damping) that a split may put on one side. A system without parts
+        of its own has one, ``potential``: all of P and f_d."""
+        return ("potential",)
+
+    def with_terms(self, names: tuple[str, ...], complement: bool = False) -> "System | None":
+        """This system with only the named terms of ``energy_terms`` (``complement``: with every other term), for
+        the parts of an IMEX split; None where that leaves no force at all. Here: all of it, or nothing."""
+        return self if ("potential" in names) != complement else None
 
     # -- calibration: exact forward sensitivities (integrators/sensitivity.py) ---------------------------
     def parameter_derivative(self, changed: "System", change: float) -> "ParameterDerivative | None":
@@ -223,114 +237,17 @@ class System(ABC):
         do not, exact sensitivities are not offered (``integrators.sensitivity.exact_refusal``)."""
         return None
 
-    # P is quadratic in x with a constant positive definite Hessian (the spring, the linear central force): the
-    # incremental potential is then a convex quadratic, one full Newton step solves it, and Newton skips its line search
-    quadratic_potential: bool = False
-
-    external_acceleration: np.ndarray | None = None  # (dof_count,) m/s^2 of the constant external field (gravity), or None
-
-    @functools.cached_property
-    def is_damped(self) -> bool:
-        """Does the system have physical damping? Decided once (at x0), so that undamped systems skip
-        ``damping_matrix`` on every force and step; a system's damping model does not switch on and off with x."""
-        return self.damping_matrix(self.x0) is not None
-
-    # -- contact (systems/contact/): what the line search, the problems and the runner ask ----------------
-    # every step a line search takes is cut to the fraction ``max_step`` allows: IPC's collision-free one, or (finite
-    # elements) the one that keeps every element's volume
-    requires_step_filter: bool = False
-
-    @property
-    def contact_needs_step_filter(self) -> bool:
-        """Whether the contact (IPC) needs every step of a solve cut short of a collision: the integrators that cannot
-        cut theirs (explicit ones, forces sampled along the step) and the solvers without a filtered line search refuse
-        such a system. Where the step filter has other uses too (finite elements), a system says so apart."""
-        return self.requires_step_filter
-    has_contact: bool = False  # the runner records per step the smallest contact distance, active contacts, friction work
-
     # runs of this system may be stepped together as lanes of one array (systems/lanes.py): the class that takes their
     # built systems, or None (each run is stepped alone); read from the class's own body, never inherited (a subclass
     # changes the physics that the lane class repeats)
     lanes_class: ClassVar[type | None] = None
 
-    def off_pattern_hessian(self, x: np.ndarray, project_spd=False):
-        """The part of the Hessian outside ``hessian_pattern`` (N/m; contact between vertices no element joins), or
-        None; ``hessian`` includes it, ``hessian_data`` does not."""
-        return None
-
-    def friction_term(self, x_start: np.ndarray, velocity_origin: np.ndarray, velocity_divisor: float,
-                      time: float | None = None):
-        """The friction potential of a step from x_start (colliders at ``time``, default the step's start) for the
-        velocity map v(y) = (y - a)/b (an object with value, gradient and hessian in y), or None
-        (systems/contact/model.py, FrictionTerm)."""
-        return None
-
-    # -- what vertex block descent uses (solvers/vbd.py) ----------------------------------------------
-    def vertex_blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd=False) -> tuple[np.ndarray, np.ndarray]:
-        """Per-vertex blocks of P at x: (dP/dx_i, shape (k, dim), N; d^2P/dx_i^2, shape (k, dim, dim), N/m)
-        for the k vertices i (vertex i owns the dofs dim i .. dim i + dim - 1), ``project_spd`` as ``hessian``.
-
-        The generic form reads them off the full gradient and Hessian: right for every system, at the cost
-        of a whole evaluation; systems of elements (MassSpring) sum the elements that touch each vertex."""
-        vertices = np.asarray(vertices, dtype=np.intp)
-        gradient = np.asarray(self.gradient(x), dtype=float).reshape(-1, self.dim)[vertices]
-        return gradient, diagonal_blocks(self.hessian(x, project_spd=project_spd), vertices, self.dim)
-
-    def vertex_sweep(self):
-        """Vertex block descent's compiled colour sweep of this system's terms (MassSpring: blocks.py ``SpringSweep``),
-        or None: the solver then sweeps with ``vertex_blocks`` and ``vertex_energy_changes``."""
-        return None
-
-    def vertex_step_fractions(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray | None:
-        """The largest fraction (k,) of each vertex's step (vertex i alone moving by steps[i]) that the system's step
-        filter allows (Fem: its elements keep their volumes), or None where every step may be taken whole."""
-        return None
-
-    def vertex_energy_changes(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray:
-        """The change of P (J), shape (k,), when vertex i of ``vertices`` moves by steps[i] ((k, dim), m) and every
-        other vertex stays at x: what vertex block descent's backtracking judges. Systems of elements form it
-        without cancellation from the elements at the vertex (MassSpring); the generic form evaluates P once per
-        vertex, and where P(x + s_i) - P(x) is below P's round-off it takes the second-order change
-        g_i . s_i + s_i^T H_i s_i / 2 instead (exact to O(|s_i|^3), far below that round-off)."""
-        d = self.dim
-        vertices = np.asarray(vertices, dtype=np.intp)
-        energy = self.potential_energy(x)
-        moved = np.array(x, dtype=float)
-        changes, scales = np.empty(len(vertices)), np.empty(len(vertices))
-        for index, (vertex, step) in enumerate(zip(vertices.tolist(), steps)):
-            dofs = slice(d * vertex, d * vertex + d)
-            moved[dofs] = x[dofs] + step
-            moved_energy = self.potential_energy(moved)
-            changes[index], scales[index] = moved_energy - energy, max(abs(moved_energy), abs(energy))
-            moved[dofs] = x[dofs]
-        unresolved = np.abs(changes) <= ENERGY_DIFFERENCE_ROUNDOFF * scales
-        if unresolved.any():
-            gradient, hessian = self.vertex_blocks(x, vertices[unresolved])
-            step = steps[unresolved]
-            changes[unresolved] = np.einsum("ki,ki->k", gradient, step) + 0.5 * np.einsum("ki,kij,kj->k", step, hessian, step)
-        return changes
-
-    def vertex_colouring(self) -> list[np.ndarray]:
-        """Vertices in groups of which no two interact (vertex arrays, one per colour): a greedy colouring of
-        the graph whose edges are the nonzero off-diagonal blocks of the Hessian's pattern and of D's at x0
-        (``hessian_pattern`` where the system has one). Built once per system."""
-        cached = self.__dict__.get("_vertex_colouring")
-        if cached is None:
-            d = self.dim
-            matrices = [self.hessian_pattern if self.hessian_pattern is not None else self.hessian(self.x0)]
-            damping = self.damping_matrix(self.x0)
-            if damping is not None:
-                matrices.append(damping)
-            pairs = []
-            for matrix in matrices:
-                if scipy.sparse.issparse(matrix):
-                    matrix = matrix.tocoo()
-                    rows, cols = matrix.row, matrix.col
-                else:
-                    rows, cols = np.nonzero(np.asarray(matrix))
-                pairs.append(np.stack([rows // d, cols // d], axis=1))
-            cached = self.__dict__["_vertex_colouring"] = colour_vertices(self.dof_count // d, np.concatenate(pairs))
-        return cached
+    # -- what the system declares about itself (neutral defaults; subclasses override the parts) -------
+    vertex_dim: int = 3  # coordinates per vertex in a frame (systems that keep frames)
+    frame_edges: np.ndarray | None = None  # (m, 2) vertex pairs drawn as lines in pictures (the springs)
+    frame_triangles: np.ndarray | None = None  # (t, 3) vertex triples drawn as a shaded surface
+    # small systems keep x and v in every sample; large ones (cloth) keep them as `frames` instead
+    records_state_per_sample: bool = True
 
     def exact_solution(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Exact (x, v) at times t, shapes (len(t), dof_count), or None where none is known."""
@@ -339,6 +256,84 @@ class System(ABC):
     def extra_observables(self, x: np.ndarray, v: np.ndarray) -> dict[str, np.ndarray | float]:
         """System-specific observables (e.g. the radius of circular motion)."""
         return {}
+
+    @property
+    def energy_reference_name(self) -> str:
+        """What ``energy_scale()`` is, in a few words (axis labels, table notes)."""
+        initial, work = self._initial_energy_and_work()
+        if initial > ENERGY_ROUND_OFF * work:
+            return "|KE0| + |PE0|"
+        return "L sum|f0| (|KE0| + |PE0| is round-off)" if work > 0.0 else "1 J (KE0 = PE0 = 0)"
+
+    def energy_scale(self) -> float:
+        """A characteristic energy (J) against which energy growth is judged: |KE0| + |PE0|; where that is
+        round-off of cancelling terms (at most ENERGY_ROUND_OFF of W0 = length_scale * sum |f(x0, v0)|: a
+        chain released from horizontal at the height of its pivot has E0 = 0 by construction, computed as
+        1e-30 J or 1e-16 J), W0, the work of the initial forces over the length scale; 1 J when both are 0."""
+        initial, work = self._initial_energy_and_work()
+        if initial > ENERGY_ROUND_OFF * work:
+            return initial
+        return work if work > 0.0 else 1.0
+
+    def _initial_energy_and_work(self) -> tuple[float, float]:
+        """(|KE0| + |PE0|, length_scale * sum |f(x0, v0)| over the free dofs) (J)."""
+        initial = abs(self.kinetic_energy(self.v0)) + abs(self.potential_energy(self.x0))
+        work = self.length_scale * float(np.abs(self.force(self.x0, self.v0)).sum())
+        return initial, work if math.isfinite(work) else 0.0
+
+    @property
+    def test_frequency(self) -> float | None:
+        """w (rad/s) when the system is the undamped test equation q'' + w^2 q = 0 (or uncoupled copies of
+        it: hessian(x) = w^2 M at every x, no damping), else None: the damping and stability predictions hold on it."""
+        return None
+
+    @property
+    def length_scale(self) -> float:
+        """The scale of position errors (m): max_i |x0_i|, or 1 when that is 0 or not finite."""
+        scale = float(np.max(np.abs(self.x0))) if self.x0.size else 0.0
+        return scale if math.isfinite(scale) and scale > 0.0 else 1.0
+
+    @property
+    def frame_shape(self) -> tuple[int, ...] | None:
+        """The vertex grid of one stored frame (a frame holds prod(frame_shape) vertices of ``vertex_dim``
+        coordinates), or None when x and v are recorded in every sample instead or the vertices form no grid."""
+        return None
+
+    planar: bool = False  # one body whose motion stays in the x-y plane (its trajectory is drawn as an orbit)
+
+    @functools.cached_property
+    def capabilities(self) -> Capabilities:
+        """What the runner stores about this system with every run, so that figures never test a type name."""
+        frame_shape = self.frame_shape
+        if frame_shape is not None:
+            frame_shape = tuple(int(size) for size in frame_shape)
+            if self.vertex_dim * math.prod(frame_shape) != self.dof_count:
+                raise ValueError(f"{type(self).__name__}.frame_shape {frame_shape} holds {math.prod(frame_shape)} vertices, "
+                                 f"but a frame holds dof_count / vertex_dim = {self.dof_count / self.vertex_dim:g}")
+        test_frequency = self.test_frequency
+        return Capabilities(
+            test_frequency=None if test_frequency is None else float(test_frequency),
+            length_scale=float(self.length_scale),
+            energy_scale=float(self.energy_scale()),
+            frame_shape=frame_shape,
+            planar=bool(self.planar),
+            dof_count=int(self.dof_count),
+            energy_reference_name=self.energy_reference_name,
+            vertex_dim=0 if self.records_state_per_sample else int(self.vertex_dim),
+            oscillator=self.oscillator,
+        )
+
+    def modal_energy(self, energy: np.ndarray, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The oscillator's modal energy at recorded samples (J): energies (samples,), x and v (samples, dofs); the
+        energy itself by default (exact for the undamped test equation, which keeps it)."""
+        return energy
+
+    @property
+    def oscillator(self) -> tuple[float, float] | None:
+        """(w0 rad/s, zeta) when the system is a linear oscillator q'' + 2 zeta w0 q' + w0^2 q = 0 (or uncoupled copies of
+        one), damped or not: the test equation (test_frequency, 0) by default, else None."""
+        frequency = self.test_frequency
+        return None if frequency is None else (float(frequency), 0.0)
 
     # -- derived quantities ---------------------------------------------------------------------
     def mass_times(self, vector: np.ndarray) -> np.ndarray:
@@ -487,85 +482,6 @@ class System(ABC):
             columns.append((slice(start, start + size), len(shape) > 1))
             start += size
         return columns
-
-    @property
-    def energy_reference_name(self) -> str:
-        """What ``energy_scale()`` is, in a few words (axis labels, table notes)."""
-        initial, work = self._initial_energy_and_work()
-        if initial > ENERGY_ROUND_OFF * work:
-            return "|KE0| + |PE0|"
-        return "L sum|f0| (|KE0| + |PE0| is round-off)" if work > 0.0 else "1 J (KE0 = PE0 = 0)"
-
-    def energy_scale(self) -> float:
-        """A characteristic energy (J) against which energy growth is judged: |KE0| + |PE0|; where that is
-        round-off of cancelling terms (at most ENERGY_ROUND_OFF of W0 = length_scale * sum |f(x0, v0)|: a
-        chain released from horizontal at the height of its pivot has E0 = 0 by construction, computed as
-        1e-30 J or 1e-16 J), W0, the work of the initial forces over the length scale; 1 J when both are 0."""
-        initial, work = self._initial_energy_and_work()
-        if initial > ENERGY_ROUND_OFF * work:
-            return initial
-        return work if work > 0.0 else 1.0
-
-    def _initial_energy_and_work(self) -> tuple[float, float]:
-        """(|KE0| + |PE0|, length_scale * sum |f(x0, v0)| over the free dofs) (J)."""
-        initial = abs(self.kinetic_energy(self.v0)) + abs(self.potential_energy(self.x0))
-        work = self.length_scale * float(np.abs(self.force(self.x0, self.v0)).sum())
-        return initial, work if math.isfinite(work) else 0.0
-
-    # -- what the system declares about itself (neutral defaults; subclasses override the parts) -------
-    @property
-    def test_frequency(self) -> float | None:
-        """w (rad/s) when the system is the undamped test equation q'' + w^2 q = 0 (or uncoupled copies of
-        it: hessian(x) = w^2 M at every x, no damping), else None: the damping and stability predictions hold on it."""
-        return None
-
-    @property
-    def length_scale(self) -> float:
-        """The scale of position errors (m): max_i |x0_i|, or 1 when that is 0 or not finite."""
-        scale = float(np.max(np.abs(self.x0))) if self.x0.size else 0.0
-        return scale if math.isfinite(scale) and scale > 0.0 else 1.0
-
-    @property
-    def frame_shape(self) -> tuple[int, ...] | None:
-        """The vertex grid of one stored frame (a frame holds prod(frame_shape) vertices of ``vertex_dim``
-        coordinates), or None when x and v are recorded in every sample instead or the vertices form no grid."""
-        return None
-
-    planar: bool = False  # one body whose motion stays in the x-y plane (its trajectory is drawn as an orbit)
-
-    @functools.cached_property
-    def capabilities(self) -> Capabilities:
-        """What the runner stores about this system with every run, so that figures never test a type name."""
-        frame_shape = self.frame_shape
-        if frame_shape is not None:
-            frame_shape = tuple(int(size) for size in frame_shape)
-            if self.vertex_dim * math.prod(frame_shape) != self.dof_count:
-                raise ValueError(f"{type(self).__name__}.frame_shape {frame_shape} holds {math.prod(frame_shape)} vertices, "
-                                 f"but a frame holds dof_count / vertex_dim = {self.dof_count / self.vertex_dim:g}")
-        test_frequency = self.test_frequency
-        return Capabilities(
-            test_frequency=None if test_frequency is None else float(test_frequency),
-            length_scale=float(self.length_scale),
-            energy_scale=float(self.energy_scale()),
-            frame_shape=frame_shape,
-            planar=bool(self.planar),
-            dof_count=int(self.dof_count),
-            energy_reference_name=self.energy_reference_name,
-            vertex_dim=0 if self.records_state_per_sample else int(self.vertex_dim),
-            oscillator=self.oscillator,
-        )
-
-    def modal_energy(self, energy: np.ndarray, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The oscillator's modal energy at recorded samples (J): energies (samples,), x and v (samples, dofs); the
-        energy itself by default (exact for the undamped test equation, which keeps it)."""
-        return energy
-
-    @property
-    def oscillator(self) -> tuple[float, float] | None:
-        """(w0 rad/s, zeta) when the system is a linear oscillator q'' + 2 zeta w0 q' + w0^2 q = 0 (or uncoupled copies of
-        one), damped or not: the test equation (test_frequency, 0) by default, else None."""
-        frequency = self.test_frequency
-        return None if frequency is None else (float(frequency), 0.0)
 
 
 class SystemParams(BaseModel):

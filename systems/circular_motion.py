@@ -10,6 +10,7 @@ from pydantic import ConfigDict, Field
 
 from .base import System, SystemParams
 from .compliant import anchored_springs
+from .forms import NotOffered, ProjectiveForm
 
 
 class CircularMotionParams(SystemParams):
@@ -132,21 +133,17 @@ class CircularMotion(System):
     def quadratic_potential(self) -> bool:
         return self.linear  # k/2 |x|^2, k > 0; the gravitational law is not quadratic
 
-    @property
     def projective_form(self):
         # the linear law k/2 |x|^2 is a zero-length Hookean spring to the centre
-        return None if self.linear else "the gravitational law -GMm/|x| is not a Hookean spring"
+        if not self.linear:
+            return NotOffered("the gravitational law -GMm/|x| is not a Hookean spring")
+        return ProjectiveForm(rest_stiffness=lambda: self._linear_hessian)
 
-    def rest_stiffness(self):
-        return self._linear_hessian if self.linear else None
-
-    @property
     def compliant_form(self):
         # the linear law m w^2 |x|^2 / 2 is the vector constraint C = x - 0 of compliance 1/(m w^2)
-        return None if self.linear else "the gravitational law -GMm/|x| is not a Hookean spring"
-
-    def compliant_springs(self):
-        return anchored_springs(self.stiffness, 0.0, self.dim) if self.linear else None
+        if not self.linear:
+            return NotOffered("the gravitational law -GMm/|x| is not a Hookean spring")
+        return anchored_springs(self.stiffness, 0.0, self.dim)
 
     energy_reference_name = "|E0| (initial energy)"
 

@@ -12,8 +12,8 @@ grad C . v (their eq. 25). Two kinds of constraint:
 A spring may tie a vertex to a fixed point (an anchor) instead of a second vertex: ``second`` is then
 ``ANCHORED`` and ``anchor`` holds the point.
 
-A system declares its springs with ``System.compliant_springs()`` (None where it has none; then
-``System.compliant_form`` says why, in a few words).
+A system declares its springs as its ``compliant_form()`` (systems/forms.py): a ``CompliantSprings``, or None
+(``NotOffered`` to say why, in a few words) where it has none.
 """
 
 from __future__ import annotations

@@ -37,12 +37,14 @@ class SpringMassLanes:
     quadratic_potential = True
     damping_is_constant = True
     records_state_per_sample = True
-    has_contact = False
     fixed_dofs = np.empty(0, dtype=np.intp)
     sliding = None
     constraints = None
     dof_count = 1
     dim = 1
+
+    def contact_form(self):
+        return None  # no contact
 
     @staticmethod
     def lane_kind(params) -> bool:

@@ -8,16 +8,13 @@ import functools
 
 
 def fresh_copy(system):
-    """A shallow copy of ``system`` without the values its cached properties derived from the whole, nor those the
-    class names in ``derived_caches`` (its vertex block descent sweep, which holds the whole's gravity and terms): a
-    part derives them again from what it keeps."""
+    """A shallow copy of ``system`` without the values its cached properties derived from the whole: a part derives
+    them again from what it keeps (its forms, systems/forms.py, are built for the part itself)."""
     part = copy.copy(system)
     for klass in type(system).__mro__:
         for attribute, value in vars(klass).items():
             if isinstance(value, functools.cached_property):
                 part.__dict__.pop(attribute, None)
-    for attribute in getattr(system, "derived_caches", ()):
-        part.__dict__.pop(attribute, None)
     return part
 
 

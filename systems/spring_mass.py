@@ -11,6 +11,7 @@ from pydantic import ConfigDict, Field, model_validator
 from .base import ParameterDerivative, System, SystemParams
 from .oscillator import DISTINCT_ROOTS, near_critical_states
 from .compliant import anchored_springs
+from .forms import ProjectiveForm
 from .lanes import SpringMassLanes
 
 
@@ -122,18 +123,15 @@ class SpringMass(System):
     def damping_matrix(self, x):
         return self._damping
 
-    # k q^2 / 2 is a zero-length Hookean spring to the origin; D = d is constant
-    projective_form = None
-    damping_is_constant = True
+    damping_is_constant = True  # D = d
     quadratic_potential = True  # k q^2 / 2 with k > 0
 
-    def rest_stiffness(self):
-        return self._hessian
+    def projective_form(self):
+        # k q^2 / 2 is a zero-length Hookean spring to the origin, its rest stiffness the constant Hessian
+        return ProjectiveForm(rest_stiffness=lambda: self._hessian)
 
-    # the same spring as a compliant constraint: C = q - 0 with compliance 1/k, its damper d along it (beta = d)
-    compliant_form = None
-
-    def compliant_springs(self):
+    def compliant_form(self):
+        # the same spring as a compliant constraint: C = q - 0 with compliance 1/k, its damper d along it (beta = d)
         return anchored_springs(self.stiffness, self.damping, dim=1)
 
     def parameter_derivative(self, changed, change):

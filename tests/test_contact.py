@@ -184,7 +184,7 @@ def test_ipc_barrier_derivatives_on_plane_and_sphere():
     system = _build(method="ipc", dhat=FD_DHAT, colliders=IPC_COLLIDERS)
     dt, x = 0.01, START.ravel()
     v = np.random.default_rng(1).uniform(-0.3, 0.3, x.size)
-    system.begin_step(0.0, dt, x)
+    system.contact_form().begin_step(0.0, dt, x)
     problem, _ = step_problem(system, x, v, dt)
     # y: the vertices moved across and along their normals, every distance still in (0, dhat)
     normals = _normals(START)
@@ -205,7 +205,7 @@ def test_ipc_friction_derivatives_sliding_and_sticking():
     system = _build(method="ipc", dhat=FD_DHAT, friction={"mu": 0.4, "epsv": 0.5}, colliders=IPC_COLLIDERS)
     dt, x = 0.01, START.ravel()
     v = np.random.default_rng(2).uniform(-0.3, 0.3, x.size)
-    system.begin_step(0.0, dt, x)
+    system.contact_form().begin_step(0.0, dt, x)
     problem, _ = step_problem(system, x, v, dt)
     assert problem.friction is not None
     epsilon = 0.5 * dt  # epsv dt (m): the sliding speed as a displacement in one step
@@ -232,7 +232,7 @@ def test_penalty_derivatives_with_contact_damping():
     dt = 0.01
     x = np.array([[0.1, 0.2, -0.01], [0.9, 0.0, -0.02], [0.5, -0.3, 0.02], [1.4, 0.0, 0.3], [0.6, 0.2, 0.4]]).ravel()
     v = np.random.default_rng(3).uniform(-0.3, 0.3, x.size)
-    system.begin_step(0.0, dt, x)
+    system.contact_form().begin_step(0.0, dt, x)
     problem, _ = step_problem(system, x, v, dt)
     assert problem.damping is not None and problem.damping.nnz > 0  # contact damping at the two inside vertices
     y = x + np.random.default_rng(4).uniform(-3e-3, 3e-3, x.size)

@@ -91,7 +91,7 @@ def test_consistent_and_lumped_masses_bracket_the_bars_axial_frequency():
             "pinned": "left", "mass": mass}).build()
         free = np.setdiff1d(np.arange(system.dof_count), system.fixed_dofs)
         matrix = mass_matrix(system)[np.ix_(free, free)]
-        values, vectors = scipy.linalg.eigh(system.rest_stiffness().toarray()[np.ix_(free, free)], matrix)
+        values, vectors = scipy.linalg.eigh(system.projective_form().rest_stiffness().toarray()[np.ix_(free, free)], matrix)
         weighted = vectors * (matrix @ vectors)
         axial = int(np.flatnonzero(weighted[free % 3 == 0].sum(axis=0) / weighted.sum(axis=0) > 0.9)[0])
         frequencies[mass] = math.sqrt(values[axial]) / (2 * math.pi)

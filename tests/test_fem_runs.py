@@ -40,7 +40,7 @@ def bar(tmp_path: Path, material: str = "neo_hookean"):
     rest = SYSTEMS["fem"].model_validate(config).build()
     free = np.setdiff1d(np.arange(rest.dof_count), rest.fixed_dofs)
     mass = rest.mass[free]
-    values, vectors = scipy.linalg.eigh(rest.rest_stiffness().toarray()[np.ix_(free, free)], np.diag(mass))
+    values, vectors = scipy.linalg.eigh(rest.projective_form().rest_stiffness().toarray()[np.ix_(free, free)], np.diag(mass))
     weighted = mass[:, None] * vectors ** 2
     first = int(np.flatnonzero(weighted[free % 3 == 0].sum(axis=0) / weighted.sum(axis=0) > 0.9)[0])
     shape = np.zeros(rest.dof_count)

@@ -117,7 +117,7 @@ class DampedChain(System):
     def damping_matrix(self, x):
         return self._damping
 
-    def compliant_springs(self):
+    def compliant_form(self):
         """The quadratic part k e^2/2 as zero-length springs between neighbours, with the relative damping d
         along them (in 1-D, D = d B^T B is -d (v_i - v_j) per edge); the quartic part is left to XPBD's explicit forces."""
         edges = self.dof_count - 1

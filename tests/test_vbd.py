@@ -24,7 +24,8 @@ from simrun.integrators import INTEGRATORS, IncrementalPotential, State
 from simrun.solvers import Newton, VertexBlockDescent, solver_params
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.vbd import ColourPlan
-from simrun.systems import ClothParams, SpringMassParams, System
+from simrun.systems import ClothParams, SpringMassParams
+from simrun.systems.forms import VertexForm
 from simrun.systems.patterns import diagonal_blocks
 from simrun.systems.mass_spring.params import MassSpringParams
 from simrun.systems.mass_spring.laws import SPRING_LAWS
@@ -70,8 +71,8 @@ def deformed(system, seed: int, scale: float) -> np.ndarray:
 @pytest.mark.parametrize("law", sorted(SPRING_LAWS))
 @pytest.mark.parametrize("model", sorted(MODELS))
 def test_mass_spring_blocks_are_the_diagonal_blocks_of_the_gradient_and_hessian(model, law, project_spd):
-    """Per colour: MassSpring.vertex_blocks (the springs at each vertex) equals System.vertex_blocks (rows of the full
-    gradient, diagonal blocks of the full Hessian), and vertex_energy_changes equals P(x + u_i) - P(x)."""
+    """Per colour: MassSpring's vertex form (the springs at each vertex) equals the generic VertexForm (rows of the full
+    gradient, diagonal blocks of the full Hessian), and its energy_changes equals P(x + u_i) - P(x)."""
     system = MassSpringParams(**MODELS[model], spring_law=law).build()
     x = deformed(system, 1, 0.03)
     rng = np.random.default_rng(2)
@@ -79,14 +80,14 @@ def test_mass_spring_blocks_are_the_diagonal_blocks_of_the_gradient_and_hessian(
     touching = sum(int((contact.collider.signed_distance(x.reshape(-1, system.dim)) < 0).sum()) for contact in colliders)
     assert ("contact" in MODELS[model]) == (touching > 0), "the contact models must touch"
     energy = abs(system.potential_energy(x))
-    for colour in system.vertex_colouring():
-        gradient, hessian = system.vertex_blocks(x, colour, project_spd)
-        generic_gradient, generic_hessian = System.vertex_blocks(system, x, colour, project_spd)
+    for colour in system.vertex_form().colouring():
+        gradient, hessian = system.vertex_form().blocks(x, colour, project_spd)
+        generic_gradient, generic_hessian = VertexForm(system).blocks(x, colour, project_spd)
         assert np.abs(gradient - generic_gradient).max() <= BLOCK_TOLERANCE * np.abs(generic_gradient).max()
         assert np.abs(hessian - generic_hessian).max() <= BLOCK_TOLERANCE * np.abs(generic_hessian).max()
         steps = 0.01 * rng.standard_normal((colour.size, system.dim))
-        changes = system.vertex_energy_changes(x, colour, steps)
-        assert np.abs(changes - System.vertex_energy_changes(system, x, colour, steps)).max() <= 1e-12 * energy
+        changes = system.vertex_form().energy_changes(x, colour, steps)
+        assert np.abs(changes - VertexForm(system).energy_changes(x, colour, steps)).max() <= 1e-12 * energy
 
 
 
@@ -96,13 +97,13 @@ def test_the_incidences_of_a_vertex_set_sum_to_each_vertex(isolated):
     or, where a vertex of the set has none (a free particle), through a sparse matrix of ones (reduceat has no empty
     sum). Both give, per vertex, the sum over the springs at it, in their order: checked against a loop."""
     from types import SimpleNamespace
-    from simrun.systems.mass_spring.blocks import VertexBlocks
+    from simrun.systems.mass_spring.blocks import SpringVertexForm
     first, second = np.array([0, 1, 2, 0, 3]), np.array([1, 2, 3, 2, 1])  # vertex 4 has no spring
     system = SimpleNamespace(vertex_count=5, dim=3, first=first, second=second, stiffness=np.arange(1.0, 6.0),
                              rest_length=np.ones(5), rest_length_squared=np.ones(5), identity=np.eye(3),
                              vertex_masses=np.ones(5), gravity=np.zeros(3))
     vertices = np.array([4, 0, 2]) if isolated else np.array([0, 2, 3])
-    part = VertexBlocks(system).incident(vertices)
+    part = SpringVertexForm(system).incident(vertices)
     values = np.random.default_rng(4).standard_normal((part.owner.size, 2))
     expected = np.zeros((vertices.size, 2))
     for incidence, owner in enumerate(part.owner):
@@ -119,11 +120,11 @@ def test_energy_changes_resolve_steps_far_below_the_roundoff_of_p(law):
     matches its second-order model g . u + u^T H u / 2 (error O(|u|^3)) to 1e-6."""
     system = MassSpringParams(**MODELS["grid-3d-contact"], spring_law=law).build()
     x = deformed(system, 3, 0.03)
-    colour = system.vertex_colouring()[0]
+    colour = system.vertex_form().colouring()[0]
     steps = 1e-9 * np.random.default_rng(4).standard_normal((colour.size, system.dim))
-    gradient, hessian = system.vertex_blocks(x, colour)
+    gradient, hessian = system.vertex_form().blocks(x, colour)
     model = np.einsum("ki,ki->k", gradient, steps) + 0.5 * np.einsum("ki,kij,kj->k", steps, hessian, steps)
-    changes = system.vertex_energy_changes(x, colour, steps)
+    changes = system.vertex_form().energy_changes(x, colour, steps)
     assert np.abs(changes - model).max() <= 1e-6 * np.abs(model).max()
 
 
@@ -159,7 +160,7 @@ def test_the_colouring_is_proper_and_covers_every_vertex_once():
     """No spring (so no Hessian or damping block) joins two vertices of a colour; the generic colouring (from the
     Hessian's pattern) is proper too; a greedy colouring needs at most max degree + 1 colours."""
     system = ClothParams(resolution=(7, 6), damping=0.1).build()
-    for colouring in (system.vertex_colouring(), System.vertex_colouring(system)):
+    for colouring in (system.vertex_form().colouring(), VertexForm(system).colouring()):
         assert np.array_equal(np.sort(np.concatenate(colouring)), np.arange(system.vertex_count))
         colour_of = np.empty(system.vertex_count, dtype=int)
         for index, colour in enumerate(colouring):
@@ -168,7 +169,7 @@ def test_the_colouring_is_proper_and_covers_every_vertex_once():
         degree = np.bincount(np.concatenate([system.first, system.second]), minlength=system.vertex_count)
         assert len(colouring) <= degree.max() + 1
     pattern = system.hessian_pattern.toarray() != 0
-    for colour in system.vertex_colouring():
+    for colour in system.vertex_form().colouring():
         dofs = (3 * colour[:, None] + np.arange(3)).ravel()
         coupling = pattern[np.ix_(dofs, dofs)].reshape(colour.size, 3, colour.size, 3).any(axis=(1, 3))
         assert np.array_equal(coupling, np.eye(colour.size, dtype=bool))
@@ -299,13 +300,13 @@ def test_a_colours_sweep_residual_is_the_filtered_gradient_of_its_vertices(path)
     system = constrained_cloth()
     problem, start = backward_euler_problem(system, system.x0, system.v0, 0.02)
     free = free_dofs(system.dof_count, system.fixed_dofs, system.sliding)
-    plans = colour_plans(system.vertex_colouring(), free, 3)
+    plans = colour_plans(system.vertex_form().colouring(), free, 3)
     solver = VertexBlockDescent()
     for plan in plans:
         if path == "numpy":
             _, _, residual = solver._sweep(problem, start, [plan])
         else:
-            _, _, residual = solver._compiled_sweep(start, [plan], system.vertex_sweep(), IncrementalParts.of(problem))
+            _, _, residual = solver._compiled_sweep(start, [plan], system.vertex_form().sweep(), IncrementalParts.of(problem))
         gradient = free.zero_fixed(np.array(problem.gradient(start))).reshape(-1, 3)
         expected = np.abs(gradient[plan.vertices]).max()
         assert expected > 0.0

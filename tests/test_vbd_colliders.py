@@ -237,11 +237,11 @@ def test_the_compiled_sweep_with_colliders_is_the_numpy_sweep(case, projection):
     build, lowered = CASES[case]
     system = build()
     problem, start = dropped(system, lowered)
-    sweep, parts = system.vertex_sweep(), IncrementalParts.of(problem)
+    sweep, parts = system.vertex_form().sweep(), IncrementalParts.of(problem)
     assert sweep is not None and sweep.colliders[0].size == len(system.contact.colliders)
     if case == "cloth-penalty":  # the contact damping k_d n n^T of the vertices inside at x_n
         assert parts.damping_weight > 0.0 and np.any(parts.damping_data != 0.0)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
+    plans = colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
                          system.dim)
     solver = VertexBlockDescent(spd_projection=projection)
     touched = 0
@@ -287,8 +287,8 @@ def test_a_grid_sdf_keeps_the_numpy_sweep():
     model = ContactModel(method="penalty", colliders=[ColliderContact(grid, 1e3)], dim=3, vertex_count=1, dhat=0.1,
                          stiffness=None, damping=0.0, friction=None)
     system = draped_cloth("penalty")
-    assert system.vertex_sweep() is not None
-    assert colliders_of(model, 3) is None and placed(system.vertex_sweep(), model, 3) is None
+    assert system.vertex_form().sweep() is not None
+    assert colliders_of(model, 3) is None and placed(system.vertex_form().sweep(), model, 3) is None
 
 
 def over_a_board(kind: str):
@@ -312,8 +312,8 @@ def test_vbd_never_carries_a_vertex_through_a_thin_board(kind, monkeypatch):
     it would reach, by both sweeps alike; without that cut the same sweep lands vertices under the board."""
     system = over_a_board(kind)
     problem, start = dropped(system, 0.0, speed=6.0, dt=1.0 / 60.0)
-    sweep, parts = system.vertex_sweep(), IncrementalParts.of(problem)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
+    sweep, parts = system.vertex_form().sweep(), IncrementalParts.of(problem)
+    plans = colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
                          system.dim)
     solver = VertexBlockDescent()
     heights = []
@@ -321,6 +321,6 @@ def test_vbd_never_carries_a_vertex_through_a_thin_board(kind, monkeypatch):
         heights.append(y.reshape(-1, 3)[:, 2].min())
         assert system.contact.minimum_distance(y) > 0.0
     assert min(heights) > -0.02 and min(heights) < -0.015, "the vertices come down to the board and stay above it"
-    monkeypatch.setattr(type(system), "vertex_step_fractions", lambda self, x, vertices, steps: None)
+    monkeypatch.setattr(type(system.vertex_form()), "step_fractions", lambda self, x, vertices, steps: None)
     unfiltered, _, _ = solver._sweep(problem, start, plans)
     assert unfiltered.reshape(-1, 3)[:, 2].min() < -0.03, "the sweep without the cut jumps the board"

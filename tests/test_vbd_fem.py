@@ -4,7 +4,7 @@ paths it replaces:
 1. each vertex's block K = n^T A n in closed form equals the contraction of the material's exact tangent A, for every
    energy, in 2-D and 3-D;
 2. the vertex blocks without projection are the diagonal blocks of the full gradient and Hessian (the generic
-   ``System.vertex_blocks``), colliders included; projected, they are the sums of the elements' raw blocks each
+   the generic ``VertexForm``), colliders included; projected, they are the sums of the elements' raw blocks each
    projected by numpy's eigh;
 3. the change of P when one vertex moves is the difference of energies where that is resolved, and the second-order
    model g . s + s^T H s / 2 where the step is far below P's round-off;
@@ -26,7 +26,7 @@ from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.vbd import IncrementalParts, colour_plans
 from simrun.systems import SYSTEMS
-from simrun.systems.base import System
+from simrun.systems.forms import VertexForm
 from simrun.systems.fem import energies, kernels, vbd_kernels
 from simrun.systems.fem.materials import CODES as MATERIALS
 from simrun.systems.fem.system import KEPT_VOLUME
@@ -67,8 +67,8 @@ def test_raw_vertex_blocks_are_the_diagonal_blocks_of_the_gradient_and_hessian(m
     system = fem(model, material, gravity=gravity(model))
     x = deformed(system, 0.04)
     vertices = np.arange(system.vertex_count)
-    gradient, hessian = system.vertex_blocks(x, vertices, False)
-    generic_gradient, generic_hessian = System.vertex_blocks(system, x, vertices, False)
+    gradient, hessian = system.vertex_form().blocks(x, vertices, False)
+    generic_gradient, generic_hessian = VertexForm(system).blocks(x, vertices, False)
     assert relative(gradient, generic_gradient) < 1e-12
     assert relative(hessian, generic_hessian) < 1e-12
 
@@ -82,12 +82,12 @@ def test_colliders_add_their_blocks_as_in_the_full_hessian():
     assert inside.any() and not inside.all()
     vertices = np.arange(system.vertex_count)
     for projection in (False, "clamp"):
-        gradient, hessian = system.vertex_blocks(x, vertices, projection)
-        generic_gradient, generic_hessian = System.vertex_blocks(system, x, vertices, False)
+        gradient, hessian = system.vertex_form().blocks(x, vertices, projection)
+        generic_gradient, generic_hessian = VertexForm(system).blocks(x, vertices, False)
         assert relative(gradient, generic_gradient) < 1e-12
         if not projection:
             assert relative(hessian, generic_hessian) < 1e-12
-    assert system.vertex_sweep().colliders[0].size == 1  # the compiled sweep takes the plane (test_vbd_colliders.py)
+    assert system.vertex_form().sweep().colliders[0].size == 1  # the compiled sweep takes the plane (test_vbd_colliders.py)
 
 
 def element_vertex_blocks(system, x):
@@ -121,7 +121,7 @@ def test_projected_blocks_sum_each_elements_block_projected_by_eigh(model, mater
     projected = np.einsum("ecij,ecj,eckj->ecik", vectors, values, vectors)
     expected = np.zeros((system.vertex_count, system.dim, system.dim))
     np.add.at(expected, system.elements.ravel(), projected.reshape(-1, system.dim, system.dim))
-    _, hessian = system.vertex_blocks(x, np.arange(system.vertex_count), mode)
+    _, hessian = system.vertex_form().blocks(x, np.arange(system.vertex_count), mode)
     assert relative(hessian, expected) < 1e-12
     assert np.all(np.linalg.eigvalsh(hessian) >= -1e-10 * np.abs(hessian).max())
 
@@ -141,8 +141,8 @@ def test_stable_neo_hookean_blocks_are_positive_definite_for_every_deformation(m
     raw = element_vertex_blocks(system, x)
     values = np.linalg.eigvalsh(raw)
     assert np.all(values > 1e-9 * np.abs(values).max())
-    _, projected = system.vertex_blocks(x, np.arange(system.vertex_count), "clamp")
-    _, exact = system.vertex_blocks(x, np.arange(system.vertex_count), False)
+    _, projected = system.vertex_form().blocks(x, np.arange(system.vertex_count), "clamp")
+    _, exact = system.vertex_form().blocks(x, np.arange(system.vertex_count), False)
     np.testing.assert_array_equal(projected, exact)
 
 
@@ -151,13 +151,13 @@ def test_stable_neo_hookean_blocks_are_positive_definite_for_every_deformation(m
 def test_energy_changes_are_differences_and_resolve_steps_below_the_roundoff_of_p(model, material):
     system = fem(model, material, gravity=gravity(model))
     x = deformed(system, 0.03)
-    vertices = system.vertex_colouring()[0]
+    vertices = system.vertex_form().colouring()[0]
     rng = np.random.default_rng(4)
     direction = rng.standard_normal((vertices.size, system.dim))
     energy = system.potential_energy(x)
     # a step of 1 mm: the difference of energies is resolved to ~1e-16 |P| / |dP|
     steps = 1e-3 * direction
-    changes = system.vertex_energy_changes(x, vertices, steps)
+    changes = system.vertex_form().energy_changes(x, vertices, steps)
     for k, vertex in enumerate(vertices):
         moved = x.copy()
         moved[system.dim * vertex:system.dim * vertex + system.dim] += steps[k]
@@ -166,8 +166,8 @@ def test_energy_changes_are_differences_and_resolve_steps_below_the_roundoff_of_
     # a step of 1e-11 m: the change is g . s + s^T H s / 2 to O(|s|^3), where P's differences are off by more than 1e-6
     # of it (the co-rotated energy's change is a difference of its elements' energies: resolved to their round-off)
     steps = 1e-11 * direction
-    changes = system.vertex_energy_changes(x, vertices, steps)
-    gradient, hessian = system.vertex_blocks(x, vertices, False)
+    changes = system.vertex_form().energy_changes(x, vertices, steps)
+    gradient, hessian = system.vertex_form().blocks(x, vertices, False)
     model_changes = np.einsum("ki,ki->k", gradient, steps) + 0.5 * np.einsum("ki,kij,kj->k", steps, hessian, steps)
     assert np.finfo(float).eps * abs(energy) > 1e-6 * np.abs(model_changes).min()
     roundoff = np.finfo(float).eps * abs(energy) if material == "corotated" else 0.0
@@ -178,11 +178,11 @@ def test_energy_changes_are_differences_and_resolve_steps_below_the_roundoff_of_
 def test_the_kept_fraction_is_the_step_filters_for_one_vertex(model):
     system = fem(model, "neo_hookean")
     x = deformed(system, 0.02)
-    vertices = system.vertex_colouring()[0]
+    vertices = system.vertex_form().colouring()[0]
     rng = np.random.default_rng(9)
     extent = float(np.ptp(system.rest, axis=0).max())
     steps = 0.3 * extent * rng.standard_normal((vertices.size, system.dim))  # long enough to flatten some elements
-    fractions = system.vertex_step_fractions(x, vertices, steps)
+    fractions = system.vertex_form().step_fractions(x, vertices, steps)
     assert (fractions < 1.0).any() and (fractions == 1.0).any()
     for k, vertex in enumerate(vertices):
         direction = np.zeros_like(x)
@@ -223,10 +223,10 @@ def test_the_compiled_sweep_is_the_numpy_sweep(model, material, projection):
     system = constrained(model, material)
     assert np.all(system.volume_ratios(squeezed(system)) > 0.0)
     problem, start = thrown(system)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
+    plans = colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
                          system.dim)
     solver = VertexBlockDescent(spd_projection=projection)
-    sweep, parts = system.vertex_sweep(), IncrementalParts.of(problem)
+    sweep, parts = system.vertex_form().sweep(), IncrementalParts.of(problem)
     assert sweep is not None and parts.damping_weight > 0.0
     for y, swept, _ in agreeing_sweeps(solver, problem, start, plans, sweep, parts, 4):
         assert problem.value(swept) <= problem.value(y) * (1 + ENERGY_ROUNDOFF)
@@ -239,7 +239,7 @@ def test_the_sweep_backtracks_and_cuts_steps_from_a_squeezed_start():
     some raise E (halved), so the comparison above exercises both."""
     system = constrained(BOX, "neo_hookean")
     problem, start = thrown(system)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
+    plans = colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
     cut, halved = cut_and_halved(problem, start, plans)
     assert cut > 0 and halved > 0
 
@@ -248,9 +248,9 @@ def test_one_thread_and_two_give_the_same_sweep_bit_for_bit():
     system = fem({"box": {"size": [1.2, 0.2, 0.2], "cells": [24, 4, 4]}}, "stable_neo_hookean",
                  gravity=[0.0, 0.0, -9.81], pinned="left")
     problem, start = step_problem(system, deformed(system, 0.01), np.zeros(system.dof_count), 1.0 / 60.0)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
+    plans = colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
     assert max(plan.vertices.size for plan in plans) > vbd_kernels.CHUNK, "a colour must span several chunks"
-    solver, sweep, parts = VertexBlockDescent(), system.vertex_sweep(), IncrementalParts.of(problem)
+    solver, sweep, parts = VertexBlockDescent(), system.vertex_form().sweep(), IncrementalParts.of(problem)
     results = sweeps_by_thread_count(solver, start, plans, sweep, parts)
     assert np.array_equal(results[0], results[-1])
 

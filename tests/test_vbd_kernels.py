@@ -67,7 +67,7 @@ def sweeps(build, start_state, dt, projection):
     system = build()
     x, v = (system.x0, system.v0) if start_state is None else start_state(system)
     problem, start = step_problem(system, x, v, dt)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
+    plans = colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding),
                          system.dim)
     solver = VertexBlockDescent(spd_projection=projection)
     return system, problem, start, plans, solver
@@ -77,7 +77,7 @@ def sweeps(build, start_state, dt, projection):
 @pytest.mark.parametrize("build, start_state, dt, backtracks", list(_cases()))
 def test_the_compiled_sweep_is_the_numpy_sweep(build, start_state, dt, backtracks, projection):
     system, problem, start, plans, solver = sweeps(build, start_state, dt, projection)
-    sweep = system.vertex_sweep()
+    sweep = system.vertex_form().sweep()
     assert sweep is not None
     parts = IncrementalParts.of(problem)
     assert (parts.damping_weight > 0.0) == (problem.damping is not None)
@@ -91,9 +91,9 @@ def test_one_thread_and_two_give_the_same_sweep_bit_for_bit():
     system = ClothParams(resolution=(24, 24), mass=1.0, stretch_stiffness=1e4, shear_stiffness=1e3, bend_stiffness=10.0,
                          damping=0.2, pinned=["top_left", "top_right"]).build()
     problem, start = step_problem(system, *stretched_cloth_state(system), 1.0 / 60.0)
-    plans = colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
+    plans = colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
     assert max(plan.vertices.size for plan in plans) > 64, "a colour must span several chunks"
-    solver, sweep, parts = VertexBlockDescent(), system.vertex_sweep(), IncrementalParts.of(problem)
+    solver, sweep, parts = VertexBlockDescent(), system.vertex_form().sweep(), IncrementalParts.of(problem)
     results = sweeps_by_thread_count(solver, start, plans, sweep, parts)
     assert np.array_equal(results[0], results[-1])
 

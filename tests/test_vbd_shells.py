@@ -4,7 +4,7 @@ replaces:
 1. a triangle's vertex block in closed form is membrane.py's exact tangent A contracted with the shape gradient, for
    every membrane energy; a hinge's angle derivatives in one vertex are the blocks of bending.py's theta_z, theta_zz;
 2. the vertex blocks without projection are the diagonal blocks of the full gradient and Hessian (the generic
-   ``System.vertex_blocks``), gravity and a collider included; projected, they are the sums of each triangle's and each
+   the generic ``VertexForm``), gravity and a collider included; projected, they are the sums of each triangle's and each
    hinge's raw block projected by numpy's eigh;
 3. the change of P when one vertex moves is the difference of energies where that is resolved, and the second-order
    model g . s + s^T H s / 2 where the step is far below P's round-off;
@@ -27,7 +27,7 @@ from simrun.solvers.dofs import free_dofs
 from simrun.solvers.line_search import ENERGY_ROUNDOFF
 from simrun.solvers.vbd import IncrementalParts, colour_plans
 from simrun.systems import SYSTEMS
-from simrun.systems.base import System
+from simrun.systems.forms import VertexForm
 from simrun.systems.fem import bending, membrane, shell_terms, shell_vbd_kernels
 from simrun.systems.fem.materials import CODES as MATERIALS
 from simrun.systems.fem.system import KEPT_VOLUME
@@ -101,8 +101,8 @@ def test_raw_vertex_blocks_are_the_diagonal_blocks_of_the_gradient_and_hessian(m
     inside = np.linalg.norm(x.reshape(-1, 3) - [0.5, 0.4, -0.3], axis=1) < 0.35
     assert inside.any() and not inside.all()
     vertices = np.arange(system.vertex_count)
-    gradient, hessian = system.vertex_blocks(x, vertices, False)
-    generic_gradient, generic_hessian = System.vertex_blocks(system, x, vertices, False)
+    gradient, hessian = system.vertex_form().blocks(x, vertices, False)
+    generic_gradient, generic_hessian = VertexForm(system).blocks(x, vertices, False)
     assert relative(gradient, generic_gradient) < 1e-12
     assert relative(hessian, generic_hessian) < 1e-12
 
@@ -133,7 +133,7 @@ def test_projected_blocks_sum_each_terms_block_projected_by_eigh(material, mode)
         assert (values < -1e-9 * np.abs(values).max()).any(), "some blocks must be indefinite"
         values = np.maximum(values, 0.0) if mode == "clamp" else np.abs(values)
         np.add.at(expected, owners.ravel(), np.einsum("ecij,ecj,eckj->ecik", vectors, values, vectors).reshape(-1, 3, 3))
-    _, hessian = system.vertex_blocks(x, np.arange(system.vertex_count), mode)
+    _, hessian = system.vertex_form().blocks(x, np.arange(system.vertex_count), mode)
     assert relative(hessian, expected) < 1e-11
     assert np.all(np.linalg.eigvalsh(hessian) >= -1e-10 * np.abs(hessian).max())
 
@@ -143,11 +143,11 @@ def test_projected_blocks_sum_each_terms_block_projected_by_eigh(material, mode)
 def test_energy_changes_are_differences_and_resolve_steps_below_the_roundoff_of_p(material):
     system = shell(material, 1.0e-2)
     x = crumpled(system)
-    vertices = system.vertex_colouring()[0]
+    vertices = system.vertex_form().colouring()[0]
     direction = np.random.default_rng(4).standard_normal((vertices.size, 3))
     energy = system.potential_energy(x)
     steps = 1e-3 * direction
-    changes = system.vertex_energy_changes(x, vertices, steps)
+    changes = system.vertex_form().energy_changes(x, vertices, steps)
     for k, vertex in enumerate(vertices):
         moved = x.copy()
         moved[3 * vertex:3 * vertex + 3] += steps[k]
@@ -156,8 +156,8 @@ def test_energy_changes_are_differences_and_resolve_steps_below_the_roundoff_of_
     # a step of 1e-11 m: the change is g . s + s^T H s / 2 to O(|s|^3), where P's differences are off by more than 1e-6
     # of it; the hinges' change is k_h (theta' - theta)(...), theta' - theta resolved to atan2's round-off eps |theta|
     steps = 1e-11 * direction
-    changes = system.vertex_energy_changes(x, vertices, steps)
-    gradient, hessian = system.vertex_blocks(x, vertices, False)
+    changes = system.vertex_form().energy_changes(x, vertices, steps)
+    gradient, hessian = system.vertex_form().blocks(x, vertices, False)
     model_changes = np.einsum("ki,ki->k", gradient, steps) + 0.5 * np.einsum("ki,kij,kj->k", steps, hessian, steps)
     assert np.finfo(float).eps * abs(energy) > 1e-6 * np.abs(model_changes).min()
     angles = bending.rest_angles(x, system.hinges) - system.rest_angles
@@ -169,10 +169,10 @@ def test_energy_changes_are_differences_and_resolve_steps_below_the_roundoff_of_
 def test_the_kept_fraction_is_the_area_filters_for_one_vertex():
     system = shell("neo_hookean")
     x = crumpled(system, 0.01)
-    vertices = system.vertex_colouring()[0]
+    vertices = system.vertex_form().colouring()[0]
     # in the sheet's plane (a move across it adds area) and long enough to collapse triangles
     steps = 0.4 * np.random.default_rng(9).standard_normal((vertices.size, 3)) * [1.0, 1.0, 0.0]
-    fractions = system.vertex_step_fractions(x, vertices, steps)
+    fractions = system.vertex_form().step_fractions(x, vertices, steps)
     assert (fractions < 1.0).any() and (fractions == 1.0).any()
     for k, vertex in enumerate(vertices):
         direction = np.zeros_like(x)
@@ -204,14 +204,14 @@ def thrown(system, dt=0.05):
 
 
 def plans_of(system):
-    return colour_plans(system.vertex_colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
+    return colour_plans(system.vertex_form().colouring(), free_dofs(system.dof_count, system.fixed_dofs, system.sliding), 3)
 
 
 def test_no_two_vertices_of_a_colour_share_a_triangle_or_a_hinge():
     """What the sweep's parallel steps rely on: the hinges' wings are coupled, two triangles apart."""
     system = shell()
     colour_of = np.empty(system.vertex_count, dtype=int)
-    for number, colour in enumerate(system.vertex_colouring()):
+    for number, colour in enumerate(system.vertex_form().colouring()):
         colour_of[colour] = number
     for group in (system.elements, system.hinges):
         colours = colour_of[group]
@@ -224,7 +224,7 @@ def test_the_compiled_sweep_is_the_numpy_sweep(material, projection):
     system = constrained(material)
     problem, start = thrown(system)
     solver = VertexBlockDescent(spd_projection=projection)
-    sweep, parts = system.vertex_sweep(), IncrementalParts.of(problem)
+    sweep, parts = system.vertex_form().sweep(), IncrementalParts.of(problem)
     assert sweep is not None and sweep.colliders[0].size == 1 and parts.damping_weight > 0.0
     # by the fourth sweep St. Venant-Kirchhoff's finite energy has let a triangle be squeezed to 6e-4 of its area, and
     # its corners' blocks have a condition of 5e4: LAPACK's solve in the numpy sweep and the compiled elimination part
@@ -250,7 +250,7 @@ def test_one_thread_and_two_give_the_same_sweep_bit_for_bit():
     problem, start = step_problem(system, crumpled(system, 0.005), np.zeros(system.dof_count), 1.0 / 60.0)
     plans = plans_of(system)
     assert max(plan.vertices.size for plan in plans) > shell_vbd_kernels.CHUNK, "a colour must span several chunks"
-    solver, sweep, parts = VertexBlockDescent(), system.vertex_sweep(), IncrementalParts.of(problem)
+    solver, sweep, parts = VertexBlockDescent(), system.vertex_form().sweep(), IncrementalParts.of(problem)
     results = sweeps_by_thread_count(solver, start, plans, sweep, parts)
     assert np.array_equal(results[0], results[-1])
 
@@ -287,19 +287,19 @@ def test_a_part_with_the_hinges_alone_sweeps_its_own_terms():
     system = shell("stvk", 1.0e-2)
     x = crumpled(system)
     vertices = np.arange(system.vertex_count)
-    whole = system.vertex_sweep()
+    whole = system.vertex_form().sweep()
     bending_part = system.with_terms(["bending"])
     rest_part = system.with_terms(["bending"], complement=True)
-    assert bending_part.vertex_sweep() is not whole and bending_part.vertex_sweep().membrane == 0
-    assert len(rest_part.vertex_sweep().hinges) == 0
+    assert bending_part.vertex_form().sweep() is not whole and bending_part.vertex_form().sweep().membrane == 0
+    assert len(rest_part.vertex_form().sweep().hinges) == 0
     for part in (bending_part, rest_part):
-        gradient, hessian = part.vertex_blocks(x, vertices, False)
-        generic_gradient, generic_hessian = System.vertex_blocks(part, x, vertices, False)
+        gradient, hessian = part.vertex_form().blocks(x, vertices, False)
+        generic_gradient, generic_hessian = VertexForm(part).blocks(x, vertices, False)
         assert relative(gradient, generic_gradient) < 1e-12
         assert relative(hessian, generic_hessian) < 1e-12
-    total, _ = system.vertex_blocks(x, vertices, False)
-    np.testing.assert_allclose(bending_part.vertex_blocks(x, vertices, False)[0]
-                               + rest_part.vertex_blocks(x, vertices, False)[0], total, atol=1e-12 * np.abs(total).max())
+    total, _ = system.vertex_form().blocks(x, vertices, False)
+    np.testing.assert_allclose(bending_part.vertex_form().blocks(x, vertices, False)[0]
+                               + rest_part.vertex_form().blocks(x, vertices, False)[0], total, atol=1e-12 * np.abs(total).max())
 
 
 @pytest.mark.parametrize("mode", [1, 2])

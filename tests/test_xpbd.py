@@ -86,7 +86,7 @@ class TwoParticlesOnASpring(System):
     """Two particles (masses m1, m2) in 3-D joined by one spring of rest length l0 > 0, stiffness k and damper
     beta along it, no other force: the distance constraint C = |x_1 - x_2| - l0 (test-local)."""
 
-    dim, dof_count, compliant_form = 3, 6, None
+    dim, dof_count = 3, 6
 
     def __init__(self, m1, m2, stiffness, beta, rest_length):
         self.mass = np.repeat([m1, m2], 3).astype(float)
@@ -94,7 +94,7 @@ class TwoParticlesOnASpring(System):
                                         rest_length=np.array([rest_length]), stiffness=np.array([stiffness]),
                                         damping=np.array([beta]), vertex_count=2, other_forces=False)
 
-    def compliant_springs(self):
+    def compliant_form(self):
         return self.springs
 
     def potential_energy(self, x):
@@ -288,9 +288,7 @@ class SlidingAnchoredParticle(System):
     def damping_matrix(self, x):
         return self.beta * np.eye(2) if self.beta > 0 else None
 
-    compliant_form = None
-
-    def compliant_springs(self):
+    def compliant_form(self):
         return CompliantSprings(first=np.zeros(1, np.intp), second=np.full(1, ANCHORED, np.intp), anchor=self.anchor[None],
                                 rest_length=np.zeros(1), stiffness=np.array([self.stiffness]), damping=np.array([self.beta]),
                                 vertex_count=1, other_forces=False)
@@ -332,8 +330,8 @@ def test_declared_springs_are_the_whole_force_and_energy(name):
     """Where a system's springs (and dampers) are all its forces, f_springs(x, v) = f(x, v) and the springs'
     energy = P(x), at a random state (no gravity, no pins: nothing else acts)."""
     system = validate_system(DECLARING[name]).build()
-    springs = system.compliant_springs()
-    assert system.compliant_form is None and not springs.other_forces
+    springs = system.compliant_form()
+    assert springs and not springs.other_forces
     rng = np.random.default_rng(7)
     x = system.x0 + 0.05 * rng.standard_normal(system.dof_count)
     v = rng.standard_normal(system.dof_count)
@@ -347,7 +345,7 @@ def test_forces_that_are_not_springs_are_flagged():
     base = {"type": "mass_spring", "model": {"rope": {"count": 4, "length": 1.0}}, "stiffness": 300.0, "gravity": [0.0, 0.0, 0.0]}
     for extra in ({"damping": [{"model": "relative", "coefficient": 0.1}]}, {"damping": [{"model": "drag", "coefficient": 0.1}]},
                   {"contact": {"ground": {"height": -5.0, "stiffness": 1e3}}}):
-        assert validate_system({**base, **extra}).build().compliant_springs().other_forces, extra
+        assert validate_system({**base, **extra}).build().compliant_form().other_forces, extra
 
 
 @pytest.mark.parametrize("system, reason", [
@@ -368,7 +366,7 @@ def test_a_system_without_compliant_springs_is_refused_in_one_line(system, reaso
 def test_the_colouring_separates_springs_that_share_a_vertex():
     """Every spring in exactly one colour, no vertex twice in a colour, at most 2 Delta - 1 colours (greedy)."""
     system = yaml.safe_load((CONFIGS / "cloth_hang.yaml").read_text())["system"]
-    springs = validate_system(system).build().compliant_springs()
+    springs = validate_system(system).build().compliant_form()
     colours = springs.colours
     assert np.array_equal(np.sort(np.concatenate(colours)), np.arange(springs.spring_count))
     for colour in colours:

@@ -36,6 +36,7 @@ from simrun.solvers import solver_params
 from simrun.systems import SpringMassParams
 from simrun.systems.base import System
 from simrun.systems.compliant import ANCHORED, CompliantSprings
+from simrun.systems.forms import ProjectiveForm
 from simrun.systems.lanes import SpringMassLanes
 
 # The probe's Newton solves a linear problem in one iteration; the tight tolerance only makes the
@@ -196,12 +197,11 @@ class SpringBank(System):
     def hessian(self, x, project_spd=False):
         return self._hessian  # constant and SPD
 
-    def rest_stiffness(self):
-        return self._hessian
+    def projective_form(self):
+        # zero-length Hookean springs to the origin, their rest stiffness the constant Hessian
+        return ProjectiveForm(rest_stiffness=lambda: self._hessian)
 
-    compliant_form = None
-
-    def compliant_springs(self):
+    def compliant_form(self):
         """Spring i as a zero-length spring from vertex i to the origin (what XPBD projects)."""
         count = self.dof_count
         return CompliantSprings(first=np.arange(count), second=np.full(count, ANCHORED, dtype=np.intp),

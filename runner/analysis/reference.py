@@ -203,7 +203,7 @@ def reference_errors(results: Results, reference: str, say=None) -> ReferenceErr
             if say:
                 say(f"reference solution failed ({error}); no convergence figure for these runs")
             continue
-        if system.has_contact:
+        if system.contact_form():
             # IPC's barrier is a potential of the step and friction one of the methods' velocity maps, which no ODE
             # holds; a penalty is a force, but one whose derivative jumps where a vertex touches: an explicit
             # reference crawls through every landing (hours for a stiff penalty cloth), and no method keeps its

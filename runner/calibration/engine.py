@@ -102,9 +102,9 @@ def step_run(system, integrator: Integrator, solver, dt: float, steps: int, dofs
     xs, vs = np.full((steps + 1, q), np.nan), np.full((steps + 1, q), np.nan)
     dxs = dvs = None
     state = State(0.0, system.x0.copy(), system.v0.copy())
-    with_contact = system.has_contact
+    with_contact = bool(system.contact_form())
     if with_contact:
-        system.begin_run(dt, state.x)
+        system.contact_form().begin_run(dt, state.x)
     moving = moving_dofs(system)
     release_times = list(system.constraints.release_times) if system.constraints is not None else []
     state = integrator.start(system, state)
@@ -117,8 +117,8 @@ def step_run(system, integrator: Integrator, solver, dt: float, steps: int, dofs
     diverged = 0
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for n in range(steps):
-            if with_contact:
-                system.begin_step(dt * n, dt, state.x)
+            if with_contact:  # the system as released so far
+                system.contact_form().begin_step(dt * n, dt, state.x)
             if sensitivity is None:
                 state, _ = integrator.step(system, state, dt, solver)
             else:

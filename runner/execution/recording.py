@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 
+from simrun.systems.forms import has_friction
+
 from .measures import moving_dofs
 
 # a step-controlled run's rows at first where their count is not known ahead (doubled when full)
@@ -29,7 +31,7 @@ class Recorder:
         self.with_work = moving_dofs(system).size > 0
         if self.with_work:
             columns.append(("prescribed_work", ()))
-        self.with_friction = getattr(system, "has_friction", False)
+        self.with_friction = has_friction(system)
         if self.with_friction:
             columns.append(("friction_dissipated", ()))
         if self.with_state:

@@ -49,8 +49,9 @@ class FixedSteps:
         """Step n + 1 from t = n dt: the colliders moved to its end first; the loop owns t (no accumulated
         round-off, whatever state.t says)."""
         n = self.steps
-        if system.has_contact:  # colliders move to the step's end; IPC's stiffness is estimated and updated
-            system.begin_step(self.dt * n, self.dt, state.x)
+        contact = system.contact_form()
+        if contact:  # colliders move to the step's end; IPC's stiffness is estimated and updated
+            contact.begin_step(self.dt * n, self.dt, state.x)
         state, stats = step(system, state, self.dt, solver)
         self.steps = n + 1
         self.t = self.dt * self.steps
@@ -112,8 +113,9 @@ class ControlledSteps:
 
         def prepare(t: float, size: float, x) -> None:
             """Before each try: the colliders move to its end (the system as released so far)."""
-            if system.has_contact:
-                system.begin_step(t, size, x)
+            contact = system.contact_form()
+            if contact:
+                contact.begin_step(t, size, x)
 
         while True:
             size = controller.step_size(system, state)

@@ -43,7 +43,7 @@ def simulate(run: Run) -> RunResult:
     recorder = Recorder(system, schedule.sample_rows, schedule.frame_rows)
     error_state = None  # (t, x, v) at the end of the step where the run's error is measured
     with_frames = not system.records_state_per_sample
-    with_contact = system.has_contact
+    with_contact = bool(system.contact_form())
     # per step, for a sparse system's direct solves: the furthest path a factorisation took (1 + its index in
     # FACTORISATION_PATHS; 0: none), and per run the count of each
     factorisations = attach_factorisation_log(solver) if system.hessian_pattern is not None else None
@@ -56,7 +56,7 @@ def simulate(run: Run) -> RunResult:
 
     state = State(0.0, system.x0.copy(), system.v0.copy())
     if with_contact:  # IPC's barrier stiffness (auto) before anything evaluates the energy
-        system.begin_run(schedule.first_size(system, state), state.x)
+        system.contact_form().begin_run(schedule.first_size(system, state), state.x)
     energy0 = system.total_energy(state.x, state.v)
     energy_bound = run.divergence.energy_factor * system.energy_scale()
     dissipated = 0.0  # work of the physical damping forces so far (J), for the energy budget
@@ -109,7 +109,7 @@ def simulate(run: Run) -> RunResult:
                 if factorisations is not None:
                     log.put(row, factorisation_path=factorisations.take_step())
                 if with_contact:
-                    distance, active, lost = system.contact_record(previous.x, state.x, state.v, dt)
+                    distance, active, lost = system.contact_form().record(previous.x, state.x, state.v, dt)
                     log.put(row, contact_distance=distance, active_contacts=active, friction_work=lost)
                     friction += lost
                 if moving.size:  # the prescribed vertices where their paths are at t, and the work they did

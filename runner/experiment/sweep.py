@@ -23,6 +23,7 @@ from simrun.experiment.step_control import estimate_refusal
 from simrun.integrators import Integrator
 from simrun.integrators.labels import parameter_text
 from simrun.solvers import SOLVERS, SOLVER_PARAMS, NonlinearSolver, SolverParams
+from simrun.systems.forms import contact_needs_step_filter
 
 # A sweep bigger than this is almost certainly a typo in a logspace/linspace count.
 MAX_RUNS = 100_000
@@ -207,7 +208,7 @@ def _check_method_fits(resolved: Experiment, integrator: Integrator, systems: di
     reason = integrator.refusal(systems[key])
     if reason is not None:
         raise ConfigError(f"integrators: {integrator.label}: {reason}")
-    if systems[key].contact_needs_step_filter and kind != "newton_step":
+    if contact_needs_step_filter(systems[key]) and kind != "newton_step":
         for member in chain:
             if not type(member).filters_steps:
                 raise ConfigError(f"solver.type: {member.name} takes steps without a line search, which IPC contact needs "

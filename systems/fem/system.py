@@ -19,12 +19,13 @@ import scipy.sparse
 
 from ..base import System, vertex_energy_reference
 from ..constraints import VertexConstraints
-from ..contact.hooks import ContactHooks
+from ..contact.hooks import WithContact
 from ..contact.model import ContactModel
+from ..forms import NotOffered, ProjectiveForm, kept_form
 from . import bending, kernels, membrane, split
 from .materials import CODES, MATERIALS
 from .mesh import SimplexMesh
-from .vertex import FemSweep, ShellSweep
+from .vertex import FemVertexForm
 
 # Every line search keeps each element above this fraction of its volume at the search's start, as the course code's
 # init_step_size does: the neo-Hookean energy is infinite at J <= 0, and an element pushed through zero volume
@@ -33,7 +34,7 @@ KEPT_VOLUME = 0.1
 PROJECTIONS = {False: 0, True: 1, "clamp": 1, "abs": 2}  # project_spd -> the kernels' mode
 
 
-class Fem(ContactHooks, System):
+class Fem(WithContact, System):
     """A hyperelastic solid of triangles (2-D) or tetrahedra (3-D): see the module docstring.
 
     Parameters (as resolved from a mesh and a config by params.py): mesh: a validated SimplexMesh; material: a
@@ -47,7 +48,6 @@ class Fem(ContactHooks, System):
 
     records_state_per_sample = False  # positions go to `frames`
     requires_step_filter = True  # every line search keeps the elements' volumes (max_step)
-    derived_caches = ("_fem_sweep",)  # the vertex sweep of the whole (split_parts.fresh_copy drops it in a part)
 
     def __init__(self, *, mesh: SimplexMesh, material: str, mu: np.ndarray, lam: np.ndarray,
                  youngs_modulus: np.ndarray, poisson_ratio: np.ndarray, masses: np.ndarray, gravity: np.ndarray,
@@ -281,15 +281,6 @@ class Fem(ContactHooks, System):
     def damping_is_constant(self) -> bool:
         return not (self.contact is not None and self.contact.is_damped)
 
-    def rest_stiffness(self):
-        """K_r, the matrix of projective dynamics' global step and L-BFGS's initial Hessian: for the as-rigid-as-possible
-        energy (``projective_form`` None) projective dynamics' own sum_e 2 mu_e V_e B_e^T B_e, B_e = dF_e/dx (Bouaziz
-        et al. 2014), whose block (a, b) is 2 mu V (g_a . g_b) I; for every other energy the elastic Hessian at the
-        rest shape, linear elasticity's stiffness matrix (which Rayleigh damping takes in every case)."""
-        if self.projective_form is None:
-            return self.pattern_matrix(self._projective_stiffness.copy())
-        return self.pattern_matrix(self._rest_stiffness.copy())
-
     @functools.cached_property
     def _projective_stiffness(self) -> np.ndarray:
         """Projective dynamics' sum_e 2 mu_e V_e B_e^T B_e as the pattern's data."""
@@ -302,12 +293,24 @@ class Fem(ContactHooks, System):
         kernels.scatter_blocks(np.ascontiguousarray(blocks), self._positions, data)
         return data
 
-    @property
-    def projective_form(self) -> str | None:
-        """None for the as-rigid-as-possible energy, the co-rotated one with lambda = 0 (nu = 0): mu ||F - R||^2 =
-        (w/2) dist(F, SO(d))^2 with w = 2 mu, projective dynamics' own element constraint (Bouaziz et al. 2014),
-        whose local step is the polar rotation. Its solver's step y - A^-1 grad E is then exactly its local-global
-        step. Every other energy, a bending term or contact: the reason."""
+    def projective_form(self) -> ProjectiveForm:
+        """K_r, the matrix of projective dynamics' global step and L-BFGS's initial Hessian: for the as-rigid-as-possible
+        energy projective dynamics' own sum_e 2 mu_e V_e B_e^T B_e, B_e = dF_e/dx (Bouaziz et al. 2014), whose block
+        (a, b) is 2 mu V (g_a . g_b) I; for every other energy the elastic Hessian at the rest shape, linear
+        elasticity's stiffness matrix (which Rayleigh damping takes in every case).
+
+        Exact for the as-rigid-as-possible energy, the co-rotated one with lambda = 0 (nu = 0): mu ||F - R||^2 =
+        (w/2) dist(F, SO(d))^2 with w = 2 mu, projective dynamics' own element constraint, whose local step is the
+        polar rotation. Its solver's step y - A^-1 grad E is then exactly its local-global step. Every other energy,
+        a bending term or contact: the reason."""
+        inexact = self._projective_inexact()
+
+        def rest_stiffness():
+            return self.pattern_matrix((self._rest_stiffness if inexact else self._projective_stiffness).copy())
+
+        return ProjectiveForm(rest_stiffness=rest_stiffness, inexact=inexact)
+
+    def _projective_inexact(self) -> str | None:
         rigid = MATERIALS[self.material].as_rigid_as_possible
         if not rigid or np.any(self.lam != 0.0):
             return ("projective dynamics' element constraint is the distance of F to the rotations: the co-rotated "
@@ -321,12 +324,8 @@ class Fem(ContactHooks, System):
             return "contact is not an element constraint"
         return None
 
-    @property
-    def compliant_form(self) -> str | None:
-        return "finite elements are not springs: XPBD's element constraints are not built for them"
-
-    def compliant_springs(self):
-        return None
+    def compliant_form(self) -> NotOffered:
+        return NotOffered("finite elements are not springs: XPBD's element constraints are not built for them")
 
     # -- calibration: exact forward sensitivities (integrators/sensitivity.py) ---------------------------
     def parameter_derivative(self, changed: "Fem", change: float):
@@ -390,54 +389,8 @@ class Fem(ContactHooks, System):
         return split.with_terms(self, names, complement)
 
     # -- for vertex block descent: only the elements at each vertex (vertex.py, vbd_kernels.py) --------------
-    def _element_sweep(self):
-        """The elements at each vertex (vertex.py: ``FemSweep`` of a solid, ``ShellSweep`` of a shell's triangles and
-        hinges), or None where the generic blocks serve: a solid's IMEX part without its elements."""
-        if not (self.is_shell or self.includes_elements):
-            return None
-        cached = self.__dict__.get("_fem_sweep")
-        if cached is None or cached.source_mu is not self.mu or cached.source_lam is not self.lam:
-            sweep = ShellSweep if self.is_shell else FemSweep
-            cached = self.__dict__["_fem_sweep"] = sweep.of(self, KEPT_VOLUME)
-        return cached
-
-    def vertex_blocks(self, x, vertices, project_spd=False):
-        """The elements' blocks at each vertex, each element's projected on its own (vbd_kernels.py), gravity, and the
-        colliders' blocks."""
-        sweep = self._element_sweep()
-        if sweep is None:
-            return super().vertex_blocks(x, vertices, project_spd)
-        gradient, hessian = sweep.blocks(x, vertices, project_spd)
-        if self.contact is not None:  # the colliders act on each vertex alone
-            self.contact.point_terms(x.reshape(-1, self.dim)[vertices], gradient, hessian, project_spd)
-        return gradient, hessian
-
-    def vertex_energy_changes(self, x, vertices, steps):
-        sweep = self._element_sweep()
-        if sweep is None:
-            return super().vertex_energy_changes(x, vertices, steps)
-        changes, _ = sweep.changes(x, vertices, steps)
-        if self.contact is not None:
-            changes += self.contact.point_energy_changes(x.reshape(-1, self.dim)[vertices], steps)
-        return changes
-
-    def vertex_step_fractions(self, x, vertices, steps):
-        """The largest fraction of each vertex's step that keeps its elements above KEPT_VOLUME of their volume (the
-        step filter of ``max_step``, exact for one vertex: J is linear in its position) and stops short of the
-        colliders under IPC (ContactHooks)."""
-        colliders = super().vertex_step_fractions(x, vertices, steps)
-        sweep = self._element_sweep()
-        if sweep is None:
-            return colliders
-        kept = sweep.changes(x, vertices, steps)[1]
-        return kept if colliders is None else np.minimum(kept, colliders)
-
-    def vertex_sweep(self):
-        """The elements and the colliders, where they stand now, for vertex block descent's compiled colour sweep;
-        None where ``_element_sweep`` is None or a collider has no compiled form (contact/point_kernels.py)."""
-        from ..contact.point_kernels import placed
-
-        return placed(self._element_sweep(), self.contact, self.dim)
+    def vertex_form(self) -> FemVertexForm:
+        return kept_form(self, "_vertex_form", lambda system: FemVertexForm(system, KEPT_VOLUME))
 
     # -- vertices on prescribed paths -----------------------------------------------------------
     def acceleration(self, x, v):

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..forms import VertexForm
 from .materials import MATERIALS
 
 
@@ -184,3 +185,67 @@ def _incidences(groups: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.n
     group, corner = np.divmod(order, groups.shape[1])
     indptr = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=vertex_count))]).astype(np.uint64)
     return indptr, group, corner
+
+
+class FemVertexForm(VertexForm):
+    """A finite-element system's vertex form (systems/forms.py): each vertex's elements (``FemSweep`` of a solid,
+    ``ShellSweep`` of a shell's triangles and hinges), gravity and the colliders; the generic form where the elements
+    are not the system's (a solid's IMEX part without its elements). ``kept_volume``: the fraction of each element's
+    volume that the step filter keeps."""
+
+    def __init__(self, system, kept_volume: float):
+        super().__init__(system)
+        self.kept_volume = kept_volume
+        self._sweep = None
+
+    def element_sweep(self):
+        """The elements at each vertex, or None where the generic blocks serve; taken again when the system's moduli
+        are new arrays (a calibration's changed system)."""
+        system = self.system
+        if not (system.is_shell or system.includes_elements):
+            return None
+        sweep = self._sweep
+        if sweep is None or sweep.source_mu is not system.mu or sweep.source_lam is not system.lam:
+            sweep = self._sweep = (ShellSweep if system.is_shell else FemSweep).of(system, self.kept_volume)
+        return sweep
+
+    def blocks(self, x, vertices, project_spd=False):
+        """The elements' blocks at each vertex, each element's projected on its own (vbd_kernels.py), gravity, and the
+        colliders' blocks."""
+        sweep = self.element_sweep()
+        if sweep is None:
+            return super().blocks(x, vertices, project_spd)
+        gradient, hessian = sweep.blocks(x, vertices, project_spd)
+        contact = self.system.contact
+        if contact is not None:  # the colliders act on each vertex alone
+            contact.point_terms(x.reshape(-1, self.system.dim)[vertices], gradient, hessian, project_spd)
+        return gradient, hessian
+
+    def energy_changes(self, x, vertices, steps):
+        sweep = self.element_sweep()
+        if sweep is None:
+            return super().energy_changes(x, vertices, steps)
+        changes, _ = sweep.changes(x, vertices, steps)
+        contact = self.system.contact
+        if contact is not None:
+            changes += contact.point_energy_changes(x.reshape(-1, self.system.dim)[vertices], steps)
+        return changes
+
+    def step_fractions(self, x, vertices, steps):
+        """The largest fraction of each vertex's step that keeps its elements above ``kept_volume`` of their volume
+        (the step filter of ``max_step``, exact for one vertex: J is linear in its position) and stops short of the
+        colliders under IPC (contact/hooks.py)."""
+        contact = self.system.contact_form()
+        colliders = None if contact is None else contact.point_step_fractions(x, vertices, steps)
+        sweep = self.element_sweep()
+        if sweep is None:
+            return colliders
+        kept = sweep.changes(x, vertices, steps)[1]
+        return kept if colliders is None else np.minimum(kept, colliders)
+
+    def sweep(self):
+        """The elements and the colliders, where they stand now, for vertex block descent's compiled colour sweep;
+        None where ``element_sweep`` is None or a collider has no compiled form (contact/point_kernels.py)."""
+        from ..contact.point_kernels import placed
+
+        return placed(self.element_sweep(), self.system.contact, self.system.dim)

@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse
 
+from ..forms import VertexForm
 from ..patterns import colour_vertices
 from .laws import SpringGeometry
 
@@ -51,13 +52,14 @@ class IncidentSprings:
     gravity_force: np.ndarray
 
 
-class VertexBlocks:
-    """Gradient and Hessian blocks and local energies of a MassSpring, vertex by vertex (see the module docstring)."""
+class SpringVertexForm(VertexForm):
+    """Gradient and Hessian blocks and local energies of a MassSpring, vertex by vertex (see the module docstring):
+    its vertex form (systems/forms.py)."""
 
     def __init__(self, system):
-        self.system = system
+        super().__init__(system)
         self._kept: dict[bytes, IncidentSprings] = {}
-        self._colouring: list[np.ndarray] | None = None
+        self._sweep: SpringSweep | None = None
 
     def colouring(self) -> list[np.ndarray]:
         """A greedy colouring of the spring graph: the vertices of a colour share no spring (every term of P that
@@ -66,6 +68,22 @@ class VertexBlocks:
             system = self.system
             self._colouring = colour_vertices(system.vertex_count, np.stack([system.first, system.second], axis=1))
         return self._colouring
+
+    def step_fractions(self, x: np.ndarray, vertices: np.ndarray, steps: np.ndarray) -> np.ndarray | None:
+        """IPC's step filter for each vertex moving alone: contact/hooks.py ``ContactForm.point_step_fractions``."""
+        contact = self.system.contact_form()
+        return None if contact is None else contact.point_step_fractions(x, vertices, steps)
+
+    def sweep(self):
+        """The springs (``SpringSweep``) and the colliders, where they stand now, for vertex block descent's compiled
+        colour sweep; None where a collider has no compiled form (contact/point_kernels.py ``placed``: the numpy
+        blocks take them)."""
+        from ..contact.point_kernels import placed
+
+        system = self.system
+        if self._sweep is None or self._sweep.stiffness is not system.stiffness:
+            self._sweep = SpringSweep.of(system)
+        return placed(self._sweep, system.contact, system.dim)
 
     def incident(self, vertices: np.ndarray) -> IncidentSprings:
         """The incidences of ``vertices`` (found once per set)."""

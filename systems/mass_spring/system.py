@@ -23,13 +23,14 @@ from ..base import System, vertex_energy_reference
 from . import derivatives, kernels, split
 from ..compliant import CompliantSprings
 from ..constraints import VertexConstraints
-from ..contact.hooks import ContactHooks
+from ..contact.hooks import WithContact
 from ..contact.model import ContactModel
-from .blocks import SpringSweep, VertexBlocks
+from ..forms import NotOffered, ProjectiveForm, kept_form
+from .blocks import SpringVertexForm
 from .laws import SPRING_LAWS, Damping, HookeanLaw, SpringGeometry
 
 
-class MassSpring(ContactHooks, System):
+class MassSpring(WithContact, System):
     """Point masses joined by springs, in 2-D or 3-D: see the module docstring.
 
     Parameters (arrays as resolved from a model and a config; systems/mass_spring/params.py builds them):
@@ -41,7 +42,6 @@ class MassSpring(ContactHooks, System):
     """
 
     records_state_per_sample = False  # positions go to `frames`, at their own cadence
-    derived_caches = ("_vertex_sweep",)  # the vertex sweep of the whole (split_parts.fresh_copy drops it in a part)
 
     def __init__(self, *, rest: np.ndarray, x0: np.ndarray, v0: np.ndarray, springs: np.ndarray, stiffness: np.ndarray,
                  rest_length: np.ndarray, masses: np.ndarray, gravity: np.ndarray, law: str = "hookean",
@@ -289,39 +289,34 @@ class MassSpring(ContactHooks, System):
             self.contact.add_vertex_hessian(vertex_block, x, project_spd)
         return self._spring_hessian_data(geometry, project_spd, vertex_block)
 
-    # -- for projective dynamics, L-BFGS's rest-shape Hessian and VBD's initial guess ------------------
-    def rest_stiffness(self):
-        """sum_e kappa_e (L_e kron I_d), kappa_e = the law's stiffness along the spring at rest, in the Hessian's pattern."""
+    # -- the solver families' forms (systems/forms.py) -------------------------------------------------
+    def projective_form(self) -> ProjectiveForm:
+        """K_r = sum_e kappa_e (L_e kron I_d), kappa_e the law's stiffness along the spring at rest, in the Hessian's
+        pattern; exact for Hookean springs without contact (spring damping too: D(x) is taken once per step, so A is
+        refactorised per step)."""
+        inexact = None
+        if self.law is not HookeanLaw:
+            inexact = f"spring_law {self.law.name} is not Hookean"
+        elif self.contact is not None:
+            inexact = "contact is not a spring of fixed rest length"
+        return ProjectiveForm(rest_stiffness=self._rest_stiffness, inexact=inexact)
+
+    def _rest_stiffness(self):
         kappa = self.law.rest_factor * self.stiffness
         return self.pattern_matrix(self._scatter_blocks(kappa[:, None, None] * self.identity))
-
-    @property
-    def projective_form(self) -> str | None:
-        if self.law is not HookeanLaw:
-            return f"spring_law {self.law.name} is not Hookean"
-        if self.contact is not None:
-            return "contact is not a spring of fixed rest length"
-        return None  # spring damping too: D(x) is taken once per step, so A is refactorised per step
 
     @property
     def damping_is_constant(self) -> bool:
         return not any(term.model == "spring" for term in self.damping_terms) and not (
             self.contact is not None and self.contact.is_damped)  # contact damping acts where a vertex touches
 
-    # -- for XPBD ------------------------------------------------------------------------------
-    @property
-    def compliant_form(self) -> str | None:
-        if self.law is not HookeanLaw:
-            return f"spring_law {self.law.name} is not a Hookean spring (XPBD needs k/2 (L - l0)^2)"
-        return None
-
-    def compliant_springs(self) -> CompliantSprings | None:
+    def compliant_form(self) -> CompliantSprings | NotOffered:
         """The springs as distance constraints |x_i - x_j| - l0 of compliance 1/k, with the ``spring`` damping
-        model's coefficient as the damper along each (beta); None for a law that is not Hookean. The other damping
-        models (relative, drag, rayleigh) and penalty contact are not springs of this kind: ``other_forces`` says
-        they exist, and XPBD applies them explicitly, as f(x, v) minus the springs' force."""
-        if self.compliant_form is not None:
-            return None
+        model's coefficient as the damper along each (beta). The other damping models (relative, drag, rayleigh) and
+        penalty contact are not springs of this kind: ``other_forces`` says they exist, and XPBD applies them
+        explicitly, as f(x, v) minus the springs' force."""
+        if self.law is not HookeanLaw:
+            return NotOffered(f"spring_law {self.law.name} is not a Hookean spring (XPBD needs k/2 (L - l0)^2)")
         along = sum(term.coefficient for term in self.damping_terms if term.model == "spring")
         other = (any(term.model != "spring" for term in self.damping_terms)
                  or self.contact is not None)
@@ -330,7 +325,11 @@ class MassSpring(ContactHooks, System):
                                 damping=np.full(self.spring_count, float(along)), vertex_count=self.vertex_count,
                                 other_forces=bool(other))
 
-    # -- contact: the hooks are ContactHooks' (systems/contact/hooks.py); systems/contact/model.py does the work ------
+    def vertex_form(self) -> SpringVertexForm:
+        """Only the springs at each vertex (blocks.py), and the colliders."""
+        return kept_form(self, "_vertex_form", SpringVertexForm)
+
+    # -- contact: contact_form() is WithContact's (systems/contact/hooks.py); systems/contact/model.py does the work --
     @property
     def requires_step_filter(self) -> bool:
         return self.contact is not None and self.contact.requires_step_filter
@@ -342,31 +341,6 @@ class MassSpring(ContactHooks, System):
         """dP/dx without contact (N): what IPC's stiffness estimate balances the barrier against."""
         geometry = self._springs(x)
         return self._spring_gradient(geometry) - self._gravity_force
-
-    # -- for vertex block descent: only the springs at each vertex (blocks.py) ------------------------
-    @functools.cached_property
-    def _vertex_blocks(self):
-        return VertexBlocks(self)
-
-    def vertex_blocks(self, x, vertices, project_spd=False):
-        return self._vertex_blocks.blocks(x, vertices, project_spd)
-
-    def vertex_energy_changes(self, x, vertices, steps):
-        return self._vertex_blocks.energy_changes(x, vertices, steps)
-
-    def vertex_colouring(self):
-        return self._vertex_blocks.colouring()
-
-    def vertex_sweep(self):
-        """The springs (blocks.py ``SpringSweep``) and the colliders, where they stand now, for vertex block descent's
-        compiled colour sweep; None where a collider has no compiled form (contact/point_kernels.py ``placed``: the
-        numpy blocks take them)."""
-        from ..contact.point_kernels import placed
-
-        cached = self.__dict__.get("_vertex_sweep")
-        if cached is None or cached.stiffness is not self.stiffness:
-            cached = self.__dict__["_vertex_sweep"] = SpringSweep.of(self)
-        return placed(cached, self.contact, self.dim)
 
     def parameter_derivative(self, changed, change):
         return derivatives.parameter_derivative(self, changed, change)

@@ -42,7 +42,7 @@ class Material:
       dispatch's ``singular_hessian`` and ``pair_eigenvalues``) or "never_needed" (its tangent is PSD at every F).
     - defined_where_inverted: False where psi is infinite at J <= 0 (no line search accepts such a state).
     - as_rigid_as_possible: whether it is projective dynamics' element constraint where lambda = 0 (system.py's
-      ``projective_form``).
+      ``projective_form()``).
     - lame_parameters: (mu, lambda, dim) -> the (mu, lambda) its kernels take, from the Lame parameters.
     - rest_volume_term: (mu, lambda, dim) -> the per-element constant its vertex terms take (``alpha`` of the
       sweeps), or None (zeros).
