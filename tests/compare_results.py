@@ -97,6 +97,8 @@ def differences(old_path: Path, new_path: Path, aliases=()) -> list[str]:
                         found.append(f"{where}: columns {a.dtype.names} != {b.dtype.names}")
                         return
                     values_a, values_b = values_a[kept], values_b[kept]
+                    if "run_id" in kept:  # rows in the order the runs finished: compared run by run
+                        values_a, values_b = (np.sort(values, order="run_id") for values in (values_a, values_b))
                 elif a.dtype.names:  # a lane chunk's table: its wall times left out
                     kept = [field for field in a.dtype.names if field not in VOLATILE_ATTRIBUTES]
                     if set(a.dtype.names) != set(b.dtype.names):

@@ -37,3 +37,20 @@ def test_paths_of_two_checkouts_are_one_through_aliases(tmp_path):
     old, new = tmp_path / "a.h5", tmp_path / "b.h5"
     assert len(differences(old, new)) == 1
     assert differences(old, new, aliases=[("/old/checkout", "/new/checkout")]) == []
+
+
+def test_summary_rows_are_compared_run_by_run_whatever_order_the_runs_finished_in(tmp_path):
+    simrun.run(TINY, output=tmp_path / "a", jobs=1, progress=False, figures=False)
+    old = tmp_path / "a" / "results.h5"
+    new = tmp_path / "b.h5"
+    new.write_bytes(old.read_bytes())
+    with h5py.File(new, "r+") as file:
+        rows = file["summary"][()]
+        file["summary"][...] = rows[::-1]
+        assert rows["run_id"][0] != rows["run_id"][-1]
+    assert differences(old, new) == []
+    with h5py.File(new, "r+") as file:
+        rows = file["summary"][()]
+        rows["steps"][0] += 1
+        file["summary"][...] = rows
+    assert any("summary: dataset differs" in line for line in differences(old, new))
