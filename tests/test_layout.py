@@ -25,6 +25,7 @@ PACKAGES = {"runner": "simrun", "systems": "simrun.systems", "integrators": "sim
 STAGE_RANKS = {
     "errors": 0, "version": 0, "systems": 0, "integrators": 0, "solvers": 0,  # the library, and what all share
     "experiment": 1,  # the config's models and loading, the sweep expanded into runs
+    "contracts": 1,  # the library's contracts as checks: they step a system with an integrator and a solver
     "format": 2,  # the results file's rows and names, which the stepping code, writer and readers share
     "execution": 3,  # simulate, lanes, executors, workers
     "results": 4,  # the file on disk: writer, reader, lane chunks, fits, older formats, the output lock
