@@ -26,7 +26,8 @@ from ..constraints import VertexConstraints
 from ..contact.hooks import ContactHooks
 from ..contact.model import ContactModel
 from .blocks import SpringSweep, VertexBlocks
-from .laws import SPRING_LAWS, Damping, HookeanLaw, SpringGeometry
+from ..vertex.damping import Damping
+from .laws import SPRING_LAWS, HookeanLaw, SpringGeometry
 
 
 class MassSpring(ContactHooks, System):
