@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from simrun.systems.mass_spring.files import save_npz
-from simrun.systems.mass_spring.generators import GridModel, SquareModel, grid_quads
+from simrun.systems.mass_spring.generators import SquareModel
+from simrun.systems.vertex.grids import GridModel, grid_quads
+from simrun.systems.vertex.model_files import save_npz
 
 FOLDER = Path(__file__).resolve().parent
 

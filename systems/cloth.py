@@ -10,13 +10,13 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
 from .base import System, SystemParams
 from .constraints import VertexConstraints
-from .mass_spring.files import file_digest, find_file
-from .mass_spring.generators import GridModel
-from .mass_spring.model import ModelError
 from .contact.build import build_contact
 from .contact.params import ContactSpec
-from .mass_spring.laws import Damping
 from .mass_spring.system import MassSpring
+from .vertex.damping import Damping
+from .vertex.errors import ModelError
+from .vertex.files import file_digest, find_file
+from .vertex.grids import GridModel
 
 PIN_NAMES = ("top_left", "top_right", "bottom_left", "bottom_right", "top", "bottom", "left", "right")
 

@@ -162,7 +162,7 @@ def test_uniaxial_stress_at_small_strain_is_plane_stress_elasticity(material):
 
 def test_the_grid_is_the_cloths_grid():
     """{grid} gives the mass-spring cloth's vertices (row by row along x) and triangles, and its vertex names."""
-    from simrun.systems.mass_spring.generators import GridModel
+    from simrun.systems.vertex.grids import GridModel
 
     system = shell(model={"grid": {"resolution": [4, 3], "size": [1.5, 1.0], "height": 0.2}})
     grid = GridModel(resolution=(4, 3), size=(1.5, 1.0), height=0.2).build()

@@ -29,7 +29,7 @@ from simrun.experiment.config import load_experiment
 from simrun.experiment.sweep import expand_runs
 from simrun.integrators import INTEGRATORS, State
 from simrun.systems.constraints import VertexConstraints
-from simrun.systems.mass_spring.laws import Damping
+from simrun.systems.vertex.damping import Damping
 from simrun.systems.mass_spring.system import MassSpring
 from test_integrators import TIGHT_SOLVER, imex_radius, spectral_radius
 

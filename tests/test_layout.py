@@ -4,7 +4,8 @@ Data flows config -> runs -> simulate -> store -> results -> analysis -> figures
 (docs/architecture.md). Each stage folder of runner/ has a rank in that order; a module may import its own
 stage and earlier ones, never a later one. Every import counts: at the top, inside a function, under
 ``TYPE_CHECKING``. The library packages (systems/, integrators/, solvers/) rank below every stage of the runner,
-beside ``errors`` and ``version``. The parse reads the source tree, not the installed package, so a module that
+beside ``errors`` and ``version``; inside the library, ``LIBRARY_RANKS`` and ``SYSTEMS_RANKS`` order the packages and
+the parts of systems/ the same way. The parse reads the source tree, not the installed package, so a module that
 could not even be imported is still checked.
 """
 
@@ -25,6 +26,7 @@ PACKAGES = {"runner": "simrun", "systems": "simrun.systems", "integrators": "sim
 STAGE_RANKS = {
     "errors": 0, "version": 0, "systems": 0, "integrators": 0, "solvers": 0,  # the library, and what all share
     "experiment": 1,  # the config's models and loading, the sweep expanded into runs
+    "contracts": 1,  # the library's contracts as checks: they step a system with an integrator and a solver
     "format": 2,  # the results file's rows and names, which the stepping code, writer and readers share
     "execution": 3,  # simulate, lanes, executors, workers
     "results": 4,  # the file on disk: writer, reader, lane chunks, fits, older formats, the output lock
@@ -37,6 +39,22 @@ STAGE_RANKS = {
     "cli": 11, "__main__": 11, "__init__": 11,  # the package face and the dispatch
 }
 MAX_ROOT_MODULES = 8
+# The library's packages in the order they build on each other. A module imports its own part of the library and
+# lower ranks only, so that two parts of one rank never import each other.
+LIBRARY_RANKS = {
+    "systems": 0,  # the mechanics: a system knows no solver and no integrator
+    "solvers": 1,  # minimise (or zero) any problem that offers value, gradient and Hessian; never see dt
+    "integrators": 2,  # a step: predictor, a solver's minimisation, the update
+}
+# The parts of systems/, by the same rule: a subpackage, the top-level modules, or the registry.
+SYSTEMS_RANKS = {
+    "modules": 0,  # the top-level modules: the System contract, patterns, constraints, compiled helpers, small systems
+    "vertex": 1,  # what every system of vertices shares: model files, the grid, selectors, start state, constraints
+    "contact": 2,  # contact of vertices with colliders and with themselves, for any system of vertices
+    "mass_spring": 3, "fem": 3,  # the systems of vertices, each on its own: neither imports the other
+    "registry": 4,  # SYSTEMS (simrun.systems), the cloth (a MassSpring), plugins (names resolved in SYSTEMS)
+}
+REGISTRY_MODULES = ("simrun.systems", "simrun.systems.cloth", "simrun.systems.plugins")
 
 
 def package_modules(root: Path = REPOSITORY) -> dict[str, tuple[Path, bool]]:
@@ -110,6 +128,44 @@ def rank_violations(graph: dict[str, dict[str, int]]) -> list[str]:
     return found
 
 
+def library_part(module: str, packages: set[str]) -> tuple[str, tuple[int, int]]:
+    """(part, rank) of a module of the library: ``solvers``, ``integrators``, or ``systems/<part>`` (a subpackage of
+    systems/, ``modules`` for its top-level modules, ``registry``); the rank orders by LIBRARY_RANKS first and then,
+    inside systems/, by SYSTEMS_RANKS. ``packages``: the names of the packages (a top-level module is not one)."""
+    package = stage_of(module)
+    if package != "systems":
+        return package, (LIBRARY_RANKS[package], 0)
+    parts = module.split(".")
+    if module in REGISTRY_MODULES:
+        part = "registry"
+    elif ".".join(parts[:3]) in packages:
+        part = parts[2]
+    else:
+        part = "modules"
+    return f"systems/{part}", (LIBRARY_RANKS["systems"], SYSTEMS_RANKS[part])
+
+
+def library_violations(graph: dict[str, dict[str, int]], root: Path = REPOSITORY) -> list[str]:
+    """Every import inside the library of a higher rank, or of another part of the same rank, as
+    "file:line: importer (part, rank) imports module (part, rank)"."""
+    modules = package_modules(root)
+    packages = {name for name, (_, is_package) in modules.items() if is_package}
+    found = []
+    for importer, imported in sorted(graph.items()):
+        if stage_of(importer) not in LIBRARY_RANKS:
+            continue
+        part, rank = library_part(importer, packages)
+        for target, line in sorted(imported.items()):
+            if stage_of(target) not in LIBRARY_RANKS:
+                continue
+            target_part, target_rank = library_part(target, packages)
+            if target_rank > rank or (target_rank == rank and target_part != part):
+                file = modules[importer][0].relative_to(root)
+                found.append(f"{file}:{line}: {importer} ({part}, rank {rank}) imports {target} "
+                             f"({target_part}, rank {target_rank})")
+    return found
+
+
 def import_cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
     """The strongly connected components of more than one module (Tarjan), each sorted."""
     index: dict[str, int] = {}
@@ -157,6 +213,27 @@ def test_imports_run_one_way():
     assert not violations, "imports against the flow:\n" + "\n".join(violations)
 
 
+def test_every_part_of_the_library_has_a_rank():
+    """A new package of the library, or a new folder of systems/, must be given its rank before anything imports it."""
+    modules = package_modules()
+    packages = {name for name, (_, is_package) in modules.items() if is_package}
+    unranked = set()
+    for module in modules:
+        if stage_of(module) in LIBRARY_RANKS:
+            try:
+                library_part(module, packages)
+            except KeyError as error:
+                unranked.add(str(error))
+    assert not unranked, f"parts of the library without a rank in LIBRARY_RANKS or SYSTEMS_RANKS: {sorted(unranked)}"
+
+
+def test_the_library_imports_run_by_rank():
+    """systems < solvers < integrators, and inside systems/ the parts of SYSTEMS_RANKS: no module imports a higher
+    rank or another part of its own rank (lazy and TYPE_CHECKING imports included)."""
+    violations = library_violations(import_graph())
+    assert not violations, "imports against the library's ranks:\n" + "\n".join(violations)
+
+
 def test_no_import_cycles():
     """No import cycle anywhere in runner/, systems/, integrators/ or solvers/, within a stage or across."""
     cycles = import_cycles(import_graph())
@@ -197,6 +274,28 @@ def _tree_with(tmp_path: Path, module: str, source: str) -> Path:
 def test_an_import_against_the_flow_is_found(tmp_path, module, source, expected):
     violations = rank_violations(import_graph(_tree_with(tmp_path, module, source)))
     assert len(violations) == 1 and violations[0].startswith(expected), violations
+
+
+@pytest.mark.parametrize(("module", "source", "target"), [
+    ("systems/fem/params.py", "from ..mass_spring import params\n",
+     "simrun.systems.mass_spring.params"),  # one system of vertices on the other
+    ("systems/patterns.py", "from simrun.integrators import INTEGRATORS\n", "simrun.integrators"),  # a system on a step
+    ("systems/vertex/selectors.py", "def f():\n    from ..contact.params import ContactSpec\n",
+     "simrun.systems.contact.params"),  # the shared vertex code on contact, lazily
+    ("systems/contact/model.py",
+     "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ..fem.system import Fem\n",
+     "simrun.systems.fem.system"),  # contact on a system of vertices, under TYPE_CHECKING
+    ("solvers/newton.py", "from simrun.integrators.base import Integrator\n",
+     "simrun.integrators.base"),  # a solver on a step
+])
+def test_an_import_against_the_library_ranks_is_found(tmp_path, module, source, target):
+    """The one planted import is reported, with the file and the line it is on."""
+    tree = _tree_with(tmp_path, module, source)
+    planted = source.splitlines()[-1].strip()
+    line = 1 + [text.strip() for text in (tree / module).read_text().splitlines()].index(planted)
+    violations = library_violations(import_graph(tree), tree)
+    assert len(violations) == 1, violations
+    assert violations[0].startswith(f"{module}:{line}: ") and f" imports {target} (" in violations[0], violations
 
 
 @pytest.mark.parametrize(("module", "source", "expected"), [

@@ -30,9 +30,10 @@ from simrun.integrators import INTEGRATORS, IncrementalPotential
 from simrun.solvers.dofs import free_dofs
 from simrun.solvers.linear import LINEAR_SOLVERS, MPCG_STARTS, ModifiedPCG
 from simrun.solvers.params import SOLVERS
-from simrun.systems.mass_spring.generators import GridModel, grid_quads
+from simrun.systems.mass_spring.laws import SPRING_LAWS
 from simrun.systems.mass_spring.params import MassSpringParams
-from simrun.systems.mass_spring.laws import DAMPING_MODELS, SPRING_LAWS
+from simrun.systems.vertex.damping import DAMPING_MODELS
+from simrun.systems.vertex.grids import GridModel, grid_quads
 
 
 def build(**config):

@@ -23,7 +23,7 @@ from simrun.systems.fem import energies, membrane, projection
 from simrun.systems.fem.materials import CODES, MATERIALS, energy_parameters, lame, shell_materials
 from simrun.systems.fem.system import KEPT_VOLUME
 from simrun.systems.fem.vertex import FemSweep, ShellSweep
-from simrun.systems.mass_spring.model import ModelError
+from simrun.systems.vertex.errors import ModelError
 
 STEP = 1e-4  # the central differences' step, in F (dimensionless) or in x (m, on unit-sized meshes)
 EPS = np.finfo(float).eps

@@ -11,9 +11,9 @@ import warnings
 import numpy as np
 import pytest
 
-from simrun.systems.mass_spring.files import load_model_file
-from simrun.systems.mass_spring.model import ModelError, ModelWarning
 from simrun.systems.mass_spring.params import MassSpringParams
+from simrun.systems.vertex.errors import ModelError, ModelWarning
+from simrun.systems.vertex.model_files import load_model_file
 
 # an octahedron: 6 vertices, 8 triangles, 12 edges
 OCTAHEDRON_VERTICES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from simrun.systems.cloth import PIN_NAMES, grid_springs
-from simrun.systems.mass_spring.files import MESH_KINDS, load_model_file, lumped_area_masses, mesh_springs, save_npz
-from simrun.systems.mass_spring.generators import (MODEL_GENERATORS, FileModel, GridModel, RopeModel, SquareModel,
-                                                   grid_quads, model_source)
-from simrun.systems.mass_spring.model import ModelError
+from simrun.systems.mass_spring.generators import MODEL_GENERATORS, FileModel, RopeModel, SquareModel, model_source
+from simrun.systems.vertex.errors import ModelError
+from simrun.systems.vertex.grids import GridModel, grid_quads
+from simrun.systems.vertex.model_files import MESH_KINDS, load_model_file, lumped_area_masses, mesh_springs, save_npz
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 GRID_AS_MESH = {"stretch_x": "stretch", "stretch_y": "stretch", "shear": "shear", "bend_x": "bend", "bend_y": "bend"}

@@ -29,7 +29,7 @@ from simrun.execution.simulate import simulate
 from simrun.experiment.config import load_experiment
 from simrun.experiment.sweep import config_hash, expand_runs
 from simrun.systems import plugins
-from simrun.systems.contract import CHECKS, run_checks
+from simrun.contracts.system import CHECKS, run_checks
 
 PLUGIN_FOLDER = Path(__file__).parent / "plugins"
 SITE = PLUGIN_FOLDER / "site"  # a fake installed distribution, simrun-demo-plugin 0.1, with entry points

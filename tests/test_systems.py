@@ -2,7 +2,7 @@
 ``simrun.systems.SYSTEMS``, the installed plug-ins (entry points ``simrun.systems``) and the example plug-ins of
 tests/plugins: a new system is checked here as soon as it is registered.
 
-The checks themselves are ``simrun.systems.contract`` (so that ``simrun check-system`` runs the same ones for a
+The checks themselves are ``simrun.contracts.system`` (so that ``simrun check-system`` runs the same ones for a
 user): each is asserted here for every system. Each system is tried at the small instances of ``EXAMPLES``; a
 system without an entry there is tried at its default parameters. The state x = x0 + 0.05 L z (L =
 length_scale, z ~ N(0, I), seeded) is generic: no symmetry of x0 hides a wrong sign or a missing term.
@@ -26,7 +26,7 @@ from simrun.execution.measures import moving_dofs, on_paths
 from simrun.execution.simulate import simulate
 from simrun.integrators import State
 from simrun.systems import SYSTEMS, Capabilities, System, SystemParams, plugins
-from simrun.systems.contract import CHECKS, ROUND_OFF, check_params, generic_state, held_dofs, max_abs, stable_dt
+from simrun.contracts.system import CHECKS, ROUND_OFF, check_params, generic_state, held_dofs, max_abs, stable_dt
 
 PLUGIN_FOLDER = Path(__file__).parent / "plugins"  # the example plug-ins (the one of docs/systems.md among them)
 
@@ -156,7 +156,7 @@ def test_the_registry_maps_config_names_to_params_models_of_their_system_class(n
     assert params_model.system_class.records_state_per_sample == system.records_state_per_sample
 
 
-# -- the contract (systems/contract.py) ------------------------------------------------------------------
+# -- the contract (runner/contracts/system.py) ------------------------------------------------------------------
 @pytest.mark.parametrize("name", NAMES)
 def test_every_name_resolves_to_a_params_model_that_builds_its_system_class(name):
     """plugins.resolve(name) is a SystemParams with a `type` field that keeps the name as written, and its
@@ -171,7 +171,7 @@ def test_every_name_resolves_to_a_params_model_that_builds_its_system_class(name
 @pytest.mark.parametrize("check", list(CHECKS))
 @pytest.mark.parametrize("name, params", CASES)
 def test_the_system_meets_the_contract(name, params, check):
-    """Each clause of the contract, as systems/contract.py measures it (its docstrings give the formulas and
+    """Each clause of the contract, as runner/contracts/system.py measures it (its docstrings give the formulas and
     tolerances): shapes of the state, the gradient and the Hessian against central differences (relative
     1e-6), the SPD projection, the Hessian pattern, damping D = D^T >= 0, forces zero on fixed dofs, the
     observables and their layout, the capabilities, the test frequency, the energy reference, a short run.

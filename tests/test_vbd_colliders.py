@@ -32,7 +32,7 @@ from simrun.systems.contact.model import ContactModel
 from simrun.systems.contact.point_kernels import colliders_of, point_blocks, point_moves
 from simrun.systems.contact.pose import ColliderContact
 from simrun.systems.fem.params import FemParams
-from simrun.systems.mass_spring.vbd_kernels import PROJECTION_CODES
+from simrun.systems.vertex.kernel_arguments import PROJECTION_CODES
 
 SHAPES = {
     "plane": {"normal": [0.3, -0.2, 1.0], "point": [0.0, 0.0, -0.2]},

@@ -30,7 +30,7 @@ def add_parser(commands) -> None:
 def handle(args) -> int:
     from simrun.errors import ConfigError
     from simrun.experiment.config import apply_override, validate_system
-    from simrun.systems.contract import run_checks
+    from simrun.contracts.system import run_checks
 
     raw = {"system": {"type": args.system}}
     for assignment in args.overrides:

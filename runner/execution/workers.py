@@ -71,7 +71,7 @@ def _start_worker(threads: int, owner: int) -> None:
     # stops the workers); a worker that took it too would die with a traceback of its own
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # what loading a model mended was said once, when the config was validated: not again by every worker
-    from simrun.systems.mass_spring.model import ModelWarning
+    from simrun.systems.vertex.errors import ModelWarning
 
     warnings.simplefilter("ignore", ModelWarning)
     _limit_blas_threads(threads)

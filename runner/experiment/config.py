@@ -29,7 +29,7 @@ from simrun.experiment.step_control import StepControlParams
 from simrun.integrators import INTEGRATORS, PEERS, Integrator
 from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
 from simrun.systems import SystemParams, plugins
-from simrun.systems.mass_spring.params import SEARCH_FOLDERS as MODEL_SEARCH_FOLDERS
+from simrun.systems.vertex.files import SEARCH_FOLDERS as MODEL_SEARCH_FOLDERS
 
 # A config's errors reported at once, one line each: enough to fix a file in one go, few enough to read.
 MAX_REPORTED_ERRORS = 5

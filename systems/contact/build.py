@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..mass_spring.model import ModelError
+from ..vertex.errors import ModelError
 from .colliders import build_collider, load_grid_sdf
 from .model import ColliderContact, ContactModel
 from .params import DEFAULT_PENALTY_STIFFNESS, ContactSpec

@@ -20,6 +20,8 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from ..vertex.fields import ConstantRotation
+
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -45,16 +47,6 @@ class SphereContact(BaseModel):
     center: Vector = Field(description="centre (m), in the model's dimension")
     radius: Positive = Field(description="radius (m)")
     stiffness: Positive = Field(1.0e4, description="penalty stiffness (N/m)")
-
-
-class ConstantRotation(BaseModel):
-    """A rotation at a constant rate about an axis through ``center``: of prescribed vertices, or of a collider
-    (whose centre moves with its velocity)."""
-
-    model_config = ConfigDict(extra="forbid")
-    center: Vector = Field(description="a point on the axis (m), at t = 0")
-    axis: Vector = Field([0.0, 0.0, 1.0], description="rotation axis (3 components; 2-D ones turn about z)")
-    rate: Finite = Field(description="angular velocity (deg/s)")
 
 
 class _MovingShape(BaseModel):

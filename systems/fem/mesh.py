@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from ..mass_spring.generators import Finite, GridCount, GridModel, Positive
-from ..mass_spring.model import ModelError
+from ..vertex.errors import ModelError
+from ..vertex.fields import Finite, Positive
+from ..vertex.grids import GridCount, GridModel
 
 
 
@@ -57,7 +58,7 @@ class SimplexMesh:
     def element_count(self) -> int:
         return int(self.elements.shape[0])
 
-    # the attributes the vertex selectors and constraints of mass_spring read (mass_spring/assemble.py)
+    # the attributes the vertex selectors and constraints read (systems/vertex/selectors.py, constraint_config.py)
     triangles = None
 
     def rest_volumes(self) -> np.ndarray:
@@ -252,8 +253,8 @@ class SquareMesh(BaseModel):
 
 
 class GridMesh(BaseModel):
-    """The cloth's grid as a shell: the triangles of mass_spring's ``{grid}`` (and the ``cloth`` system's), vertex for
-    vertex and with its vertex names (top_left, ..., left, right), flat at z = height."""
+    """The cloth's grid as a shell: the triangles of ``{grid}`` (systems/vertex/grids.py, mass_spring's and the ``cloth``
+    system's), vertex for vertex and with its vertex names (top_left, ..., left, right), flat at z = height."""
 
     model_config = ConfigDict(extra="forbid")
     resolution: tuple[GridCount, GridCount] = Field((32, 32), description="vertices along x and y")
@@ -313,8 +314,8 @@ def read_mesh_file(path: Path, shell: bool = False) -> SimplexMesh:
 
 
 class TetrahedralizedSurface(BaseModel):
-    """A closed triangle surface (any file mass_spring reads: OBJ, STL, PLY, ...) filled with tetrahedra of about
-    ``edge_length`` by fTetWild, cached by the surface's sha256 (tetrahedralize.py)."""
+    """A closed triangle surface (any model file that systems/vertex/model_files.py reads: OBJ, STL, PLY, ...) filled
+    with tetrahedra of about ``edge_length`` by fTetWild, cached by the surface's sha256 (tetrahedralize.py)."""
 
     model_config = ConfigDict(extra="forbid")
     surface: Path = Field(description="a closed (watertight) triangle surface file")

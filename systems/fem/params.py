@@ -2,8 +2,8 @@
 contact; everything that depends on the mesh is checked when the config is loaded (one line naming the field).
 
 The keys shared with `mass_spring` mean what they mean there: ``gravity``, ``initial``, ``pinned``, ``constraints``,
-``prescribed``, ``contact`` and the Rayleigh and drag terms of ``damping`` (the vertex selectors and the constraints
-are mass_spring's own code, given the mesh's vertices and named sets).
+``prescribed``, ``contact`` and the Rayleigh and drag terms of ``damping`` (the vertex selectors, the start state and
+the constraints are the shared code of systems/vertex/, given the mesh's vertices and named sets).
 """
 
 from __future__ import annotations
@@ -19,11 +19,13 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator,
 from ..base import SystemParams
 from ..contact.build import build_contact
 from ..contact.params import ContactSpec
-from ..mass_spring import assemble
-from ..mass_spring.files import file_digest, find_file
-from ..mass_spring.laws import Damping
-from ..mass_spring.model import ModelError
-from ..mass_spring.params import Box, DampingTerm, InitialShape, Prescribed, Selector, Sliding, Vector
+from ..vertex.constraint_config import Prescribed, Sliding, vertex_constraints
+from ..vertex.damping import Damping, DampingTerm
+from ..vertex.errors import ModelError
+from ..vertex.fields import Box, Vector, vector
+from ..vertex.files import file_digest, find_file
+from ..vertex.initial_state import InitialShape, initial_state
+from ..vertex.selectors import Selector, in_box
 from .materials import MATERIALS, energy_parameters, shell_materials
 from .mesh import MeshFile, SimplexMesh, TetrahedralizedSurface, mesh_source, read_mesh_file
 from .system import Fem
@@ -218,7 +220,7 @@ def resolve(params: FemParams) -> dict[str, Any]:
         gravity = np.zeros(dim)
         gravity[-1] = -9.81
     else:
-        gravity = assemble._vector(params.gravity, dim, "gravity")
+        gravity = vector(params.gravity, dim, "gravity")
     _check_shell_keys(params, mesh)
     youngs, poisson, density = _element_materials(params.material, mesh)
     mu, lam = energy_parameters(params.material.model, mesh.element_dim, youngs, poisson, shell=mesh.is_shell)
@@ -231,9 +233,9 @@ def resolve(params: FemParams) -> dict[str, Any]:
     if consistent and params.constraints:
         raise ModelError("mass: a consistent mass matrix couples a sliding vertex's constrained direction to its "
                          "neighbours, which the sliding filters do not keep: use lumped mass with sliding constraints")
-    x0, v0 = assemble._initial_state(params, mesh, rest)
+    x0, v0 = initial_state(params, mesh, rest)
     _refuse_inverted(mesh, x0)
-    constraints = assemble._constraints(params, mesh, rest, x0)
+    constraints = vertex_constraints(params, mesh, rest, x0)
     boundary = mesh.boundary_faces()
     if mesh.is_shell:  # the surface is the shell itself: every triangle and edge collides
         surface, edges = mesh.elements, mesh.edges()
@@ -288,7 +290,7 @@ def _element_materials(material: Material, mesh: SimplexMesh) -> tuple[np.ndarra
     density = np.full(count, material.density)
     for number, region in enumerate(material.regions):
         field = f"material.regions[{number}]"
-        inside = assemble._in_box(mesh.vertices, region.box, mesh.dim, field + ".box")
+        inside = in_box(mesh.vertices, region.box, mesh.dim, field + ".box")
         chosen = inside[mesh.elements].all(axis=1)
         if not chosen.any():
             raise ModelError(f"{field}.box: no element has all its vertices in {region.box}")

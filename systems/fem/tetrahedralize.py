@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..mass_spring.files import load_model_file
-from ..mass_spring.model import ModelError
+from ..vertex.errors import ModelError
+from ..vertex.model_files import load_model_file
 
 CACHE_VARIABLE = "SIMRUN_CACHE"
 

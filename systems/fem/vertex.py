@@ -21,7 +21,7 @@ class _CompiledTerms:
         """One colour's steps in place in y (the kernels' ``sweep_colour``); ``potential``: the incremental potential's
         parts (solvers/vbd.py ``IncrementalParts``); per vertex, into halvings and gradient_norms: its backtracking
         rounds and the |g_i|_inf it met."""
-        from ..mass_spring.vbd_kernels import PROJECTION_CODES, unsigned
+        from ..vertex.kernel_arguments import PROJECTION_CODES, unsigned
 
         self._kernels().sweep_colour(
             y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
@@ -31,7 +31,7 @@ class _CompiledTerms:
 
     def blocks(self, x: np.ndarray, vertices: np.ndarray, project_spd) -> tuple[np.ndarray, np.ndarray]:
         """(dP/dx_i (k, d), the projected sum of the terms' blocks (k, d, d)) of the elastic terms and gravity."""
-        from ..mass_spring.vbd_kernels import PROJECTION_CODES
+        from ..vertex.kernel_arguments import PROJECTION_CODES
 
         vertices = np.ascontiguousarray(vertices, dtype=np.intp)
         d = self.gravity_force.shape[1]

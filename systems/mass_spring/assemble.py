@@ -1,24 +1,29 @@
 """From a validated `mass_spring` config and its model to the arrays ``MassSpring`` is built from.
 
 Every check that needs the model (vertex indices and names, dimensions, kinds, array lengths, overlapping
-constraints) is here; each raises ModelError naming the config field, which the config loader reports as
+constraints) is here or in the code of systems/vertex/ it calls, which fem shares (vectors, selectors, the start
+state, the constraints of vertices); each raises ModelError naming the config field, which the config loader reports as
 one line (``system.pinned: vertex 99 does not exist; ...``). ``params`` is always a ``MassSpringParams``
 (params.py, which calls ``resolve``; this module builds below it and names no type of it).
 """
 
 from __future__ import annotations
 
-import math
 import warnings
 from typing import Any
 
 import numpy as np
 
-from ..constraints import PrescribedMotion, VertexConstraints, cross, filter_block, rotate
-from .files import find_file, load_model_file, lumped_area_masses
-from .model import ModelError, ModelWarning, SpringModel
 from ..contact.build import build_contact
-from .laws import Damping
+from ..vertex.constraint_config import vertex_constraints
+from ..vertex.damping import Damping
+from ..vertex.errors import ModelError, ModelWarning
+from ..vertex.fields import vector
+from ..vertex.files import find_file
+from ..vertex.initial_state import initial_state
+from ..vertex.model_files import lumped_area_masses
+from ..vertex.selectors import in_box
+from ..vertex.spring_model import SpringModel
 
 
 def resolve(params) -> dict[str, Any]:
@@ -30,7 +35,7 @@ def resolve(params) -> dict[str, Any]:
         gravity = np.zeros(dim)
         gravity[-1] = -9.81
     else:
-        gravity = _vector(params.gravity, dim, "gravity")
+        gravity = vector(params.gravity, dim, "gravity")
     stiffness = _stiffness(params, model)
     rest_length = (model.rest_lengths if model.rest_lengths is not None
                    else np.linalg.norm(rest[model.springs[:, 0]] - rest[model.springs[:, 1]], axis=1))
@@ -39,18 +44,12 @@ def resolve(params) -> dict[str, Any]:
     kept = np.flatnonzero((stiffness > 0) | along_springs)
     if kept.size == 0:
         raise ModelError("stiffness: every spring has stiffness 0 and no damping acts along the springs: nothing holds the model together")
-    x0, v0 = _initial_state(params, model, rest)
-    constraints = _constraints(params, model, rest, x0)
+    x0, v0 = initial_state(params, model, rest)
+    constraints = vertex_constraints(params, model, rest, x0)
     return dict(rest=rest, x0=x0, v0=v0, springs=model.springs[kept], stiffness=stiffness[kept], rest_length=rest_length[kept],
                 masses=_masses(params, model), gravity=gravity, law=params.spring_law, damping=damping,
                 constraints=constraints, contact=_contact(params, model, x0), triangles=model.triangles, grid_shape=model.grid_shape,
                 spring_kinds=model.kinds[kept], kind_names=model.kind_names)
-
-
-def _vector(values: list[float], dim: int, field: str) -> np.ndarray:
-    if len(values) != dim:
-        raise ModelError(f"{field}: {len(values)} components given, but the model is {dim}-D: give {dim}")
-    return np.array(values, dtype=float)
 
 
 def _kind_matches(key: str, kind_names: tuple[str, ...]) -> list[int]:
@@ -92,7 +91,7 @@ def _stiffness(params, model: SpringModel) -> np.ndarray:
         stiffness = np.full(model.spring_count, float(params.stiffness))
     for number, region in enumerate(params.regions):
         field = f"regions[{number}]"
-        inside = _in_box(model.vertices, region.box, model.dim, field + ".box")
+        inside = in_box(model.vertices, region.box, model.dim, field + ".box")
         chosen = inside[model.springs[:, 0]] & inside[model.springs[:, 1]]
         if not chosen.any():
             raise ModelError(f"{field}.box: no spring has both ends in {region.box}")
@@ -183,130 +182,6 @@ def _damping(params) -> tuple[Damping, ...]:
         return (Damping("spring", float(params.damping)),) if params.damping > 0 else ()
     return tuple(Damping(term.model, term.coefficient, term.alpha, term.beta) for term in params.damping
                  if term.coefficient > 0 or term.alpha > 0 or term.beta > 0)
-
-
-def _initial_state(params, model: SpringModel, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    initial, dim = params.initial, model.dim
-    centroid = rest.mean(axis=0)
-    if initial.file is not None:
-        path = params._initial_file if params._initial_file is not None else find_file(initial.file, "initial.file")
-        x0 = _start_positions(path, dim)
-        if x0.shape != rest.shape:
-            raise ModelError(f"initial.file: {x0.shape[0]} vertices in {dim}-D, but the model has {rest.shape[0]}")
-    else:
-        scale = np.full(dim, initial.scale) if not isinstance(initial.scale, list) else _vector(initial.scale, dim, "initial.scale")
-        rotation = initial.rotate
-        axis, degrees = ((np.array([0.0, 0.0, 1.0]), float(rotation)) if not hasattr(rotation, "degrees")
-                         else (_vector(rotation.axis, 3, "initial.rotate.axis"), rotation.degrees))
-        _check_axis(axis, dim, "initial.rotate.axis")
-        x0 = rotate((rest - centroid) * scale, axis / np.linalg.norm(axis), math.radians(degrees)) + centroid
-        if initial.translate is not None:
-            x0 = x0 + _vector(initial.translate, dim, "initial.translate")
-    v0 = np.zeros_like(x0)
-    if initial.velocity is not None:
-        v0 += _vector(initial.velocity, dim, "initial.velocity")
-    spin = initial.spin
-    offset = x0 - x0.mean(axis=0)
-    if isinstance(spin, list):
-        omega = _vector(spin, 3, "initial.spin")
-        if dim == 2 and (omega[0] or omega[1]):
-            raise ModelError("initial.spin: a 2-D model spins about z only; give a number or [0, 0, w]")
-        v0 += cross(omega, offset)
-    elif spin:
-        v0 += cross(np.array([0.0, 0.0, float(spin)]), offset)
-    return x0, v0
-
-
-def _start_positions(path, dim: int) -> np.ndarray:
-    """initial.file's vertex positions: an .npz's `vertices` array alone (no springs needed), or any model file's."""
-    if str(path).endswith(".npz"):
-        with np.load(path, allow_pickle=False) as arrays:
-            if "vertices" not in arrays:
-                raise ModelError(f"initial.file: {path} has no array 'vertices'")
-            vertices = np.asarray(arrays["vertices"], dtype=float)
-        if vertices.ndim != 2 or vertices.shape[1] != dim or not np.all(np.isfinite(vertices)):
-            raise ModelError(f"initial.file: 'vertices' in {path} must be finite, n x {dim}; got shape {vertices.shape}")
-        return vertices
-    return load_model_file(path, dim).vertices.astype(float)
-
-
-def _check_axis(axis: np.ndarray, dim: int, field: str) -> None:
-    if not np.linalg.norm(axis) > 0.0:
-        raise ModelError(f"{field}: the axis is zero")
-    if dim == 2 and (axis[0] or axis[1]):
-        raise ModelError(f"{field}: a 2-D model turns about z only; give [0, 0, 1] or [0, 0, -1]")
-
-
-def _in_box(vertices: np.ndarray, box, dim: int, field: str) -> np.ndarray:
-    lower, upper = (_vector(corner, dim, field) for corner in box)
-    if np.any(lower > upper):
-        raise ModelError(f"{field}: the lower corner {lower.tolist()} is above the upper corner {upper.tolist()}")
-    return np.all((vertices >= lower) & (vertices <= upper), axis=1)
-
-
-def select(selector, model: SpringModel, field: str) -> np.ndarray:
-    """The vertex indices a selector names (sorted, unique); ModelError naming ``field`` otherwise."""
-    items = selector if isinstance(selector, list) else [selector]
-    chosen = []
-    for item in items:
-        if hasattr(item, "box"):  # a BoxSelector
-            inside = np.flatnonzero(_in_box(model.vertices, item.box, model.dim, field + ".box"))
-            if inside.size == 0:
-                raise ModelError(f"{field}: the box {item.box} holds no vertex of the model")
-            chosen.append(inside)
-        elif isinstance(item, str):
-            if item not in model.named_vertices:
-                names = ", ".join(model.named_vertices) or "none"
-                raise ModelError(f"{field}: the model has no vertex set {item!r} (its names: {names})")
-            chosen.append(np.asarray(model.named_vertices[item]))
-        else:
-            if not 0 <= item < model.vertex_count:
-                raise ModelError(f"{field}: vertex {item} does not exist; the model has vertices 0..{model.vertex_count - 1}")
-            chosen.append(np.array([item]))
-    if not chosen:
-        raise ModelError(f"{field}: selects no vertex (give indices, names or boxes)")
-    return np.unique(np.concatenate(chosen)).astype(np.intp)
-
-
-def _constraints(params, model: SpringModel, rest: np.ndarray, x0: np.ndarray) -> VertexConstraints:
-    dim = model.dim
-    owner = np.full(model.vertex_count, "", dtype=object)  # which config entry constrains each vertex
-
-    def claim(vertices: np.ndarray, field: str) -> None:
-        taken = vertices[owner[vertices] != ""]
-        if taken.size:
-            raise ModelError(f"{field}: vertex {int(taken[0])} is already constrained by {owner[taken[0]]}; a vertex takes one constraint")
-        owner[vertices] = field
-
-    pinned = select(params.pinned, model, "pinned") if params.pinned != [] else np.zeros(0, dtype=np.intp)
-    claim(pinned, "pinned")
-    sliding = []
-    for number, entry in enumerate(params.constraints):
-        field = f"constraints[{number}]"
-        vertices = select(entry.vertices, model, field + ".vertices")
-        claim(vertices, field)
-        if entry.normal is not None:
-            block = filter_block(dim, normal=_vector(entry.normal, dim, field + ".normal"))
-        else:
-            block = filter_block(dim, direction=_vector(entry.direction, dim, field + ".direction"))
-        sliding.append((vertices, block))
-    prescribed = []
-    for number, entry in enumerate(params.prescribed):
-        field = f"prescribed[{number}]"
-        vertices = select(entry.vertices, model, field + ".vertices")
-        claim(vertices, field)
-        if entry.velocity is not None:
-            motion = PrescribedMotion(vertices, x0[vertices], velocity=_vector(entry.velocity, dim, field + ".velocity"),
-                                      until=entry.until)
-        else:
-            axis = _vector(entry.rotation.axis, 3, field + ".rotation.axis")
-            _check_axis(axis, dim, field + ".rotation.axis")
-            center = _vector(entry.rotation.center, dim, field + ".rotation.center")
-            motion = PrescribedMotion(vertices, x0[vertices],
-                                      rotation=(center, axis / np.linalg.norm(axis), math.radians(entry.rotation.rate)),
-                                      until=entry.until)
-        prescribed.append(motion)
-    return VertexConstraints(dim, model.vertex_count, pinned, sliding, prescribed)
 
 
 def _contact(params, model: SpringModel, x0: np.ndarray):

@@ -205,7 +205,8 @@ class SpringSweep:
         """One colour's steps in place in y (vbd_kernels.sweep_colour); ``potential``: the incremental potential's
         parts (``IncrementalParts``); per vertex, into halvings and gradient_norms: its backtracking rounds and the
         |g_i|_inf it met."""
-        from .vbd_kernels import PROJECTION_CODES, sweep_colour, unsigned
+        from ..vertex.kernel_arguments import PROJECTION_CODES, unsigned
+        from .vbd_kernels import sweep_colour
 
         sweep_colour(y, unsigned(vertices), constrained, projectors, potential.y_tilde, potential.mass, potential.scale,
                      self.indptr, self.other, self.springs, self.max_degree, self.stiffness, self.rest_length,

@@ -6,83 +6,26 @@ registered in ``MODEL_GENERATORS``, and its ``build()`` gives the validated ``Sp
 
 Spring kinds are fixed per source, so a config can name a kind's stiffness whether or not the model has
 springs of that kind: a grid has ("stretch_x", "stretch_y", "shear", "bend_x", "bend_y"), the course square
-("stretch_x", "stretch_y", "shear"), a rope ("stretch", "bend"), a mesh ("stretch", "shear", "bend").
+("stretch_x", "stretch_y", "shear"), a rope ("stretch", "bend"), a mesh ("stretch", "shear", "bend"). The grid
+(``GridModel``) and the model files are systems/vertex/'s, which fem and the cloth read too.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from .files import load_model_file
-from .model import SpringModel
+from ..vertex.fields import Finite, Positive
+from ..vertex.grids import GridModel
+from ..vertex.model_files import load_model_file
+from ..vertex.spring_model import SpringModel, spring_pairs, springs_by_kind
 
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-GridCount = Annotated[int, Field(ge=2, le=1024)]
-
-GRID_KINDS = ("stretch_x", "stretch_y", "shear", "bend_x", "bend_y")
 SQUARE_KINDS = ("stretch_x", "stretch_y", "shear")
 ROPE_KINDS = ("stretch", "bend")
-
-
-def _pairs(blocks: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """(m, 2) vertex pairs from blocks of (first, second) index arrays, each raveled in C order."""
-    return np.stack([np.concatenate([first.ravel() for first, _ in blocks]),
-                     np.concatenate([second.ravel() for _, second in blocks])], axis=1).astype(np.intp)
-
-
-def _springs_by_kind(groups: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Springs (m, 2) and kinds (m,) from one pair array per kind, in kind order."""
-    kinds = np.concatenate([np.full(len(pairs), kind, dtype=np.intp) for kind, pairs in enumerate(groups)])
-    return np.concatenate(groups).astype(np.intp), kinds
-
-
-def grid_quads(index: np.ndarray) -> np.ndarray:
-    """(cells, 4) quads of a vertex grid ``index`` (rows, cols), counter-clockwise when rows run along +y and
-    cols along +x: (a, a + 1 col, a + 1 row + 1 col, a + 1 row)."""
-    return np.stack([index[:-1, :-1], index[:-1, 1:], index[1:, 1:], index[1:, :-1]], axis=-1).reshape(-1, 4)
-
-
-class GridModel(BaseModel):
-    """A flat nx x ny grid in the plane z = height, vertex = row * nx + col (rows along y): the `cloth` config's grid.
-
-    Springs in the cloth's order (``systems.cloth.grid_springs``): stretch along x, stretch along y, the two
-    shear diagonals of every cell, bend (skip one vertex) along x, bend along y.
-    """
-
-    model_config = ConfigDict(extra="forbid")
-    resolution: tuple[GridCount, GridCount] = Field((32, 32), description="vertices along x and y")
-    size: tuple[Positive, Positive] = Field((1.0, 1.0), description="side lengths along x and y (m)")
-    height: Finite = Field(0.0, description="z of the flat grid (m)")
-
-    def build(self) -> SpringModel:
-        nx, ny = self.resolution
-        grid_x, grid_y = np.meshgrid(np.linspace(0.0, self.size[0], nx), np.linspace(0.0, self.size[1], ny))
-        vertices = np.stack([grid_x.ravel(), grid_y.ravel(), np.full(nx * ny, self.height)], axis=1)
-        index = np.arange(nx * ny).reshape(ny, nx)
-        springs, kinds = _springs_by_kind([
-            _pairs([(index[:, :-1], index[:, 1:])]),
-            _pairs([(index[:-1, :], index[1:, :])]),
-            _pairs([(index[:-1, :-1], index[1:, 1:]), (index[:-1, 1:], index[1:, :-1])]),
-            _pairs([(index[:, :-2], index[:, 2:])]),
-            _pairs([(index[:-2, :], index[2:, :])]),
-        ])
-        quads = grid_quads(index)
-        # each cell split along its first diagonal (a, c), both halves counter-clockwise (normal +z)
-        triangles = np.stack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=1).reshape(-1, 3)
-        named = {
-            "top_left": index[-1, :1], "top_right": index[-1, -1:], "bottom_left": index[0, :1],
-            "bottom_right": index[0, -1:], "top": index[-1, :], "bottom": index[0, :],
-            "left": index[:, 0], "right": index[:, -1],
-        }
-        return SpringModel(vertices, springs, kinds, GRID_KINDS, triangles=triangles.astype(np.intp),
-                           named_vertices={name: np.asarray(ids, dtype=np.intp) for name, ids in named.items()},
-                           grid_shape=(ny, nx), source=f"grid {nx}x{ny}").validate()
 
 
 class SquareModel(BaseModel):
@@ -107,10 +50,10 @@ class SquareModel(BaseModel):
         index = np.arange(count * count).reshape(count, count)  # index[i_x, i_y]
         cell = index[:-1, :-1]
         diagonals = (np.stack([cell, index[1:, :-1]], axis=-1), np.stack([index[1:, 1:], index[:-1, 1:]], axis=-1))
-        springs, kinds = _springs_by_kind([
-            _pairs([(index[:-1, :], index[1:, :])]),
-            _pairs([(index[:, :-1], index[:, 1:])]),
-            _pairs([diagonals]),
+        springs, kinds = springs_by_kind([
+            spring_pairs([(index[:-1, :], index[1:, :])]),
+            spring_pairs([(index[:, :-1], index[:, 1:])]),
+            spring_pairs([diagonals]),
         ])
         # the course's render triangles: (i,j), (i+1,j), (i+1,j+1) and (i,j), (i+1,j+1), (i,j+1), counter-clockwise
         triangles = np.stack([np.stack([cell, index[1:, :-1], index[1:, 1:]], axis=-1),
@@ -153,15 +96,15 @@ class RopeModel(BaseModel):
         start = np.zeros(direction.size) if self.start is None else np.array(self.start, dtype=float)
         vertices = start + np.linspace(0.0, self.length, self.count)[:, None] * direction
         index = np.arange(self.count)
-        bend = _pairs([(index[:-2], index[2:])]) if self.bend else np.zeros((0, 2), dtype=np.intp)
-        springs, kinds = _springs_by_kind([_pairs([(index[:-1], index[1:])]), bend])
+        bend = spring_pairs([(index[:-2], index[2:])]) if self.bend else np.zeros((0, 2), dtype=np.intp)
+        springs, kinds = springs_by_kind([spring_pairs([(index[:-1], index[1:])]), bend])
         named = {"first": index[:1], "last": index[-1:]}
         return SpringModel(vertices, springs, kinds, ROPE_KINDS, named_vertices=named,
                            source=f"rope of {self.count}").validate()
 
 
 class FileModel(BaseModel):
-    """A model file: ``.npz`` arrays or any surface mesh meshio reads (see ``files.py``)."""
+    """A model file: ``.npz`` arrays or any surface mesh meshio reads (see systems/vertex/model_files.py)."""
 
     model_config = ConfigDict(extra="forbid")
     file: Path = Field(description="path of a .npz model or a triangle/quad mesh (OBJ, PLY, OFF, STL, VTK, ...)")

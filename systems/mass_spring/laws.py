@@ -1,11 +1,9 @@
-"""The terms of a mass-spring potential, spring by spring: the springs' geometry at one x (``SpringGeometry``), the
-spring laws (``SPRING_LAWS``: energy, gradient factor and Hessian block of W_e(|x_i - x_j|)) and the damping models
-(``DAMPING_MODELS``). ``system`` in a law's methods is the MassSpring whose springs it evaluates (its stiffness and
-rest lengths, per spring)."""
+"""The terms of a mass-spring potential, spring by spring: the springs' geometry at one x (``SpringGeometry``) and the
+spring laws (``SPRING_LAWS``: energy, gradient factor and Hessian block of W_e(|x_i - x_j|)); the damping models are
+systems/vertex/damping.py's (``DAMPING_MODELS``), which fem takes too. ``system`` in a law's methods is the MassSpring
+whose springs it evaluates (its stiffness and rest lengths, per spring)."""
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -108,20 +106,3 @@ class SquaredLengthLaw:
 
 
 SPRING_LAWS = {law.name: law for law in (HookeanLaw, SquaredLengthLaw)}
-
-
-@dataclass(frozen=True)
-class Damping:
-    """One damping force of the lectures, f = -D v with D assembled in the Hessian's pattern.
-
-    model: ``spring`` (-k_d ((v_i - v_j) . u) u per spring), ``relative`` (-k_d (v_i - v_j) per spring),
-    ``drag`` (-k_d v_i per vertex), ``rayleigh`` (D = alpha M + beta K(rest shape), K projected SPD);
-    coefficient: k_d (N s/m); alpha (1/s) and beta (s) for rayleigh."""
-
-    model: str
-    coefficient: float = 0.0
-    alpha: float = 0.0
-    beta: float = 0.0
-
-
-DAMPING_MODELS = ("spring", "relative", "drag", "rayleigh")

@@ -10,40 +10,28 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from ..base import SystemParams
-from ..contact.params import ConstantRotation, ContactSpec
+from ..contact.params import ContactSpec
+from ..vertex.constraint_config import Prescribed, Sliding
+from ..vertex.damping import DampingTerm
+from ..vertex.errors import ModelError
+from ..vertex.fields import Box, NonNegative, Positive, Vector
+from ..vertex.files import file_digest, find_file
+from ..vertex.initial_state import InitialShape
+from ..vertex.model_files import load_model_file
+from ..vertex.selectors import Selector
+from ..vertex.spring_model import SpringModel
 from .assemble import resolve
-from .files import SEARCH_FOLDERS, file_digest, find_file, load_model_file
 from .generators import model_source
-from .model import ModelError, SpringModel
-from .laws import DAMPING_MODELS, SPRING_LAWS
+from .laws import SPRING_LAWS
 from .system import MassSpring
 
-__all__ = ["MassSpringParams", "SEARCH_FOLDERS", "BoxSelector", "Rotation"]
-
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Vector = list[Finite]
-Box = tuple[Vector, Vector]
-
-
-class BoxSelector(BaseModel):
-    """The vertices whose rest positions lie in the axis-aligned box [min, max] (bounds included)."""
-
-    model_config = ConfigDict(extra="forbid")
-    box: Box = Field(description="[[min x, min y(, min z)], [max x, max y(, max z)]] (m), in the model's rest shape")
-
-
-# a vertex selection: an index, a name of the model (a generator's "top", "left", ...), a box, or a list of them
-# (indices are checked against the model, negative ones too, when the config is loaded: one message per field)
-Selector = Union[int, str, BoxSelector, list[Union[int, str, BoxSelector]]]
+__all__ = ["MassSpringParams"]
 
 
 class Region(BaseModel):
@@ -76,70 +64,6 @@ class MassSpec(BaseModel):
         given = [name for name in ("per_vertex", "total", "density", "file") if getattr(self, name) not in (None, False)]
         if len(given) > 1:
             raise ValueError(f"give one of per_vertex, total, density (or mass: file); got {given}")
-        return self
-
-
-class Rotation(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    axis: Vector = Field([0.0, 0.0, 1.0], description="rotation axis (3 components; 2-D models turn about z)")
-    degrees: Finite = Field(description="angle (deg)")
-
-
-class InitialShape(BaseModel):
-    """The start state from the rest shape: scale, then rotate about the centroid, then translate; or a file."""
-
-    model_config = ConfigDict(extra="forbid")
-    scale: Union[Positive, list[Positive]] = Field(1.0, description="factor, or one per axis, about the centroid")
-    rotate: Union[Finite, Rotation] = Field(0.0, description="deg about z through the centroid, or {axis, degrees}")
-    translate: Vector | None = Field(None, description="offset (m)")
-    file: str | None = Field(None, description="start positions from a model file with the same vertices (instead of the transforms)")
-    velocity: Vector | None = Field(None, description="uniform start velocity (m/s)")
-    spin: Union[Finite, Vector] = Field(0.0, description="angular velocity about the centroid (rad/s): a number (about z) or a 3-vector")
-
-
-class DampingTerm(BaseModel):
-    """One damping force f = -D v of the lectures: spring, relative, drag, or rayleigh (alpha M + beta K_rest)."""
-
-    model_config = ConfigDict(extra="forbid")
-    model: Literal[DAMPING_MODELS] = Field(description=" | ".join(DAMPING_MODELS))  # type: ignore[valid-type]
-    coefficient: NonNegative = Field(0.0, description="k_d (N s/m): spring, relative, drag")
-    alpha: NonNegative = Field(0.0, description="rayleigh: mass factor (1/s)")
-    beta: NonNegative = Field(0.0, description="rayleigh: stiffness factor (s)")
-
-
-class Sliding(BaseModel):
-    """Vertices that slide in a plane (its normal) or along a line (its direction) through their start positions."""
-
-    model_config = ConfigDict(extra="forbid")
-    vertices: Selector
-    normal: Vector | None = Field(None, description="the plane's normal: the vertices move perpendicular to it")
-    direction: Vector | None = Field(None, description="the line's direction: the vertices move along it only")
-
-    @model_validator(mode="after")
-    def _one_of(self) -> "Sliding":
-        if (self.normal is None) == (self.direction is None):
-            raise ValueError("give either normal (sliding in a plane) or direction (sliding along a line)")
-        vector = self.normal if self.normal is not None else self.direction
-        if not math.hypot(*vector) > 0.0:  # its length must survive in floating point, for the unit vector
-            raise ValueError(f"the {'normal' if self.normal is not None else 'direction'} {vector} is zero")
-        return self
-
-
-class Prescribed(BaseModel):
-    """Vertices moved by the user: a constant velocity, or a rotation about an axis at a constant rate."""
-
-    model_config = ConfigDict(extra="forbid")
-    vertices: Selector
-    velocity: Vector | None = Field(None, description="m/s")
-    rotation: ConstantRotation | None = None
-    until: Positive | None = Field(
-        None, description="s: the vertices follow the path until this time, then are released (free, with the "
-                          "path's velocity there); none: for the whole run")
-
-    @model_validator(mode="after")
-    def _one_of(self) -> "Prescribed":
-        if (self.velocity is None) == (self.rotation is None):
-            raise ValueError("give either velocity or rotation")
         return self
 
 

@@ -26,8 +26,9 @@ from ..constraints import VertexConstraints
 from ..contact.hooks import WithContact
 from ..contact.model import ContactModel
 from ..forms import NotOffered, ProjectiveForm, kept_form
+from ..vertex.damping import Damping
 from .blocks import SpringVertexForm
-from .laws import SPRING_LAWS, Damping, HookeanLaw, SpringGeometry
+from .laws import SPRING_LAWS, HookeanLaw, SpringGeometry
 
 
 class MassSpring(WithContact, System):

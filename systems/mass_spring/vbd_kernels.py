@@ -34,23 +34,6 @@ from ..vertex_kernels import (damping_change, filtered_eigenvalue, finish_blocks
                               take_step)
 from .kernels import SQUARED_LENGTH, gradient_factor
 
-# a colour's vertices as unsigned indices, by the identity of the colour's array (the solver keeps its colours for
-# the run): made once, not per sweep
-_UNSIGNED: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-
-
-def unsigned(vertices: np.ndarray) -> np.ndarray:
-    """``vertices`` as uint64: numba's indexing then skips the wraparound test of a negative index."""
-    kept = _UNSIGNED.get(id(vertices))
-    if kept is None or kept[0] is not vertices:
-        if len(_UNSIGNED) > 4096:
-            _UNSIGNED.clear()
-        kept = _UNSIGNED[id(vertices)] = (vertices, vertices.astype(np.uint64))
-    return kept[1]
-
-
-# projections of the springs' blocks: none, negative eigenvalues clamped at 0, mirrored
-PROJECTION_CODES = {False: 0, "clamp": 1, True: 1, "abs": 2}
 # vertices per chunk of the parallel loop: the scratch arrays are made once per chunk, not per vertex
 CHUNK = 64
 

@@ -1,4 +1,4 @@
-"""Where and how the contract checks (``simrun.systems.contract``) measure a system: the generic state, the
+"""Where and how the contract checks (``simrun.contracts.system``) measure a system: the generic state, the
 probe directions, and measures of matrices (eigenvalue range, asymmetry, negativity) small or large.
 
 Derivatives are compared at the generic state x = x0 + 0.05 L z (L = ``length_scale``, z ~ N(0, I), seeded),
@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
-from .base import System
+from simrun.systems.base import System
 
 PERTURBATION = 0.05  # of the length scale: springs stay far from zero length, an orbit far from its centre
 SEED = 20240607

@@ -20,8 +20,6 @@ appearance, each as (smaller index, larger index).
 from __future__ import annotations
 
 import contextlib
-import contextvars
-import hashlib
 import io
 import warnings
 import zipfile
@@ -30,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import ModelError, SpringModel
+from .errors import ModelError
+from .spring_model import SpringModel
 
 MESH_KINDS = ("stretch", "shear", "bend")
 NPZ_ARRAYS = ("vertices", "springs", "rest_lengths", "stiffness", "masses", "kinds", "kind_names", "triangles")
@@ -155,31 +154,6 @@ def save_npz(model: SpringModel, path: Path) -> None:
             np.save(buffer, np.asarray(array), allow_pickle=False)
             entry = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             archive.writestr(entry, buffer.getvalue(), compress_type=zipfile.ZIP_DEFLATED)
-
-
-# -- where files are found ---------------------------------------------------------------------
-# Folders where relative model paths are looked for after the current one: the config file's folder, set by
-# the config loader while it validates a config read from a file (runner/experiment/config.py: load_experiment).
-SEARCH_FOLDERS: contextvars.ContextVar[tuple[Path, ...]] = contextvars.ContextVar("model_search_folders", default=())
-
-
-def find_file(name: str, field: str) -> Path:
-    """The absolute path of a model file: as given if absolute, else relative to the config's folder, else to
-    the current folder; ModelError naming the field and where it looked."""
-    path = Path(name).expanduser()
-    folders = [] if path.is_absolute() else [*SEARCH_FOLDERS.get(), Path.cwd()]
-    candidates = [path] if path.is_absolute() else list(dict.fromkeys((folder / path).resolve() for folder in folders))
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate.resolve()
-    looked = ", ".join(dict.fromkeys(str(candidate.parent) for candidate in candidates))
-    raise ModelError(f"{field}: file {name!r} not found (looked in {looked})")
-
-
-def file_digest(path: Path) -> str:
-    """sha256 of a file's bytes: a changed model file is a changed experiment (config hash, resume)."""
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
 
 
 # -- meshes ----------------------------------------------------------------------------------------

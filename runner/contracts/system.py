@@ -2,14 +2,16 @@
 
 Each check takes a built system and returns a ``Check``: its name, whether it passed (None where it does not
 apply) and what it measured against which tolerance. tests/test_systems.py asserts every check for every
-registered system (built-in and plug-in); ``simrun check-system`` prints them for a user's system.
+registered system (built-in and plug-in); ``simrun check-system`` prints them for a user's system. The short
+run (``check_short_run``) steps the system with an integrator and a solver, which is why the checks live in the
+runner and not in systems/.
 
 Derivatives are compared at the generic state x = x0 + 0.05 L z (L = ``length_scale``, z ~ N(0, I), seeded),
 where no symmetry of x0 hides a wrong sign or a missing term, by central differences with the step h = 1e-6 L:
 their error is h^2/6 |P'''| (about 1e-12 relative) plus the round-off eps |P| / h (about 1e-10 relative), so a
 relative error above 1e-6 is a wrong derivative, not a numerical one.
 
-The state, the probe directions and the matrix measures are in systems/contract_probes.py; this module stays
+The state, the probe directions and the matrix measures are in runner/contracts/probes.py; this module stays
 the import point of the checks and of the helpers that tests use (``generic_state``, ``held_dofs``, ``max_abs``).
 """
 
@@ -23,9 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
-from .base import ENERGY_ROUND_OFF, Capabilities, System, SystemParams
-from .contract_probes import (asymmetry, dense, free_dofs, generic_state, generic_velocity, held_dofs, max_abs,
-                              negativity, probes, relative_error, restricted)
+from simrun.systems.base import ENERGY_ROUND_OFF, Capabilities, System, SystemParams
+
+from .probes import (asymmetry, dense, free_dofs, generic_state, generic_velocity, held_dofs, max_abs, negativity,
+                     probes, relative_error, restricted)
 
 FD_STEP = 1e-6  # of the length scale
 # central differences err by h^2/6 |P'''| (1e-12 relative) plus round-off eps |P|/h (1e-10 relative):
@@ -432,7 +435,7 @@ def stable_dt(system: System) -> float:
 def check_short_run(system: System) -> Check:
     """20 steps of symplectic Euler and of backward Euler (Newton) at dt = 0.1 / w_max: the states stay finite,
     the fixed dofs do not move, every Newton solve converges, and |E - E0| <= E_ref (energy_scale()) at every step."""
-    from simrun.integrators import INTEGRATORS, State  # the integrators use the systems: imported when a run is made
+    from simrun.integrators import INTEGRATORS, State  # here: the other checks need no integrator or solver
     from simrun.solvers import NewtonParams
 
     dt = stable_dt(system)

@@ -1,9 +1,10 @@
-"""A mass-spring model as data: the rest shape, the springs and what a file or a generator says about them.
+"""A model of vertices and springs as data: the rest shape, the springs and what a file or a generator says about them.
 
 ``SpringModel`` is what every source of models produces (a ``.npz`` file, a triangle or quad mesh read
-through meshio, or one of the generators) and what ``MassSpring`` is built from. It holds no state and
-no parameters of the config (stiffness, damping, ...) except what the source itself carries per spring
-or per vertex.
+through meshio, or one of the generators) and what ``MassSpring`` is built from; the finite elements read
+their surfaces and start positions through it too (model_files.py). It holds no state and no parameters of
+the config (stiffness, damping, ...) except what the source itself carries per spring or per vertex.
+``spring_pairs`` and ``springs_by_kind`` list a generator's springs in kind order.
 """
 
 from __future__ import annotations
@@ -12,16 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-
-class ModelError(ValueError):
-    """A model that cannot be simulated: the message names the problem (the config path is added by the caller)."""
-
-
-class ModelWarning(UserWarning):
-    """What loading a model mended and the user should know (degenerate faces of a scanned mesh): the command line
-    prints it as one line (``one_line``); the sweep's workers, which build the model again, do not repeat it."""
-
-    one_line = True
+from .errors import ModelError
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,7 +46,7 @@ class SpringModel:
     named_vertices: dict[str, np.ndarray] = field(default_factory=dict)
     grid_shape: tuple[int, int] | None = None
     source: str = ""
-    degenerate_triangles: int = 0  # zero-area faces of a mesh file, left out of springs and triangles (files.py)
+    degenerate_triangles: int = 0  # zero-area faces of a mesh file, left out of springs and triangles (model_files.py)
 
     @property
     def dim(self) -> int:
@@ -117,3 +109,15 @@ class SpringModel:
             if triangles.ndim != 2 or triangles.shape[1] != 3 or ((triangles < 0) | (triangles >= n)).any():
                 raise ModelError(f"triangles must be a t x 3 array of vertex indices in 0..{n - 1}")
         return self
+
+
+def spring_pairs(blocks: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(m, 2) vertex pairs from blocks of (first, second) index arrays, each raveled in C order."""
+    return np.stack([np.concatenate([first.ravel() for first, _ in blocks]),
+                     np.concatenate([second.ravel() for _, second in blocks])], axis=1).astype(np.intp)
+
+
+def springs_by_kind(groups: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Springs (m, 2) and kinds (m,) from one pair array per kind, in kind order."""
+    kinds = np.concatenate([np.full(len(pairs), kind, dtype=np.intp) for kind, pairs in enumerate(groups)])
+    return np.concatenate(groups).astype(np.intp), kinds
