@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse
 
 from simrun.systems.base import ENERGY_ROUND_OFF, Capabilities, System, SystemParams
+from simrun.systems.forms import VertexForm
 
 from .probes import (asymmetry, dense, free_dofs, generic_state, generic_velocity, held_dofs, max_abs, negativity,
                      probes, relative_error, restricted)
@@ -55,6 +56,15 @@ RUN_ENERGY_TOLERANCE = 10.0  # of energy_scale()
 # cancel (|KE0| + |PE0| of a start whose energy is zero by construction), not an energy of the motion: every
 # relative energy error, and the divergence bound, would be measured against noise. (A pendulum released 1e-3 rad
 # from the bottom has E_ref / W0 = 5e-4.)
+
+
+# The forms (systems/forms.py): a system's own vertex form is the generic one's numbers, summed another way (1e-9 of the
+# largest block: each block sums the same terms in another order, and the generic one reads them off an assembled
+# Hessian); its energy changes are P's own (1e-6 of the largest: the generic form differences P, whose round-off is
+# eps |P| over changes of a 1e-3 L step)
+VERTEX_BLOCK_TOLERANCE = 1e-9
+VERTEX_CHANGE_TOLERANCE = 1e-6
+VERTEX_STEP = 1e-3  # of the length scale
 
 
 @dataclass(frozen=True)
@@ -401,6 +411,77 @@ def check_test_frequency(system: System) -> Check:
     return _verdict("test frequency", f"w = {w:.6g} rad/s, H = w^2 M", problems)
 
 
+def check_forms(system: System) -> Check:
+    """The forms the system offers beyond the generic vertex form (systems/forms.py), against what they stand for:
+    its own vertex form's blocks and energy changes against the generic form's (read off the gradient, the Hessian and
+    P) at the test state, and its colours (every vertex once, no two of a colour joined by a Hessian entry); the
+    projective form's K_r symmetric and PSD on the free dofs; a compliant form whose springs are the whole force
+    (``other_forces`` False): their force and energy are the system's."""
+    x, v = generic_state(system), generic_velocity(system)
+    measured, problems = [], []
+    if type(system).vertex_form is not System.vertex_form:
+        measured.append(_vertex_form_problems(system, x, problems))
+    form = system.projective_form()
+    if form:
+        stiffness = restricted(form.rest_stiffness(), free_dofs(system))
+        negative, _ = negativity(stiffness)
+        asymmetric = asymmetry(stiffness)
+        measured.append(f"K_r symmetric to {asymmetric:.1e}, smallest eigenvalue {-negative:.1e} x max")
+        if asymmetric > ROUND_OFF:
+            problems.append(f"projective form: K_r is not symmetric ({asymmetric:.2g} of its largest entry)")
+        if negative > PSD_TOLERANCE:
+            problems.append(f"projective form: K_r has an eigenvalue {-negative:.2g} x max|eigenvalue| < -{PSD_TOLERANCE:g}")
+    springs = system.compliant_form()
+    if springs and not springs.other_forces:
+        # at rest (v = 0) the springs' force is -dP/dx less the constant field's M g, which XPBD applies apart
+        expected = -np.asarray(system.gradient(x), dtype=float)
+        if system.external_acceleration is not None:
+            expected = expected - system.mass * system.external_acceleration
+        force_error = relative_error(springs.force(x, np.zeros_like(x)) - expected, expected)
+        measured.append(f"the springs' force to {force_error:.1e}")
+        if force_error > SOLVE_ROUND_OFF:
+            problems.append(f"compliant form: the springs' force differs from -dP/dx by {force_error:.2g} "
+                            f"(> {SOLVE_ROUND_OFF:g}), though other_forces is False")
+    if not measured:
+        return Check("forms", None, "none offered beyond the generic vertex form")
+    return _verdict("forms", "; ".join(measured), problems)
+
+
+def _vertex_form_problems(system: System, x: np.ndarray, problems: list[str]) -> str:
+    d = system.dim
+    own, generic = system.vertex_form(), VertexForm(system)
+    vertices = np.arange(system.dof_count // d)
+    gradient, hessian = own.blocks(x, vertices)
+    expected_gradient, expected_hessian = generic.blocks(x, vertices)
+    block_error = max(relative_error(gradient - expected_gradient, expected_gradient),
+                      relative_error(hessian - expected_hessian, expected_hessian))
+    if block_error > VERTEX_BLOCK_TOLERANCE:
+        problems.append(f"vertex form: its blocks differ from the gradient's and the Hessian's by {block_error:.2g} "
+                        f"(> {VERTEX_BLOCK_TOLERANCE:g})")
+    colouring = own.colouring()
+    counts = np.bincount(np.concatenate(colouring), minlength=vertices.size) if colouring else np.zeros(vertices.size)
+    colour_of = np.empty(vertices.size, dtype=np.intp)
+    for number, colour in enumerate(colouring):
+        colour_of[colour] = number
+    if np.any(counts != 1):
+        problems.append(f"vertex form: its colours hold {int(np.sum(counts == 0))} vertices no time and "
+                        f"{int(np.sum(counts > 1))} more than once")
+    else:
+        matrices = [system.hessian(x), system.damping_matrix(x)]
+        coupled = scipy.sparse.coo_array(sum(abs(scipy.sparse.csr_array(matrix)) for matrix in matrices if matrix is not None))
+        first, second = coupled.row // d, coupled.col // d
+        shared = (first != second) & (colour_of[first] == colour_of[second]) & (coupled.data != 0.0)
+        if shared.any():
+            problems.append(f"vertex form: {int(shared.sum())} Hessian entries join two vertices of one colour")
+    steps = VERTEX_STEP * system.length_scale * np.random.default_rng(3).standard_normal((colouring[0].size, d))
+    changes = own.energy_changes(x, colouring[0], steps)
+    expected_changes = generic.energy_changes(x, colouring[0], steps)
+    change_error = relative_error(changes - expected_changes, expected_changes)
+    if change_error > VERTEX_CHANGE_TOLERANCE:
+        problems.append(f"vertex form: its energy changes differ from P's by {change_error:.2g} (> {VERTEX_CHANGE_TOLERANCE:g})")
+    return f"vertex blocks to {block_error:.1e}, {len(colouring)} colours, energy changes to {change_error:.1e}"
+
+
 def work_scale(system: System) -> float:
     """W0 = L sum_free |f(x0, v0)| (J): the work the initial forces do over the length scale."""
     force = system.force(system.x0, system.v0)
@@ -481,6 +562,7 @@ CHECKS: dict[str, Callable[[System], Check]] = {
     "capabilities": check_capabilities,
     "test frequency": check_test_frequency,
     "energy reference": check_energy_reference,
+    "forms": check_forms,
     "short run": check_short_run,
 }
 
