@@ -15,13 +15,12 @@ from .contact.params import ContactSpec
 from .mass_spring.system import MassSpring
 from .vertex.damping import Damping
 from .vertex.errors import ModelError
+from .vertex.fields import Finite, Positive
 from .vertex.files import file_digest, find_file
 from .vertex.grids import GridModel
 
 PIN_NAMES = ("top_left", "top_right", "bottom_left", "bottom_right", "top", "bottom", "left", "right")
 
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
 class ClothSphere(BaseModel):

@@ -20,12 +20,8 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from ..vertex.fields import ConstantRotation
+from ..vertex.fields import ConstantRotation, Finite, NonNegative, Positive, Vector
 
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Vector = list[Finite]
 
 CONTACT_METHODS = ("penalty", "ipc")
 # A penalty stiffness where the config says auto: the stiffness the ground and sphere shorthands always had.

@@ -22,7 +22,7 @@ from ..contact.params import ContactSpec
 from ..vertex.constraint_config import Prescribed, Sliding, vertex_constraints
 from ..vertex.damping import Damping, DampingTerm
 from ..vertex.errors import ModelError
-from ..vertex.fields import Box, Vector, vector
+from ..vertex.fields import Box, Positive, Vector, vector
 from ..vertex.files import file_digest, find_file
 from ..vertex.initial_state import InitialShape, initial_state
 from ..vertex.selectors import Selector, in_box
@@ -32,7 +32,6 @@ from .system import Fem
 
 __all__ = ["FemParams", "Material"]
 
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 Poisson = Annotated[float, Field(gt=-1.0, lt=0.5, allow_inf_nan=False)]
 
 
