@@ -84,3 +84,20 @@ def test_the_run_counts_the_readme_states_are_the_configs():
         assert len(expand_runs(experiment)) == int(match.group(1).replace(",", "")), f"README: {path.name}, {match.group(0)}"
         checked += 1
     assert checked >= 2
+
+
+def test_the_readme_and_the_docs_name_the_format_the_writer_writes():
+    from simrun.format.layout import FORMAT_VERSION, READABLE_VERSIONS
+
+    readme = re.search(r"docs/results-format\.md\)\s+\(format (\d+); files of\s+formats? ([\d, and]+) are still read",
+                       README.read_text())
+    assert readme, "README.md no longer names the results format beside docs/results-format.md"
+    assert int(readme.group(1)) == FORMAT_VERSION
+    assert sorted(int(number) for number in re.findall(r"\d+", readme.group(2))) == sorted(set(READABLE_VERSIONS) - {FORMAT_VERSION})
+    page = (ROOT / "docs" / "results-format.md").read_text()
+    assert re.match(rf"# The results file, format version {FORMAT_VERSION}\n", page)
+    assert re.search(rf"^- \*\*{FORMAT_VERSION}\*\* \(this page\)", page, re.M)
+    assert re.search(rf"^\| `format_version` \| int \| {FORMAT_VERSION} \|", page, re.M)
+    for path in [README, *sorted((ROOT / "docs").glob("*.md"))]:  # no other page names another version as current
+        for match in re.finditer(r"\bformat version (\d+)\b", path.read_text()):
+            assert int(match.group(1)) == FORMAT_VERSION, f"{path.name}: {match.group(0)}"

@@ -141,6 +141,28 @@ def test_python_dash_m_simrun_is_the_command():
     assert result.returncode == 0 and result.stdout.strip().startswith("simrun ")
 
 
+def test_a_resumed_sweeps_final_line_counts_the_file_then_this_invocation(tmp_path, capsys):
+    """After a resume the final line gives every run in the file by status, then what this invocation ran; its
+    progress (and time left) counts only the runs it has to run."""
+    config = write_config(tmp_path, SWEEP, tmp_path / "out")
+    assert main([str(config), "-q", "--no-plots", "-j", "1", "--lanes", "off"]) == 0
+    first = capsys.readouterr().out
+    with h5py.File(tmp_path / "out" / "results.h5", "r+") as file:
+        statuses = {run_id: group.attrs["status"] for run_id, group in file["runs"].items()}
+        redone = sorted(statuses)[:3]
+        for run_id in redone:  # as a killed write leaves them: run again on resume
+            file["runs"][run_id].attrs["complete"] = False
+    counts = {status: list(statuses.values()).count(status) for status in set(statuses.values())}
+    whole = ", ".join(f"{count} {status}" for status, count in sorted(counts.items(), key=lambda item: -item[1]))
+    assert f"({whole})" in first  # the first invocation ran them all: the file's counts alone
+    assert main([str(config), "--no-plots", "-j", "1", "--lanes", "off"]) == 0
+    out = capsys.readouterr().out
+    again = {status: [statuses[run_id] for run_id in redone].count(status) for status in set(statuses[r] for r in redone)}
+    ran = ", ".join(f"{count} {status}" for status, count in sorted(again.items(), key=lambda item: -item[1]))
+    assert f"(24 runs in the file: {whole}; this invocation ran {ran})" in out
+    assert "[3/3]" in out and "[4/" not in out and "/24]" not in out
+
+
 def test_unchanged_config_resumes_and_changed_config_is_refused(tmp_path, capsys):
     config = write_config(tmp_path, SWEEP, tmp_path / "out")
     assert main([str(config), "-q", "--no-plots", "-j", "1"]) == 0

@@ -116,9 +116,13 @@ def test_format1_summary_is_the_stored_table_in_sweep_order(path):
         assert row["error_time"] == results.runs[row["run_id"]]["t"][-1]
     # (and the error norms over the run, added later: NaN, since format 1 stored none)
     norms = {"final_velocity_error", "max_error", "max_velocity_error"}
+    split = {"max_rel_energy_remainder", "final_rel_dissipated_energy"}
     assert set(SUMMARY_COLUMNS) - set(stored.dtype.names) == {"error_time", "error", "real_time_factor",
-                                                              "wall_time_per_frame"} | norms
+                                                              "wall_time_per_frame"} | norms | split
     assert summary[sorted(norms)].isna().all().all()
+    # the energy budget's split, added later, is computed from the stored series: nothing dissipates in these files
+    assert (summary["final_rel_dissipated_energy"] == 0).all()
+    assert np.allclose(summary["max_rel_energy_remainder"], summary["max_rel_energy_drift"], rtol=1e-12, equal_nan=True)
 
 
 def test_summary_follows_the_sweep_order_not_the_stored_order(tmp_path):

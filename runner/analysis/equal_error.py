@@ -16,6 +16,7 @@ from before it was counted) is not compared.
 from __future__ import annotations
 
 import dataclasses
+import re
 import math
 
 import numpy as np
@@ -102,8 +103,9 @@ def left_out_reason(run) -> str:
         if run.error <= 0:
             return "error exactly 0: no point on a log axis"
         return "" if run.wall_time > 0 else "no wall time"
-    if "max_wall_time" in run.stored.message:
-        return "over record.max_wall_time"
+    budget = re.search(r"record\.(max_wall_time|max_steps|max_solver_iterations)", run.stored.message)
+    if budget is not None:
+        return f"over {budget.group(0)}"
     return str(run.status).replace("_", " ")
 
 

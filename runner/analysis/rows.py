@@ -8,7 +8,7 @@ are computed from the file alone (``simrun.analysis.runs.run_set``) and from ``s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -16,7 +16,7 @@ from simrun.format.record import run_attribute
 from simrun.analysis import oscillator as analysis
 from simrun.analysis.runs import (SOLVER_ITERATION_NAMES, RunSet, predictions_for, solver_text,
                                   test_equation_runs)
-from simrun.format.summary import Status
+from simrun.format.summary import SUMMARY_COLUMNS, Status
 
 # Observed and declared order agree when they differ by at most this (the tests' tolerance).
 ORDER_TOLERANCE = 0.15
@@ -51,6 +51,8 @@ class SummaryRow:
     energy_reference_name: str  # what E_ref is, e.g. "E0 (initial energy)"
     max_rel_energy_drift: float  # max |E - E0| / E_ref
     final_rel_energy_drift: float  # (E_end - E0) / E_ref
+    max_rel_energy_remainder: float  # the integrator's share: max |E + E_dissipated - W - E0| / E_ref
+    final_rel_dissipated_energy: float  # what damping and friction took out by the end, over E_ref
     error_time: float  # s, when `error` was measured (NaN: the run stopped before it)
     error: float  # m, distance from the exact solution (or the reference) at error_time
     error_from_reference: bool  # error against a reference solution, not an exact one
@@ -80,6 +82,8 @@ class SummaryRow:
     max_velocity_error: float = math.nan  # m/s, max |v - v_exact| over the stored samples
     # ... and against a reference: m/s, max |v - v_ref| at error_time (NaN: no reference, or no velocities stored there)
     velocity_error: float = math.nan
+    # the swept keys and method parameters this run reads, by column name (simrun.results.parameters); None: not read
+    parameters: dict = field(default_factory=dict)
 
     @property
     def status_detail(self) -> str:
@@ -130,7 +134,9 @@ class SummaryRow:
 
 def summary_rows(data: RunSet) -> list[SummaryRow]:
     """One row per run, in sweep order; drift and iterations from the file's summary table."""
-    stored = data.results.summary.set_index("run_id").to_dict("index")
+    summary = data.results.summary
+    parameter_names = [name for name in summary.columns if name not in SUMMARY_COLUMNS]
+    stored = summary.set_index("run_id").to_dict("index")
     titles = {id(member): title for title, members in data.groups for member in members}
     velocity_errors = data.reference.velocity_errors if data.reference is not None else {}
     rows = []
@@ -151,6 +157,8 @@ def summary_rows(data: RunSet) -> list[SummaryRow]:
             energy_reference=_energy_reference(run.stored)[0], energy_reference_name=_energy_reference(run.stored)[1],
             max_rel_energy_drift=float(row["max_rel_energy_drift"]),
             final_rel_energy_drift=float(row["final_rel_energy_drift"]),
+            max_rel_energy_remainder=float(row["max_rel_energy_remainder"]),
+            final_rel_dissipated_energy=float(row["final_rel_dissipated_energy"]),
             error_time=error_time, error=error, error_from_reference=from_reference,
             final_error=run.stored.final_error,
             mean_newton_iterations=float(row["mean_newton_iterations"]),
@@ -170,8 +178,30 @@ def summary_rows(data: RunSet) -> list[SummaryRow]:
             tolerance=run.tolerance, final_velocity_error=float(row["final_velocity_error"]),
             max_error=float(row["max_error"]), max_velocity_error=float(row["max_velocity_error"]),
             velocity_error=velocity_errors.get(run.run_id, math.nan),
+            parameters={name: _cell(row[name]) for name in parameter_names},
         ))
     return rows
+
+
+def _cell(value):
+    """A parameter cell as Python: None where the run does not read the key (pandas' NA, or NaN)."""
+    import pandas
+
+    if isinstance(value, (str, tuple)):
+        return value
+    if value is None or pandas.isna(value):
+        return None
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def parameter_names(rows: list[SummaryRow]) -> list[str]:
+    """The parameter columns of these rows, in the summary's order."""
+    return list(dict.fromkeys(name for row in rows for name in row.parameters))
+
+
+def varied_parameters(rows: list[SummaryRow]) -> list[str]:
+    """The parameter columns that tell some of these runs apart (more than one value, a missing one counted)."""
+    return [name for name in parameter_names(rows) if len({repr(row.parameters.get(name)) for row in rows}) > 1]
 
 
 def _energy_reference(stored) -> tuple[float, str]:
@@ -238,6 +268,18 @@ def error_time_text(rows: list[SummaryRow]) -> str:
         return ""
     low, high = min(times), max(times)
     return f"t = {low:.4g} s" if math.isclose(low, high, rel_tol=1e-9) else f"t = {low:.4g} to {high:.4g} s"
+
+
+def remainder_differs(rows: list[SummaryRow]) -> bool:
+    """Some run's energy left or entered physically (damping, friction, prescribed work): its drift |E - E0| is not the
+    integrator's remainder of the budget, and the two are shown apart."""
+    return any(np.isfinite(row.max_rel_energy_remainder) and np.isfinite(row.max_rel_energy_drift)
+               and not math.isclose(row.max_rel_energy_remainder, row.max_rel_energy_drift, rel_tol=1e-9, abs_tol=1e-300)
+               for row in rows)
+
+
+def any_dissipated(rows: list[SummaryRow]) -> bool:
+    return any(np.isfinite(row.final_rel_dissipated_energy) and row.final_rel_dissipated_energy != 0 for row in rows)
 
 
 def energy_reference_differs(rows: list[SummaryRow]) -> bool:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from collections import Counter
 
 from simrun.commands._options import add_executor_options, add_experiment_options, executor_name
 
@@ -39,8 +40,21 @@ def handle(args) -> int:
     except Interrupted as interrupted:
         print(f"simrun: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    counts = ", ".join(f"{count} {status}" for status, count in results.ran.items()) or "nothing left to run"
-    print(f"results: {results.path}  ({counts})")
+    print(f"results: {results.path}  ({counts_text(results)})")
     if not args.no_plots:
         print(f"figures: {results.path.parent / 'figures'}  ({len(results.figure_files)} files)")
     return 0
+
+
+def counts_text(results) -> str:
+    """The file's runs by status, then what this invocation ran where that was not all of them (a resume):
+    "280 ok, 55 not_converged, 1 diverged; this run: 38 ok, 17 not_converged"."""
+    def counted(counts: dict) -> str:
+        return ", ".join(f"{count} {status}" for status, count in sorted(counts.items(), key=lambda item: -item[1]))
+
+    in_file = Counter(str(run.status) for run in results.runs.values())
+    ran = sum(results.ran.values())
+    if ran == len(results.runs):
+        return counted(in_file)
+    this = f"this invocation ran {counted(results.ran)}" if ran else "nothing left to run"
+    return f"{len(results.runs)} runs in the file: {counted(in_file)}; {this}"

@@ -79,7 +79,7 @@ class LaneSeries:
         last = self.counts - 1
         every = np.arange(last.size)
         norms = self._error_norms(samples, last)
-        series_summary = self._series_summary(samples["energy"], per_step, steps)
+        series_summary = self._series_summary(samples["energy"], samples["dissipated_energy"], per_step, steps)
         energy = self.modal_energy(samples["energy"], samples["positions"], samples["velocities"])
         usable = np.isfinite(energy) & (energy > DECAY_FLOOR * energy[:, :1])  # NaN past a lane's count: not usable
         latest = energy.shape[1] - 1 - np.argmax(usable[:, ::-1], axis=1)
@@ -107,21 +107,29 @@ class LaneSeries:
         return {"final_velocity_error": velocity_error[every, last], "max_error": np.max(position_error, axis=1),
                 "max_velocity_error": np.max(velocity_error, axis=1)}
 
-    def _series_summary(self, energy: np.ndarray, per_step: dict, steps: np.ndarray) -> dict[str, np.ndarray]:
+    def _series_summary(self, energy: np.ndarray, dissipated: np.ndarray, per_step: dict, steps: np.ndarray
+                        ) -> dict[str, np.ndarray]:
         """results.series_summary for every lane at once: the largest and the last energy drift over the finite samples,
-        relative to the first finite one, and the mean iterations per step (the same operations, lane by lane)."""
+        relative to the first finite one, the budget's remainder and the dissipated energy (summary.energy_remainder),
+        and the mean iterations per step (the same operations, lane by lane)."""
         finite = np.isfinite(energy)
         every = np.arange(energy.shape[0])
         first = np.argmax(finite, axis=1)
         last = energy.shape[1] - 1 - np.argmax(finite[:, ::-1], axis=1)
         drift = (energy - energy[every, first][:, None]) / self.energy_scale[:, None]
+        with np.errstate(invalid="ignore", over="ignore"):  # a diverged lane's last samples: inf - inf
+            budget = energy + dissipated
+            remainder = np.abs(budget - budget[every, first][:, None]) / self.energy_scale[:, None]
         some = finite.any(axis=1)
         largest = np.max(np.where(finite, np.abs(drift), -np.inf), axis=1)
+        largest_remainder = np.max(np.where(finite, remainder, -np.inf), axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             means = {key: np.where(steps > 0, per_step[key].sum(axis=1, dtype=np.float64) / np.maximum(steps, 1), 0.0)
                      for key in ("newton_iterations", "linear_iterations")}
         return {"max_rel_energy_drift": np.where(some, largest, np.nan),
                 "final_rel_energy_drift": np.where(some, drift[every, last], np.nan),
+                "max_rel_energy_remainder": np.where(some, largest_remainder, np.nan),
+                "final_rel_dissipated_energy": np.where(some, dissipated[every, last] / self.energy_scale, np.nan),
                 "mean_newton_iterations": means["newton_iterations"], "mean_linear_iterations": means["linear_iterations"]}
 
 
@@ -141,6 +149,9 @@ class LaneSummary:
         self.first_energy: np.ndarray | None = None
         self.max_drift = np.full(lanes, math.nan)
         self.final_drift = np.full(lanes, math.nan)
+        self.first_budget: np.ndarray | None = None  # E0 + the dissipated energy at the first sample
+        self.max_remainder = np.full(lanes, math.nan)
+        self.final_dissipated = np.full(lanes, math.nan)
         self.newton = np.zeros(lanes, dtype=np.int64)
         self.linear = np.zeros(lanes, dtype=np.int64)
         self.safeguard_steps = np.zeros(lanes, dtype=np.int64)
@@ -154,20 +165,26 @@ class LaneSummary:
         modal = self.modal_energy(energy, x, v)
         if self.first_energy is None:  # results.energy_drift: relative to the first finite sample, E at t = 0 (finite: x0 is)
             self.first_energy = energy.copy()
+            self.first_budget = energy + dissipated
             self.first_modal = self.decay_energy = modal
-        self._add(np.ones(energy.shape, dtype=bool) if running is None else running, energy, modal, t, x, v)
+        self._add(np.ones(energy.shape, dtype=bool) if running is None else running, energy, modal, t, dissipated, x, v)
 
     def stop_sample(self, stopping: np.ndarray, observed: dict, t, dissipated, x, v) -> None:
-        self._add(stopping, observed["energy"], self.modal_energy(observed["energy"], x, v), t, x, v)
+        self._add(stopping, observed["energy"], self.modal_energy(observed["energy"], x, v), t, dissipated, x, v)
 
-    def _add(self, recorded: np.ndarray, energy: np.ndarray, modal: np.ndarray, t, x, v) -> None:
-        """A sample of the ``recorded`` lanes: its drift counts where the energy is finite (results.energy_drift), its t
-        and x are the lane's last sample whatever they are (measures.final_error)."""
+    def _add(self, recorded: np.ndarray, energy: np.ndarray, modal: np.ndarray, t, dissipated, x, v) -> None:
+        """A sample of the ``recorded`` lanes: its drift and the budget's remainder count where the energy is finite
+        (results.energy_drift, energy_remainder), its t and x are the lane's last sample whatever they are
+        (measures.final_error)."""
         drift = (energy - self.first_energy) / self.scale
         size = np.abs(drift)
         finite = recorded & np.isfinite(energy)
         self.max_drift = np.where(finite & ~(size <= self.max_drift), size, self.max_drift)  # NaN max: none yet
         self.final_drift = np.where(finite, drift, self.final_drift)
+        with np.errstate(invalid="ignore", over="ignore"):  # a diverged lane: inf - inf
+            remainder = np.abs(energy + dissipated - self.first_budget) / self.scale
+        self.max_remainder = np.where(finite & ~(remainder <= self.max_remainder), remainder, self.max_remainder)
+        self.final_dissipated = np.where(finite, dissipated / self.scale, self.final_dissipated)
         self.last_t = np.where(recorded, t, self.last_t)
         self.last_positions = np.where(recorded[:, None], x, self.last_positions)
         self.last_velocities = np.where(recorded[:, None], v, self.last_velocities)
@@ -205,6 +222,8 @@ class LaneSummary:
                 "last_positions": self.last_positions, "safeguard_steps": self.safeguard_steps, "error_norms": norms,
                 "decay_energies": (self.first_modal, self.decay_energy, self.decay_t),
                 "series_summary": {"max_rel_energy_drift": self.max_drift, "final_rel_energy_drift": self.final_drift,
+                                   "max_rel_energy_remainder": self.max_remainder,
+                                   "final_rel_dissipated_energy": self.final_dissipated,
                                    "mean_newton_iterations": newton, "mean_linear_iterations": linear}}
 
 

@@ -53,7 +53,7 @@ def lane_key(run: Run):
     lanes_class = vars(system_class).get("lanes_class")
     if lanes_class is None or run.integrator.name not in LANE_INTEGRATORS:
         return None
-    if run.record.max_wall_time is not None:  # a budget per run: lanes step together, so each is stepped alone
+    if run.record.budgeted:  # a budget per run: lanes step together, so each is stepped alone
         return None
     if run.step_control is not None:  # each run chooses its own steps
         return None

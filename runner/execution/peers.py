@@ -130,10 +130,16 @@ def simulate_peer(run: Run) -> RunResult:
                         break
                 if with_frames and (cadence.frame_due(steps, t) or last):
                     recorder.record_frame(t, state[:n])
-                if run.record.max_wall_time is not None and time.perf_counter() - start > run.record.max_wall_time:
+                if last:
+                    continue
+                used_up = run.record.used_up(steps)
+                if used_up is None and run.record.max_wall_time is not None and \
+                        time.perf_counter() - start > run.record.max_wall_time:
+                    used_up = (f"{time.perf_counter() - start:.3g} s of wall time, over record.max_wall_time "
+                               f"{run.record.max_wall_time:g} s")
+                if used_up is not None:
                     over_budget = True
-                    message = (f"stopped at t = {t:.6g} s: {time.perf_counter() - start:.3g} s of wall time, over "
-                               f"record.max_wall_time {run.record.max_wall_time:g} s")
+                    message = f"stopped at t = {t:.6g} s: {used_up}"
                     break
             counts["function_evaluations"] += solver.nfev
             counts["jacobian_evaluations"] += getattr(solver, "njev", 0)

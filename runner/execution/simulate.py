@@ -86,7 +86,7 @@ def simulate(run: Run) -> RunResult:
     failed = diverged = over_budget = False
     message, t_diverged, not_converged_steps = "", None, 0
     first_not_converged = diverged_step = 0  # 1-based step numbers; 0: none
-    steps = 0
+    steps = solver_iterations = 0
     max_wall_time = run.record.max_wall_time
     # a step-controlled run's evaluations (as wall_time, the set-up left out): fixed-step runs count none, so that a
     # run stepped alone stores what it stores stepped as a lane, where every lane's forces are one call
@@ -137,6 +137,7 @@ def simulate(run: Run) -> RunResult:
                     dissipated += dt * float(mean_velocity @ (damping @ mean_velocity))
                 if stats is not EXPLICIT_STEP:  # the per-step arrays start at zero, what an explicit step reports
                     log.record(row, stats)
+                    solver_iterations += int(stats.iterations)
                 if schedule.at_error_time():
                     error_state = (t, state.x.copy(), state.v.copy())
                 last = schedule.done
@@ -165,10 +166,15 @@ def simulate(run: Run) -> RunResult:
                     message = f"step {steps} (t = {t:.6g} s) did not converge: residual {stats.residual:.3g}"
                     record_stop(t, state, sampled, framed)
                     break
-                if max_wall_time is not None and not last and time.perf_counter() - start > max_wall_time:
+                if last:
+                    continue
+                used_up = run.record.used_up(steps, solver_iterations)
+                if used_up is None and max_wall_time is not None and time.perf_counter() - start > max_wall_time:
+                    used_up = (f"{time.perf_counter() - start:.3g} s of wall time, over record.max_wall_time "
+                               f"{max_wall_time:g} s")
+                if used_up is not None:
                     over_budget = True
-                    message = (f"stopped at t = {t:.6g} s ({schedule.where()}): {time.perf_counter() - start:.3g} s "
-                               f"of wall time, over record.max_wall_time {max_wall_time:g} s")
+                    message = f"stopped at t = {t:.6g} s ({schedule.where()}): {used_up}"
                     record_stop(t, state, sampled, framed)
                     break
     except StepTooSmall as error:  # the controller's own end: its message says where and why

@@ -136,7 +136,30 @@ class RecordParams(BaseModel):
 
     max_wall_time: float | None = Field(None, gt=0, description="a run's budget of wall time (s): a run still stepping "
                                         "after it stops there, not_converged, with what it recorded so far (a run "
-                                        "stepped alone: runs with a budget are not stepped as lanes)")
+                                        "stepped alone: runs with a budget are not stepped as lanes). Its outcome "
+                                        "depends on the machine: for the real-time question only; max_steps and "
+                                        "max_solver_iterations bound a run the same on every machine")
+    max_steps: int | None = Field(None, ge=1, description="a run's budget of steps (Hairer's NMAX): a run that has taken "
+                                  "this many steps short of its end stops there, not_converged (step-controlled runs "
+                                  "count their accepted steps; scipy's peers theirs)")
+    max_solver_iterations: int | None = Field(None, ge=1, description="a run's budget of solver iterations, summed "
+                                              "over its steps (Newton's, L-BFGS's, a sweep's): a run that has used them "
+                                              "up short of its end stops there, not_converged; explicit methods and "
+                                              "scipy's peers iterate no simrun solver")
+
+    @property
+    def budgeted(self) -> bool:
+        """Some budget bounds each run: it is stepped alone (lanes step together)."""
+        return self.max_wall_time is not None or self.max_steps is not None or self.max_solver_iterations is not None
+
+    def used_up(self, steps: int, solver_iterations: int = 0) -> str | None:
+        """What of its budgets of work (max_steps, max_solver_iterations) a run has used up after ``steps`` steps short of
+        its end, as its message says it; None while it has some left. The same on every machine."""
+        if self.max_steps is not None and steps >= self.max_steps:
+            return f"{steps} steps, record.max_steps {self.max_steps}"
+        if self.max_solver_iterations is not None and solver_iterations >= self.max_solver_iterations:
+            return f"{solver_iterations} solver iterations, record.max_solver_iterations {self.max_solver_iterations}"
+        return None
     frames_every: int | None = Field(None, ge=1, description="cloth: keep the vertex positions every k-th step")
     max_frames: int = Field(200, ge=2, description="cloth, when `frames_every` is not given: at most this many frames per run")
     error_time: float | Literal["auto"] = Field(

@@ -36,7 +36,8 @@ class Status(str, enum.Enum):
 
 # the summary's numbers that come from a run's series; a run recorded without them (record.series: false) stores
 # them as attributes instead
-SERIES_SUMMARY_KEYS = ("max_rel_energy_drift", "final_rel_energy_drift", "mean_newton_iterations", "mean_linear_iterations")
+SERIES_SUMMARY_KEYS = ("max_rel_energy_drift", "final_rel_energy_drift", "max_rel_energy_remainder",
+                       "final_rel_dissipated_energy", "mean_newton_iterations", "mean_linear_iterations")
 
 # the paths of a sparse factorisation, as simrun.solvers.linear names them (a test holds the two equal; the format
 # names them itself so that reading a file imports no solver)

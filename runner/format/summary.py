@@ -17,7 +17,7 @@ from simrun.format.layout import ERROR_NORMS
 from simrun.format.record import SERIES_SUMMARY_KEYS, Status, run_attribute
 
 __all__ = ["SERIES_SUMMARY_KEYS", "SUMMARY_COLUMNS", "SUMMARY_DTYPE", "Status", "energy_drift", "energy_reference",
-           "real_time_factor", "series_summary", "summary_row", "summary_row_of", "wall_time_per_frame"]
+           "energy_remainder", "real_time_factor", "series_summary", "summary_row", "summary_row_of", "wall_time_per_frame"]
 
 
 # -- energy drift: the one definition ---------------------------------------------------------------
@@ -41,6 +41,24 @@ def energy_drift(energy: np.ndarray, scale: float) -> tuple[float, float]:
     return float(np.max(np.abs(drift))), float(drift[-1])
 
 
+def energy_remainder(energy: np.ndarray, dissipated: np.ndarray, work: np.ndarray, scale: float) -> tuple[float, float]:
+    """The energy budget split in two (J / ``scale``): (max |E + E_dissipated - W - E0|, E_dissipated at the end).
+
+    The first is what the integrator itself removed or added, the remainder of the budget E0 + W (W: the work of the
+    vertices on prescribed paths) once the physical losses E_dissipated (damping and friction, as the run recorded
+    them) are counted; the second is those losses. Over the samples where E is finite; NaN without any."""
+    finite = np.isfinite(energy)
+    if not finite.any():
+        return math.nan, math.nan
+    with np.errstate(invalid="ignore", over="ignore"):  # a diverged run's last samples: inf - inf
+        remainder = (energy + dissipated - work)[finite]
+        return float(np.max(np.abs(remainder - remainder[0]))) / scale, float(dissipated[finite][-1]) / scale
+
+
+# the sample series of the energy that left the system physically: damping's work and friction's (J, from t = 0)
+DISSIPATED_SERIES = ("dissipated_energy", "friction_dissipated")
+
+
 # -- the summary table ------------------------------------------------------------------------------
 SUMMARY_DTYPE = np.dtype([
     ("run_id", h5py.string_dtype()),
@@ -50,6 +68,8 @@ SUMMARY_DTYPE = np.dtype([
     ("steps", "i8"),
     ("max_rel_energy_drift", "f8"),
     ("final_rel_energy_drift", "f8"),
+    ("max_rel_energy_remainder", "f8"),
+    ("final_rel_dissipated_energy", "f8"),
     ("final_error", "f8"),
     ("error_time", "f8"),
     ("error", "f8"),
@@ -89,11 +109,21 @@ def series_summary(attrs, read) -> dict[str, float]:
     """SERIES_SUMMARY_KEYS of one run: from its attributes where it kept no series, else from ``read(key)`` (its
     recorded dataset, or an empty array)."""
     if SERIES_SUMMARY_KEYS[0] in attrs:
-        return {key: float(attrs[key]) for key in SERIES_SUMMARY_KEYS}
+        return {key: float(attrs[key]) if key in attrs else math.nan for key in SERIES_SUMMARY_KEYS}  # older: fewer
     series = {key: read(key) for key in ("energy", "kinetic_energy", "potential_energy")}
-    max_drift, final_drift = energy_drift(series["energy"], energy_reference(attrs, *series.values())[0])
+    scale = energy_reference(attrs, *series.values())[0]
+    max_drift, final_drift = energy_drift(series["energy"], scale)
+    count = series["energy"].size
+    dissipated, work = np.zeros(count), np.zeros(count)
+    for key in DISSIPATED_SERIES:
+        values = read(key)
+        dissipated = dissipated + (values[:count] if values.size >= count else 0.0)
+    if read("prescribed_work").size >= count:
+        work = read("prescribed_work")[:count]
+    remainder, lost = energy_remainder(series["energy"], dissipated, work, scale)
     newton, linear = read("newton_iterations"), read("linear_iterations")
     return {"max_rel_energy_drift": max_drift, "final_rel_energy_drift": final_drift,
+            "max_rel_energy_remainder": remainder, "final_rel_dissipated_energy": lost,
             "mean_newton_iterations": float(newton.mean()) if newton.size else 0.0,
             "mean_linear_iterations": float(linear.mean()) if linear.size else 0.0}
 
@@ -109,7 +139,8 @@ def summary_row_of(run_id: str, attrs, read) -> tuple:
     steps, dt, wall_time = int(attrs["steps"]), float(attrs["dt"]), float(attrs["wall_time"])
     return (
         run_id, as_text(attrs["integrator_label"]), dt, as_text(attrs["status"]), steps,
-        series["max_rel_energy_drift"], series["final_rel_energy_drift"], float(run_attribute(attrs, "final_error")),
+        series["max_rel_energy_drift"], series["final_rel_energy_drift"], series["max_rel_energy_remainder"],
+        series["final_rel_dissipated_energy"], float(run_attribute(attrs, "final_error")),
         float(run_attribute(attrs, "error_time")), float(run_attribute(attrs, "error")),
         *(float(run_attribute(attrs, key)) for key in ERROR_NORMS), series["mean_newton_iterations"], series["mean_linear_iterations"], wall_time,
         real_time_factor(steps, dt, wall_time), wall_time_per_frame(steps, dt, wall_time),

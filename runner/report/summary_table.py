@@ -11,8 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simrun.analysis.rows import (SummaryRow, any_not_converged, any_safeguards, energy_reference_differs,
-                                  energy_reference_text, error_time_text, iteration_name, mixed_solvers, steps_text)
+from simrun.analysis.rows import (SummaryRow, any_dissipated, any_not_converged, any_safeguards,
+                                  energy_reference_differs, energy_reference_text, error_time_text, iteration_name,
+                                  mixed_solvers, parameter_names, remainder_differs, steps_text)
 from simrun.analysis.units import damping_text, distance_text, frame_time_text, number_text, real_time_text
 from simrun.format.summary import FRAME_TIME
 
@@ -64,7 +65,15 @@ def terminal_columns(rows: list[SummaryRow]) -> list[Column]:
         Column("hw", ("", "h w"), lambda row: "" if not np.isfinite(row.hw) else f"{row.hw:.3g}", 3, shown=_any(lambda row: row.hw)),
         Column("status", ("", "status"), _status_text, 9, text=True),
         Column("steps", ("", "steps"), lambda row: str(row.steps), 1),
-        Column("max_drift", ("max", "drift"), lambda row: number_text(row.max_rel_energy_drift), 8),
+        Column("max_drift", ("max", "drift"), lambda row: number_text(row.max_rel_energy_drift), 8,
+               shown=lambda rows: not remainder_differs(rows)),
+        # where energy left or entered physically, the drift is split: the integrator's remainder, and the losses
+        Column("remainder", ("integrator", "remainder"), lambda row: number_text(row.max_rel_energy_remainder), 8,
+               shown=remainder_differs),
+        Column("dissipated", ("", "dissipated"), lambda row: number_text(row.final_rel_dissipated_energy), 7,
+               shown=any_dissipated),
+        Column("drift_with_losses", ("max", "|E-E0|"), lambda row: number_text(row.max_rel_energy_drift), 2,
+               shown=remainder_differs),
         Column("e_ref", ("E_ref", "(J)"), lambda row: number_text(row.energy_reference), 2,
                shown=energy_reference_differs),
         Column("error", ("error", "(m)"), lambda row: number_text(row.error).replace("–", ""), 8,
@@ -139,7 +148,15 @@ def format_table(rows: list[SummaryRow], name: str = "", wide: bool = False, wid
             group = row.group
         lines.append(line([cells(column, row) for column in columns]))
     lines.append(rule)
-    notes = [f"drift: max |E - E0| / E_ref, {energy_reference_text(rows)}"]
+    if any(column.key == "remainder" for column in columns):
+        notes = [f"integrator remainder: the energy the method itself removed or added, max |E + E_dissipated - W - E0| "
+                 f"/ E_ref (W: work of prescribed vertices), {energy_reference_text(rows)}"]
+        if any(column.key == "dissipated" for column in columns):
+            notes.append("dissipated: what damping and friction took out by the end, E_dissipated / E_ref")
+        if any(column.key == "drift_with_losses" for column in columns):
+            notes.append("|E-E0|: the largest change of the energy, both together")
+    else:
+        notes = [f"drift: max |E - E0| / E_ref, {energy_reference_text(rows)}"]
     if any(column.key == "error" for column in columns):
         reference = any(row.error_from_reference for row in rows)
         notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
@@ -184,6 +201,8 @@ CSV_COLUMNS = (  # header (with its unit), value
     ("energy_reference_name", lambda row: row.energy_reference_name),
     ("max_rel_energy_drift", lambda row: row.max_rel_energy_drift),  # dimensionless: max |E - E0| / E_ref
     ("final_rel_energy_drift", lambda row: row.final_rel_energy_drift),  # (E_end - E0) / E_ref
+    ("max_rel_energy_remainder", lambda row: row.max_rel_energy_remainder),  # max |E + E_diss - W - E0| / E_ref
+    ("final_rel_dissipated_energy", lambda row: row.final_rel_dissipated_energy),  # E_diss(end) / E_ref
     ("error_time_s", lambda row: row.error_time),
     ("error_m", lambda row: row.error),
     ("error_from_reference", lambda row: row.error_from_reference),
@@ -211,20 +230,37 @@ CSV_COLUMNS = (  # header (with its unit), value
 )
 
 
+# the parameter columns (a swept key, a method parameter, named by the key) come after this one
+PARAMETERS_AFTER = "solver"
+
+
+def csv_columns(rows: list[SummaryRow]) -> list[tuple[str, Callable[[SummaryRow], object]]]:
+    """CSV_COLUMNS with the rows' parameter columns (``step_control.tolerance``, ``system.label``,
+    ``integrator.order``: simrun.results.parameters) after PARAMETERS_AFTER; empty where a run does not read the key."""
+    place = next(number for number, (header, _) in enumerate(CSV_COLUMNS) if header == PARAMETERS_AFTER) + 1
+    parameters = [(name, lambda row, name=name: row.parameters.get(name)) for name in parameter_names(rows)]
+    return [*CSV_COLUMNS[:place], *parameters, *CSV_COLUMNS[place:]]
+
+
 def write_csv(rows: list[SummaryRow], stream) -> None:
     """Every column at full precision; a header names its unit (dt_s, wall_time_s, error_m, energy_reference_J)
-    or is a dimensionless ratio (max_rel_energy_drift, hw, *_damping_over_w)."""
+    or is a dimensionless ratio (max_rel_energy_drift, hw, *_damping_over_w), or is a parameter's key."""
+    columns = csv_columns(rows)
     writer = csv.writer(stream)
-    writer.writerow([header for header, _ in CSV_COLUMNS])
+    writer.writerow([header for header, _ in columns])
     for row in rows:
-        writer.writerow([csv_number(value(row)) for _, value in CSV_COLUMNS])
+        writer.writerow([csv_number(value(row)) for _, value in columns])
 
 
 def csv_number(value):
+    if value is None:
+        return ""
     if isinstance(value, (float, np.floating)):
         return "" if math.isnan(value) else repr(float(value))
-    if isinstance(value, np.integer):
-        return int(value)
+    if isinstance(value, (np.integer, np.bool_)):
+        return value.item()
+    if isinstance(value, tuple):  # a swept list, as the config writes it
+        return "[" + ", ".join(str(csv_number(item)) for item in value) + "]"
     return value
 
 

@@ -11,7 +11,7 @@ import numpy as np
 from simrun.analysis.rows import (DAMPING_TOLERANCE, DETERMINANT_TOLERANCE, ORDER_TOLERANCE, DeterminantRow, OrderRow,
                                   StabilityRow, SummaryRow, any_safeguards, energy_reference_differs,
                                   energy_reference_text, error_time_text, iteration_name, mixed_solvers,
-                                  steps_text)
+                                  any_dissipated, remainder_differs, steps_text, varied_parameters)
 from simrun.analysis.units import damping_text, distance_text, frame_time_text, number_text, real_time_text
 from simrun.format.summary import FRAME_TIME
 
@@ -63,10 +63,15 @@ def summary_section(rows: list[SummaryRow]) -> str:
         return value is not None and np.isfinite(value) and value != 0
 
     iterations = iteration_name(rows)
+    swept = [name for name in varied_parameters(rows) if not name.startswith("integrator.")]
+    split = remainder_differs(rows)
     columns = [  # heading, kind, cell, shown
         ("#", False, lambda row: str(row.index), True),
         ("integrator", "label", lambda row: escape(row.integrator), True),
-        ("group", "wrap", lambda row: escape(row.group), len({row.group for row in rows}) > 1),
+        # the swept keys, a column each (the integrator's own parameters are in its label); the group where there are none
+        *((name, not _numeric(rows, name), lambda row, name=name: parameter_cell(row.parameters.get(name)), True)
+          for name in swept),
+        ("group", "wrap", lambda row: escape(row.group), not swept and len({row.group for row in rows}) > 1),
         ("solver", True, lambda row: escape(row.solver or "–"), mixed_solvers(rows)),
         ("dt (s)", False, lambda row: f"{row.dt:.4g}", True),
         ("h w", False, lambda row: "–" if not np.isfinite(row.hw) else f"{row.hw:.3g}", any(finite(row.hw) for row in rows)),
@@ -76,6 +81,8 @@ def summary_section(rows: list[SummaryRow]) -> str:
         ("E_ref (J)", False, lambda row: number_text(row.energy_reference), energy_reference_differs(rows)),
         ("max drift", False, lambda row: number_text(row.max_rel_energy_drift), True),
         ("final drift", False, lambda row: number_text(row.final_rel_energy_drift), True),
+        ("integrator remainder", False, lambda row: number_text(row.max_rel_energy_remainder), split),
+        ("dissipated", False, lambda row: number_text(row.final_rel_dissipated_energy), any_dissipated(rows)),
         ("error (m)", False, lambda row: number_text(row.error), any(finite(row.error) for row in rows)),
         (f"{iterations} it/step", False, lambda row: f"{row.mean_newton_iterations:.2f}" if row.solver else "–",
          any(finite(row.mean_newton_iterations) for row in rows)),
@@ -103,6 +110,11 @@ def summary_section(rows: list[SummaryRow]) -> str:
     notes = [f"the first {MAX_RUN_ROWS:,} of {len(rows):,} runs, in sweep order (every run: simrun show RESULTS --csv)"
              ] if len(rows) > MAX_RUN_ROWS else []
     notes += [f"drift: |E − E0| / E_ref (the largest over the run, and at its end), {energy_reference_text(rows)}"]
+    if split:
+        notes.append("integrator remainder: the part of the drift the method itself made, the largest "
+                     "|E + E_dissipated − W − E0| / E_ref (W: work of prescribed vertices), once the physical losses are "
+                     "counted" + ("; dissipated: what damping and friction took out by the end, over E_ref"
+                                  if any_dissipated(rows) else ""))
     if "error (m)" in shown:
         reference = any(row.error_from_reference for row in rows)
         notes.append(f"error: distance from the {'reference' if reference else 'exact'} solution at "
@@ -136,6 +148,22 @@ def summary_section(rows: list[SummaryRow]) -> str:
         notes.append("not shown, empty for every run: " + ", ".join(hidden))
     note = '<p class="note">' + "<br>".join(escape(text[0].upper() + text[1:]) + "." for text in notes) + "</p>"
     return note + table([(heading, kind) for heading, kind, _, _ in columns], body, scroll=len(rows) > SCROLLING_TABLE_ROWS)
+
+
+def _numeric(rows: list[SummaryRow], name: str) -> bool:
+    values = [row.parameters.get(name) for row in rows]
+    return all(value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)) for value in values)
+
+
+def parameter_cell(value) -> str:
+    """A swept key's or method parameter's value; – where the run does not read it."""
+    if value is None:
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, tuple):
+        return escape("[" + ", ".join(str(item) for item in value) + "]")
+    return escape(str(value))
 
 
 def _measured_cell(row: SummaryRow) -> str:

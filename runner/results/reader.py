@@ -30,8 +30,9 @@ from simrun.format.record import run_attribute
 from simrun.errors import ResultsFileError
 from simrun.format.layout import LANES_GROUP, READABLE_VERSIONS, RESULTS_NAME
 from simrun.format.summary import (SUMMARY_COLUMNS, SUMMARY_DTYPE, Status, as_text, attribute_value, energy_reference,
-                                   real_time_factor, summary_row, wall_time_per_frame)
+                                   real_time_factor, series_summary, summary_row, wall_time_per_frame)
 from simrun.results.fits import read_fits
+from simrun.results.parameters import parameter_columns, typed_series
 from simrun.results.lanes import lane_runs
 
 # the params that set a run's steps: its fixed dt, or the tolerance its step control chooses them by
@@ -160,6 +161,21 @@ class StoredRun:
     def wall_time_per_frame(self) -> float:
         """s of wall time per 1/60 s of simulated time (an animation frame)."""
         return wall_time_per_frame(self.steps, self.dt, self.wall_time)
+
+    @functools.cached_property
+    def _series_summary(self) -> dict[str, float]:
+        return series_summary(self.attrs, self.series)
+
+    @property
+    def max_rel_energy_remainder(self) -> float:
+        """The integrator's own share of the energy budget: max |E + E_dissipated - W - E0| / E_ref
+        (summary.energy_remainder), computed from the series for a file whose summary lacks it."""
+        return self._series_summary["max_rel_energy_remainder"]
+
+    @property
+    def final_rel_dissipated_energy(self) -> float:
+        """The energy damping and friction took out by the end, over E_ref (summary.energy_remainder)."""
+        return self._series_summary["final_rel_dissipated_energy"]
 
     @property
     def final_error(self) -> float:
@@ -356,7 +372,9 @@ class Results:
 
     @property
     def summary(self):
-        """One row per run in sweep order (pandas DataFrame), columns SUMMARY_COLUMNS.
+        """One row per run in sweep order (pandas DataFrame): the columns SUMMARY_COLUMNS, then one per swept key and
+        method parameter (``simrun.results.parameters``: ``step_control.tolerance``, ``system.label``,
+        ``integrator.order``, typed).
 
         From the file's /summary table; columns that an older table lacks (error_time and error, added
         in format 2) come from the runs."""
@@ -374,6 +392,9 @@ class Results:
         for name in SUMMARY_COLUMNS:
             if name not in stored:
                 frame.insert(SUMMARY_COLUMNS.index(name), name, [getattr(self.runs[run_id], name) for run_id in frame["run_id"]])
+        columns = parameter_columns([self.runs[run_id].params for run_id in frame["run_id"]], self.config)
+        for name, values in columns.items():
+            frame[name] = typed_series(values)
         return frame
 
     @functools.cached_property
