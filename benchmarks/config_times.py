@@ -3,6 +3,7 @@ figures included, timed whole; the run count and statuses read back from the res
 
     python -m benchmarks.config_times                        # every config in configs/, into config_times.json
     python -m benchmarks.config_times configs/fem_square.yaml  # some of them (the others' records are kept)
+    python -m benchmarks.config_times --write-comments         # each config's comment quotes its record
 
 The records go to benchmarks/config_times.json. tests/test_quoted_times.py holds every config comment and every
 doc that quotes a config's time or run count to this file: a quote is `N runs, about T with -j 2`, T as
@@ -16,6 +17,7 @@ import datetime
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 import tempfile
@@ -45,9 +47,18 @@ def time_text(seconds: float) -> str:
 
 
 def quote_text(record: dict) -> str:
-    """The canonical quote of one config: "30 runs, about 25 s with -j 2"."""
+    """The canonical quote of one config: "30 runs, about 25 s with -j 2" ("more than 30 min" when it did not finish)."""
     runs = record["runs"]
-    return f"{runs:,} run{'s' if runs != 1 else ''}, {time_text(record['seconds'])} with -j {JOBS}"
+    total = time_text(record["seconds"]) if record["finished"] else f"more than {record['seconds'] / 60:.0f} min"
+    return f"{runs:,} run{'s' if runs != 1 else ''}, {total} with -j {JOBS}"
+
+
+def run_count(config: Path) -> int:
+    from simrun.experiment.config import load_experiment
+    from simrun.experiment.sweep import expand_runs
+
+    experiment, _ = load_experiment(config)
+    return len(expand_runs(experiment))
 
 
 def is_calibration(config: Path) -> bool:
@@ -70,7 +81,8 @@ def measure(config: Path, timeout: float) -> dict:
         try:
             finished = subprocess.run(arguments, cwd=ROOT, env=environment, capture_output=True, text=True, timeout=timeout)
         except subprocess.TimeoutExpired:
-            return {"seconds": timeout, "finished": False, "command": f"simrun {command}", "load_before": load}
+            return {"seconds": timeout, "finished": False, "runs": run_count(config), "command": f"simrun {command}",
+                    "load_before": round(load, 2)}
         seconds = time.monotonic() - start
         if finished.returncode != 0:
             raise SystemExit(f"{config}: simrun {command} exited with {finished.returncode}:\n{finished.stderr[-2000:]}")
@@ -94,13 +106,39 @@ def commit() -> str:
         return ""
 
 
+# the end of a config's canonical quote: where the number comes from
+QUOTE_SOURCE = "on a fresh clone, numba's first compile included (benchmarks/config_times.json)."
+QUOTE_LINE = re.compile(r"^# .*\d runs?, (?:about|more than) .* with -j \d+ on a fresh clone.*$", re.M)
+
+
+def write_quote(config: Path, record: dict) -> None:
+    """Put the config's canonical quote in its comment: in place of the old one, else as the comment's last line."""
+    text = config.read_text()
+    line = f"# {quote_text(record)} {QUOTE_SOURCE}"
+    if QUOTE_LINE.search(text):
+        text = QUOTE_LINE.sub(line, text, count=1)
+    else:
+        lines = text.splitlines(keepends=True)
+        end = next(number for number, item in enumerate(lines) if not item.startswith("#"))
+        lines.insert(end, line + "\n")
+        text = "".join(lines)
+    config.write_text(text)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("configs", nargs="*", type=Path, help="configs to measure (default: every one in configs/)")
     parser.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT, help="s per config before it is recorded unfinished")
+    parser.add_argument("--write-comments", action="store_true",
+                        help="measure nothing: write each recorded config's quote into its comment")
     args = parser.parse_args(argv)
     configs = args.configs or sorted((ROOT / "configs").glob("*.yaml"))
     record = json.loads(RECORD.read_text()) if RECORD.exists() else {"configs": {}}
+    if args.write_comments:
+        for config in configs:
+            if config.stem in record["configs"]:
+                write_quote(config.resolve(), record["configs"][config.stem])
+        return 0
     for config in configs:
         config = config.resolve()
         measured = measure(config, args.timeout)

@@ -4,7 +4,7 @@ For every setting of the swept keys (each system, in ``work_precision.yaml``) th
 simrun integrator and of its peer among ``solve_ivp``'s methods (``SCIPY_PEERS``), over a sweep of
 ``step_control.tolerance``: each method's wall time, accepted steps, Jacobian evaluations and factorisations at the
 errors that both reach, interpolated on its own work-precision curve (``simrun.analysis.equal_error``), and their
-ratios. Runs that did not end ok (diverged, not converged, over ``record.max_wall_time``) or have no known error are
+ratios. Runs that did not end ok (diverged, not converged, over a budget such as ``record.max_steps``) or have no known error are
 left out, and the finding names them. Error ranges that do not meet give no number, and the finding says so; a
 setting where no run has a known error gives one "not measured" line.
 """
@@ -166,7 +166,7 @@ def _apart(compared: EqualError, names: tuple[str, str]) -> str:
 
 
 def _left_out(compared: EqualError, names: tuple[str, str]) -> str:
-    """"; left out: scipy's Radau at tol 1e-08 (over record.max_wall_time)": runs without a point, by method and why."""
+    """"; left out: scipy's Radau at tol 1e-08 (over record.max_steps)": runs without a point, by method and why."""
     parts = []
     for name, label in zip(names, compared.labels):
         by_why: dict[str, list[float]] = {}
