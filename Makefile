@@ -12,7 +12,7 @@ CONFIGS ?= $(wildcard configs/*.yaml)
 RESULTS := $(patsubst configs/%.yaml,results/%/results.h5,$(CONFIGS))
 REPORTS := $(patsubst configs/%.yaml,results/%/report.html,$(CONFIGS))
 
-.PHONY: install install-test install-cholmod install-peers run test plot bench sweep reports clean
+.PHONY: install install-test install-cholmod install-peers run test plot bench config-times sweep reports clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -83,3 +83,6 @@ clean:                                 ## remove results and caches (keeps .venv
 
 bench: install                         ## speed benchmarks: one table of ratios (never part of `make test`)
 	$(BIN)/python -m benchmarks
+
+config-times: install                  ## each shipped config timed whole with -j 2 from a cold cache (CONFIGS=...: some)
+	$(BIN)/python -m benchmarks.config_times $(if $(filter command line,$(origin CONFIGS)),$(CONFIGS),)

@@ -28,6 +28,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 RECORD = Path(__file__).with_name("config_times.json")
 JOBS = 2
+# The runs that did not end ok are listed by id for sweeps up to this size (a map's thousands are counted only).
+MAX_LISTED_RUNS = 1000
 # A config still running after this long is recorded as not finished (its time a lower bound).
 DEFAULT_TIMEOUT = 1800.0
 
@@ -88,7 +90,11 @@ def measure(config: Path, timeout: float) -> dict:
             raise SystemExit(f"{config}: simrun {command} exited with {finished.returncode}:\n{finished.stderr[-2000:]}")
         results = simrun.load(output / "results.h5")
         statuses = Counter(str(run.status) for run in results.runs.values())
+        # the runs that did not end ok, by status: what a config's comment says of its outcomes is checked against them
+        not_ok = {str(status): sorted(run_id for run_id, run in results.runs.items() if str(run.status) == str(status))
+                  for status in statuses if str(status) != "ok"}
     return {"seconds": round(seconds, 1), "finished": True, "runs": len(results.runs), "statuses": dict(sorted(statuses.items())),
+            "not_ok": dict(sorted(not_ok.items())) if len(results.runs) <= MAX_LISTED_RUNS else {},
             "command": f"simrun {command}", "load_before": round(load, 2)}
 
 
