@@ -153,12 +153,12 @@ def test_a_resumed_sweeps_final_line_counts_the_file_then_this_invocation(tmp_pa
         for run_id in redone:  # as a killed write leaves them: run again on resume
             file["runs"][run_id].attrs["complete"] = False
     counts = {status: list(statuses.values()).count(status) for status in set(statuses.values())}
-    whole = ", ".join(f"{count} {status}" for status, count in sorted(counts.items(), key=lambda item: -item[1]))
+    whole = ", ".join(f"{count} {status}" for status, count in sorted(counts.items()))
     assert f"({whole})" in first  # the first invocation ran them all: the file's counts alone
     assert main([str(config), "--no-plots", "-j", "1", "--lanes", "off"]) == 0
     out = capsys.readouterr().out
     again = {status: [statuses[run_id] for run_id in redone].count(status) for status in set(statuses[r] for r in redone)}
-    ran = ", ".join(f"{count} {status}" for status, count in sorted(again.items(), key=lambda item: -item[1]))
+    ran = ", ".join(f"{count} {status}" for status, count in sorted(again.items()))
     assert f"(24 runs in the file: {whole}; this invocation ran {ran})" in out
     assert "[3/3]" in out and "[4/" not in out and "/24]" not in out
 

@@ -48,9 +48,9 @@ def handle(args) -> int:
 
 def counts_text(results) -> str:
     """The file's runs by status, then what this invocation ran where that was not all of them (a resume):
-    "280 ok, 55 not_converged, 1 diverged; this run: 38 ok, 17 not_converged"."""
+    "336 runs in the file: 1 diverged, 55 not_converged, 280 ok; this invocation ran 17 not_converged, 38 ok"."""
     def counted(counts: dict) -> str:
-        return ", ".join(f"{count} {status}" for status, count in sorted(counts.items(), key=lambda item: -item[1]))
+        return ", ".join(f"{count} {status}" for status, count in sorted(counts.items()))
 
     in_file = Counter(str(run.status) for run in results.runs.values())
     ran = sum(results.ran.values())
