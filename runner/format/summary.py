@@ -118,8 +118,9 @@ def series_summary(attrs, read) -> dict[str, float]:
     for key in DISSIPATED_SERIES:
         values = read(key)
         dissipated = dissipated + (values[:count] if values.size >= count else 0.0)
-    if read("prescribed_work").size >= count:
-        work = read("prescribed_work")[:count]
+    prescribed = read("prescribed_work")
+    if prescribed.size >= count:
+        work = prescribed[:count]
     remainder, lost = energy_remainder(series["energy"], dissipated, work, scale)
     newton, linear = read("newton_iterations"), read("linear_iterations")
     return {"max_rel_energy_drift": max_drift, "final_rel_energy_drift": final_drift,
