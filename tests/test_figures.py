@@ -175,7 +175,8 @@ def test_the_reader_and_the_figures_import_no_config_simulation_or_library():
     face = {"simrun", "simrun.errors", "simrun.version"}
     reader = imported_by("simrun.results")
     assert reader - face == {"simrun.format", "simrun.format.layout", "simrun.format.record", "simrun.format.summary",
-                             "simrun.results", "simrun.results.fits", "simrun.results.lanes", "simrun.results.reader"}
+                             "simrun.results", "simrun.results.fits", "simrun.results.lanes", "simrun.results.parameters",
+                             "simrun.results.reader"}
     figures = imported_by("simrun.figures")
     outside = {module for module in figures - face - reader if not module.startswith("simrun.figures")}
     assert outside == {"simrun.analysis", "simrun.analysis.runs", "simrun.analysis.damping_map",

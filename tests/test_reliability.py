@@ -189,6 +189,14 @@ SLOW_SWEEP = """\
     """
 
 
+def as_from_a_terminal() -> None:
+    """In the child before it starts: Ctrl-C's signal as a shell leaves it, handled by default and not blocked. A pytest
+    worker may have it ignored or blocked by what ran in it before (a child inherits both), and simrun would then
+    never see the Ctrl-C these tests send."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _group_ends(group: int, timeout: float) -> bool:
     """Whether every process of process group ``group`` ends within ``timeout`` s (killed if not)."""
     deadline = time.monotonic() + timeout
@@ -209,7 +217,7 @@ def test_kill_9_keeps_every_finished_run_and_the_rerun_resumes(tmp_path):
     config = write_config(tmp_path, SLOW_SWEEP, tmp_path / "out")
     # a session of its own: its process group then holds simrun, the pool's fork server, workers and resource tracker
     process = subprocess.Popen([*SIMRUN, str(config), "--no-plots", "-j", "2"], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+                               stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=as_from_a_terminal)
     finished = 0
     deadline = time.monotonic() + 120
     for line in process.stdout:  # each "[k/N]" line is printed after its run was committed
@@ -268,7 +276,7 @@ def test_a_second_writer_is_refused(tmp_path, capsys):
 def test_ctrl_c_keeps_what_finished_and_exits_130(tmp_path, jobs):
     config = write_config(tmp_path, SLOW_SWEEP, tmp_path / "out")
     process = subprocess.Popen([*SIMRUN, str(config), "--no-plots", "-j", jobs], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+                               stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=as_from_a_terminal)
     for line in process.stdout:
         if line.startswith("[2/"):
             break
@@ -290,7 +298,7 @@ def test_ctrl_c_in_a_calibration_keeps_the_finished_fits_and_the_rerun_resumes(t
     config = Path(__file__).resolve().parents[1] / "configs" / "calibrate_spring.yaml"
     argv = [*SIMRUN, "fit", str(config), "--output", str(tmp_path / "fit"), "--no-plots", "-j", jobs,
             "--set", "integrators=[backward_euler,implicit_midpoint,rk4]", "--set", "sweep.dt=[0.002,0.0025,0.003]"]
-    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=as_from_a_terminal)
     reported = 0
     for line in process.stdout:
         reported += line.startswith("[")
@@ -307,7 +315,7 @@ def test_ctrl_c_in_a_calibration_keeps_the_finished_fits_and_the_rerun_resumes(t
         done = fits_writer.completed(file)
         assert len(done) == reported and 2 <= reported < 10
         assert done - {"exact"} <= {run_id for run_id, group in file["runs"].items() if group.attrs.get("complete")}
-    again = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, start_new_session=True)
+    again = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=as_from_a_terminal)
     header = again.stdout.readline()
     os.killpg(again.pid, signal.SIGKILL)
     again.wait()
@@ -323,7 +331,7 @@ def test_ctrl_c_on_the_process_pool_ends_the_workers_quietly(tmp_path):
                                "[0.002, 0.0021, 0.0005]")
     config = write_config(tmp_path, sweep, tmp_path / "out")
     process = subprocess.Popen([sys.executable, "-m", "simrun", str(config), "--no-plots", "-j", "2"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=as_from_a_terminal)
     for line in process.stdout:
         if line.startswith("[2/"):
             break
