@@ -65,6 +65,20 @@ def test_a_step_controlled_peer_counts_its_steps(tmp_path):
     assert str(stored.status) == "not_converged" and stored.steps == 5 and "record.max_steps 5" in stored.message
 
 
+def test_max_wall_time_stops_a_run_and_a_peer_at_their_first_step(tmp_path):
+    """A budget of wall time shorter than any step: every run, simrun's and scipy's, stops after one step."""
+    simruns = run(tmp_path, "{max_wall_time: 1.0e-9}", "wall")
+    config = yaml.safe_load(SPRING.replace("RECORD", "{max_wall_time: 1.0e-9}"))
+    config.update(integrators=[{"type": "solve_ivp", "method": "Radau"}], step_control={"tolerance": 1e-8})
+    del config["sweep"]
+    peers = simrun.run(config, output=tmp_path / "wall_peer", jobs=1, figures=False, progress=False)
+    assert len(simruns.runs) == 2 and len(peers.runs) == 1
+    for stored in [*simruns.runs.values(), *peers.runs.values()]:
+        assert str(stored.status) == "not_converged" and stored.steps == 1
+        assert stored.message.endswith("over record.max_wall_time 1e-09 s")
+        assert left_out_reason(stored_run(stored)) == "over record.max_wall_time"
+
+
 def stored_run(stored):
     class Run:  # what left_out_reason reads of a run
         status, error, wall_time = stored.status, stored.error, stored.wall_time

@@ -132,11 +132,7 @@ def simulate_peer(run: Run) -> RunResult:
                     recorder.record_frame(t, state[:n])
                 if last:
                     continue
-                used_up = run.record.used_up(steps)
-                if used_up is None and run.record.max_wall_time is not None and \
-                        time.perf_counter() - start > run.record.max_wall_time:
-                    used_up = (f"{time.perf_counter() - start:.3g} s of wall time, over record.max_wall_time "
-                               f"{run.record.max_wall_time:g} s")
+                used_up = run.record.used_up(steps, elapsed=time.perf_counter() - start)
                 if used_up is not None:
                     over_budget = True
                     message = f"stopped at t = {t:.6g} s: {used_up}"

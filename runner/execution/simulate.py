@@ -87,7 +87,6 @@ def simulate(run: Run) -> RunResult:
     message, t_diverged, not_converged_steps = "", None, 0
     first_not_converged = diverged_step = 0  # 1-based step numbers; 0: none
     steps = solver_iterations = 0
-    max_wall_time = run.record.max_wall_time
     # a step-controlled run's evaluations (as wall_time, the set-up left out): fixed-step runs count none, so that a
     # run stepped alone stores what it stores stepped as a lane, where every lane's forces are one call
     evaluations = EvaluationCounts() if schedule.controlled else None
@@ -168,10 +167,7 @@ def simulate(run: Run) -> RunResult:
                     break
                 if last:
                     continue
-                used_up = run.record.used_up(steps, solver_iterations)
-                if used_up is None and max_wall_time is not None and time.perf_counter() - start > max_wall_time:
-                    used_up = (f"{time.perf_counter() - start:.3g} s of wall time, over record.max_wall_time "
-                               f"{max_wall_time:g} s")
+                used_up = run.record.used_up(steps, solver_iterations, time.perf_counter() - start)
                 if used_up is not None:
                     over_budget = True
                     message = f"stopped at t = {t:.6g} s ({schedule.where()}): {used_up}"

@@ -152,13 +152,16 @@ class RecordParams(BaseModel):
         """Some budget bounds each run: it is stepped alone (lanes step together)."""
         return self.max_wall_time is not None or self.max_steps is not None or self.max_solver_iterations is not None
 
-    def used_up(self, steps: int, solver_iterations: int = 0) -> str | None:
-        """What of its budgets of work (max_steps, max_solver_iterations) a run has used up after ``steps`` steps short of
-        its end, as its message says it; None while it has some left. The same on every machine."""
+    def used_up(self, steps: int, solver_iterations: int = 0, elapsed: float = 0.0) -> str | None:
+        """What of its budgets a run has used up after ``steps`` steps, ``solver_iterations`` solver iterations and
+        ``elapsed`` seconds of wall time short of its end, as its message says it; None while it has some left. The
+        budgets of work (max_steps, max_solver_iterations) come first: they stop a run the same on every machine."""
         if self.max_steps is not None and steps >= self.max_steps:
             return f"{steps} steps, record.max_steps {self.max_steps}"
         if self.max_solver_iterations is not None and solver_iterations >= self.max_solver_iterations:
             return f"{solver_iterations} solver iterations, record.max_solver_iterations {self.max_solver_iterations}"
+        if self.max_wall_time is not None and elapsed > self.max_wall_time:
+            return f"{elapsed:.3g} s of wall time, over record.max_wall_time {self.max_wall_time:g} s"
         return None
     frames_every: int | None = Field(None, ge=1, description="cloth: keep the vertex positions every k-th step")
     max_frames: int = Field(200, ge=2, description="cloth, when `frames_every` is not given: at most this many frames per run")
