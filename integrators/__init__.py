@@ -6,6 +6,7 @@ to the method's class; its parameters validate into a frozen instance. A new met
 ``summary``, parameters as fields with a default and a description, and ``step``; an explicit
 Runge-Kutta method supplies only its ``ButcherTableau``) and an entry in INTEGRATORS below; the tests
 in tests/test_integrators.py then step it, and ask for its closed-form spectral radius in CLOSED_FORMS.
+A method outside simrun joins by its path or an entry point (integrators/plugins.py).
 """
 
 from .base import IncrementalPotential, Integrator, State

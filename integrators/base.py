@@ -91,6 +91,25 @@ class Integrator(BaseModel):
     # (no solver); solvers that need one kind refuse the others at config time
     problem_kind: ClassVar[str | None] = None
 
+    # whether one step is a linear map of the state on a linear system (every method here: its amplification matrix
+    # is then probed from unit states); False for a method nonlinear by design, whose card is measured from runs
+    linear: ClassVar[bool] = True
+    # whether this class's step is elementwise arithmetic of the state and the system's acceleration, kick or
+    # incremental potential (StepPlan), so that it steps many runs held as lanes of one array (systems/lanes.py) as it
+    # steps one; only a class's own declaration counts (``steps_lanes``): a subclass may change the step
+    lanes: ClassVar[bool] = False
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, **kwargs) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        if "name" not in vars(cls):  # a class that names itself nothing is named by its path (a plug-in's label)
+            cls.name = f"{cls.__module__}:{cls.__qualname__}"
+
+    @classmethod
+    def steps_lanes(cls) -> bool:
+        """Whether this class itself declares ``lanes``: its steps take lanes of runs as they take one run."""
+        return bool(vars(cls).get("lanes", False))
+
     def start(self, system: System, state: State) -> State:
         return state
 
@@ -133,6 +152,11 @@ class Integrator(BaseModel):
     def order_of_accuracy(self) -> int:
         """The order with these parameter values; ``order`` is the order at the defaults (Newmark: 1 unless gamma = 1/2)."""
         return self.order
+
+    def closed_form_spectral_radius(self, hw: np.ndarray) -> np.ndarray | None:
+        """rho(h w) of the method on the undamped test spring q'' + w^2 q = 0, in closed form, where its author knows
+        one; None (the default) where not. ``simrun check-integrator`` holds the measured radius to it."""
+        return None
 
     def limiting_stiffness(self, system: System, x: np.ndarray):
         """The stiffness K whose stiffest frequency w (K v = w^2 M v) bounds this method's stable step on ``system``

@@ -17,6 +17,7 @@ class ForwardEuler(Integrator):
     """
 
     name: ClassVar[str] = "forward_euler"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = True
     summary: ClassVar[str] = "explicit Euler; energy grows by (1 + (h w)^2) per step on the spring"
@@ -33,6 +34,7 @@ class SymplecticEuler(Integrator):
     """
 
     name: ClassVar[str] = "symplectic_euler"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = True
     summary: ClassVar[str] = "semi-implicit/symplectic Euler (velocity first); bounded energy for h w < 2"
@@ -51,6 +53,7 @@ class BackwardEuler(Integrator):
     """
 
     name: ClassVar[str] = "backward_euler"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "incremental_potential"

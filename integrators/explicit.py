@@ -26,6 +26,7 @@ class Leapfrog(Integrator):
     """
 
     name: ClassVar[str] = "leapfrog"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = True
     summary: ClassVar[str] = "velocity Verlet / kick-drift-kick; symplectic, 2nd order, stable for h w < 2"
@@ -174,6 +175,7 @@ class ExplicitMidpoint(ExplicitRungeKutta):
     """
 
     name: ClassVar[str] = "explicit_midpoint"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = EXPLICIT_MIDPOINT_TABLEAU.order
     explicit: ClassVar[bool] = True
     summary: ClassVar[str] = "RK2 (explicit midpoint); energy grows by ~ (h w)^4/4 per step on the spring"
@@ -188,6 +190,7 @@ class RK4(ExplicitRungeKutta):
     """
 
     name: ClassVar[str] = "rk4"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = RK4_TABLEAU.order
     explicit: ClassVar[bool] = True
     summary: ClassVar[str] = "classical Runge-Kutta; 4th order, slightly dissipative, stable for h w < 2.83"

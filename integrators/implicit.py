@@ -30,6 +30,7 @@ class ImplicitMidpoint(Integrator):
     """
 
     name: ClassVar[str] = "implicit_midpoint"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "incremental_potential"
@@ -96,6 +97,7 @@ class Newmark(Integrator):
     """
 
     name: ClassVar[str] = "newmark"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "incremental_potential"
@@ -142,6 +144,7 @@ class GeneralizedAlpha(Integrator):
     """
 
     name: ClassVar[str] = "generalized_alpha"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "incremental_potential"
@@ -196,6 +199,7 @@ class SemiImplicitBackwardEuler(Integrator):
     """
 
     name: ClassVar[str] = "semi_implicit_backward_euler"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "newton_step"  # one Newton step on the incremental potential, no iteration

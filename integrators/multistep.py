@@ -37,6 +37,7 @@ class BDF2(Integrator):
     """
 
     name: ClassVar[str] = "bdf2"
+    lanes: ClassVar[bool] = True
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
     problem_kind: ClassVar[str | None] = "incremental_potential"

@@ -621,9 +621,21 @@ def test_backward_euler_s_probed_spectral_radius_is_the_closed_form():
     assert np.allclose(rho, 1.0 / np.sqrt(1.0 + hw * hw), rtol=1e-12, atol=0.0)
 
 
-def test_a_method_without_lanes_has_no_lane_probe():
-    method = INTEGRATORS["exponential_rosenbrock_euler"]()
-    assert analysis.amplification_matrices(method, np.ones(2), np.zeros(2)) is None
+@pytest.mark.parametrize("integrator", sorted(set(INTEGRATORS) - set(LANE_INTEGRATORS)))
+def test_a_method_without_lanes_is_probed_as_a_bank_of_springs(integrator):
+    """The damping map's predicted contours of a method that does not step lanes (a plug-in's, most often): one step
+    of a bank of damped springs per state slot, each point's matrix the point-by-point probe's to round-off (1e-10:
+    expm_multiply and the coupled stages' solves stop at their own tolerances for the bank's larger system)."""
+    method = INTEGRATORS[integrator]()
+    hw, zeta = np.array([point[0] for point in POINTS]), np.array([point[1] for point in POINTS])
+    matrices = analysis.amplification_matrices(method, hw, zeta)
+    if matrices is None:  # carries more than a number per spring (the variable-order BDF's history)
+        assert analysis.bank_matrices(method, hw, zeta) is None
+        return
+    for (h, z), matrix in zip(POINTS, matrices):
+        spring = SpringMassParams(stiffness=h * h, mass=1.0, damping_ratio=z).build()
+        one = analysis.amplification_matrix(method, 1.0, spring)
+        np.testing.assert_allclose(matrix, one, rtol=1e-10, atol=1e-12, err_msg=f"h w = {h}, zeta = {z}")
 
 
 # -- 9. config errors -------------------------------------------------------------------------------------------

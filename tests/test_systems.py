@@ -26,6 +26,7 @@ from simrun.execution.measures import moving_dofs, on_paths
 from simrun.execution.simulate import simulate
 from simrun.integrators import State
 from simrun.systems import SYSTEMS, Capabilities, System, SystemParams, plugins
+from simrun.plugins import is_path
 from simrun.contracts.system import CHECKS, ROUND_OFF, check_params, generic_state, held_dofs, max_abs, stable_dt
 
 PLUGIN_FOLDER = Path(__file__).parent / "plugins"  # the example plug-ins (the one of docs/systems.md among them)
@@ -120,7 +121,7 @@ EXAMPLES: dict[str, list[tuple[str, dict]]] = {
         ("one-mass-linear", {"count": 1, "hardening": 0.0, "stiffness": 50.0, "angle": 1.2}),
     ],
 }
-EXAMPLE_PLUGINS = [name for name in EXAMPLES if plugins.PATH_SEPARATOR in name]
+EXAMPLE_PLUGINS = [name for name in EXAMPLES if is_path(name)]
 with importable(PLUGIN_FOLDER):
     for _name in EXAMPLE_PLUGINS:
         plugins.resolve(_name)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
-from simrun.integrators import INTEGRATORS, Integrator, State
+from simrun.integrators import INTEGRATORS, Integrator, State, plugins
 from simrun.solvers import solver_params
 from simrun.systems import SpringMassParams
 from simrun.systems.base import System
@@ -93,18 +93,27 @@ ORDER_FIT_POINTS, ORDER_MIN_POINTS = 4, 3
 # ==================================================================================================
 # Integrators from names and parameters
 # ==================================================================================================
-def integrator_from_params(name: str, params: dict) -> Integrator:
-    """The integrator of a run: its registered name and the ``integrator.*`` entries of its params (or plain keys)."""
-    if name not in INTEGRATORS:
-        raise ValueError(f"unknown integrator {name!r}; valid: " + ", ".join(INTEGRATORS))
+def integrator_from_params(name: str, params: dict, class_path: str = "") -> Integrator:
+    """The integrator of a run: its name and the ``integrator.*`` entries of its params (or plain keys); a plug-in
+    by its recorded ``class_path`` (imported as installed or on PYTHONPATH, never from the current folder)."""
+    method = _method_class(name, class_path)
     own = {key.removeprefix("integrator."): value for key, value in params.items()
            if key.startswith("integrator.") or "." not in key}
-    own = {key: value for key, value in own.items() if key in INTEGRATORS[name].model_fields}
-    return INTEGRATORS[name].model_validate(own)
+    own = {key: value for key, value in own.items() if key in method.model_fields}
+    return method.model_validate(own)
+
+
+def _method_class(name: str, class_path: str = "", current_folder: bool = False) -> type[Integrator]:
+    """The class of a run's method: by its name, or, for a plug-in with a name of its own, by its class path."""
+    try:
+        return plugins.resolve(name if name in INTEGRATORS or not class_path else class_path, current_folder)
+    except plugins.IntegratorTypeError as error:
+        raise ValueError(str(error)) from None
 
 
 def parse_integrator(spec: str) -> Integrator:
-    """An integrator from the command line: ``name``, ``name:key=value,key=value`` or a label ``name[key=value]``.
+    """An integrator from the command line: ``name``, ``name:key=value,key=value`` or a label ``name[key=value]``;
+    the name may be a plug-in's path (``package.module:ClassName[key=value]``, ``package.module:ClassName:key=value``).
 
     Raises ValueError naming the valid integrators or the parameter's constraint.
     """
@@ -112,17 +121,16 @@ def parse_integrator(spec: str) -> Integrator:
     if text.endswith("]") and "[" in text:
         name, _, rest = text[:-1].partition("[")
     else:
-        name, _, rest = text.partition(":")
+        head, _, tail = text.rpartition(":")
+        name, rest = (head, tail) if head and "=" in tail else (text, "")
     name = name.strip()
-    if name not in INTEGRATORS:
-        raise ValueError(f"unknown integrator {name!r}; valid: " + ", ".join(INTEGRATORS))
+    cls = _method_class(name, current_folder=True)  # a name the user typed, in their folder
     params = {}
     for item in filter(None, (part.strip() for part in rest.split(","))):
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise ValueError(f"{spec!r}: expected name:key=value[,key=value], e.g. generalized_alpha:rho_inf=0.5")
         params[key.strip()] = _number(value.strip())
-    cls = INTEGRATORS[name]
     unknown = sorted(set(params) - set(cls.model_fields))
     if unknown:
         allowed = ", ".join(cls.model_fields) or "none"
@@ -173,20 +181,31 @@ def amplification_matrix(integrator: Integrator, dt: float, system=None) -> np.n
 
 
 class SpringBank(System):
-    """Uncoupled undamped springs q_i'' + k_i q_i = 0, m = 1 kg, k_i = (h w_i)^2 N/m, q_i(0) = 1 m: stepped at h = 1 s,
-    the states of spring i are those of the test spring at h w_i. One step of a method on the bank is then one step
-    at every h w of a grid, for any method that takes a system (the lanes take only some)."""
+    """Uncoupled springs q_i'' + 2 zeta_i w_i q_i' + w_i^2 q_i = 0, m = 1 kg, w_i = h w_i (k_i = (h w_i)^2 N/m,
+    d_i = 2 zeta_i h w_i N s/m), q_i(0) = 1 m: stepped at h = 1 s, the states of spring i are those of the test spring
+    at h w_i and zeta_i. One step of a method on the bank is then one step at every point of a grid, for any method
+    that takes a system (the lanes take only some)."""
 
     dim = 1
     quadratic_potential = True  # sum_i k_i q_i^2 / 2, every k_i > 0
-    damping_is_constant = True
 
-    def __init__(self, hw: np.ndarray):
-        self.stiffness = np.square(np.asarray(hw, dtype=float))
+    def __init__(self, hw: np.ndarray, damping_ratio: np.ndarray | None = None):
+        hw = np.asarray(hw, dtype=float)
+        self.stiffness = np.square(hw)
         self.dof_count = self.stiffness.size
         self.mass = np.ones(self.dof_count)
         self.x0, self.v0 = np.ones(self.dof_count), np.zeros(self.dof_count)
         self._hessian = scipy.sparse.diags_array(self.stiffness, format="csr")
+        damping = None if damping_ratio is None else 2.0 * np.broadcast_to(damping_ratio, hw.shape) * hw
+        self._damping = (scipy.sparse.diags_array(damping, format="csr")
+                         if damping is not None and np.any(damping != 0.0) else None)
+
+    def damping_matrix(self, x):
+        return self._damping  # constant: D = diag(2 zeta_i w_i)
+
+    @property
+    def damping_is_constant(self) -> bool:
+        return True
 
     def potential_energy(self, x):
         return 0.5 * float(self.stiffness @ (x * x))
@@ -209,11 +228,11 @@ class SpringBank(System):
                                 damping=np.zeros(count), vertex_count=count, other_forces=False)
 
 
-def bank_matrices(integrator: Integrator, hw: np.ndarray) -> np.ndarray | None:
-    """The one-step matrices (points, n, n) of the test spring at every h w of ``hw`` from steps of a SpringBank:
-    slot j of the state (x, v, then what the method carries) set to 1 in every spring at once gives column j of
-    every matrix. None when the method carries something that is not one number per spring."""
-    bank = SpringBank(hw)
+def bank_matrices(integrator: Integrator, hw: np.ndarray, damping_ratio: np.ndarray | None = None) -> np.ndarray | None:
+    """The one-step matrices (points, n, n) of the test spring at every h w of ``hw`` (and damping ratio, where given)
+    from steps of a SpringBank: slot j of the state (x, v, then what the method carries) set to 1 in every spring at
+    once gives column j of every matrix. None when the method carries something that is not one number per spring."""
+    bank = SpringBank(hw, damping_ratio)
     count = bank.dof_count
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         state = integrator.start(bank, State(0.0, bank.x0.copy(), bank.v0.copy()))
@@ -233,12 +252,12 @@ def bank_matrices(integrator: Integrator, hw: np.ndarray) -> np.ndarray | None:
 def amplification_matrices(integrator: Integrator, hw: np.ndarray, damping_ratio: np.ndarray) -> np.ndarray | None:
     """The one-step matrices (points, n, n) of the spring q'' + 2 zeta w q' + w^2 q = 0 at many (h w, zeta) at once:
     ``amplification_matrix`` with the points as lanes of one array (systems/lanes.py), probed by the method's own
-    step on unit states. None for a method that does not step lanes (the caller probes it point by point)."""
-    from simrun.execution.lanes import LANE_INTEGRATORS
+    step on unit states; a method that does not step lanes is probed on a bank of springs, one per point (any method
+    that takes a system). None only where neither applies (a method carrying more than a number per spring)."""
     from simrun.solvers.lanes import LaneNewton
 
-    if integrator.name not in LANE_INTEGRATORS:
-        return None
+    if not type(integrator).steps_lanes():
+        return bank_matrices(integrator, hw, damping_ratio)
     # h = 1 s, so that w (rad/s) is h w; m = 1 kg, k = w^2
     springs = SpringMassLanes([SpringMassParams(stiffness=value * value, mass=1.0, damping_ratio=ratio).build()
                                for value, ratio in zip(np.asarray(hw, dtype=float).tolist(),
@@ -304,7 +323,7 @@ def _predict_cached(integrator: Integrator, low: float, high: float, per_decade:
         stacked = np.stack([amplification_matrix(integrator, value) for value in hw])
     eigenvalues = list(np.linalg.eigvals(stacked))
     rho = np.array([float(np.max(np.abs(values))) for values in eigenvalues])
-    principal = _principal_eigenvalues(hw, eigenvalues)
+    principal = principal_eigenvalues(hw, eigenvalues)
     phase = np.abs(np.angle(principal))
     real = np.abs(principal.imag) <= REAL_EIGENVALUE * np.abs(principal)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -324,7 +343,7 @@ def predict(integrator: Integrator, low: float = HW_RANGE[0], high: float = HW_R
     return _predict_cached(integrator, float(low), float(high), int(per_decade))
 
 
-def _principal_eigenvalues(hw: np.ndarray, eigenvalues: list[np.ndarray]) -> np.ndarray:
+def principal_eigenvalues(hw: np.ndarray, eigenvalues: list[np.ndarray]) -> np.ndarray:
     """The eigenvalue that approximates e^{i h w}, followed by continuation along the (increasing) hw grid.
 
     At the smallest hw it is the one nearest e^{i hw}; after that the one nearest the previous

@@ -188,8 +188,8 @@ class RunData:
         from simrun.analysis import oscillator
 
         try:
-            return oscillator.integrator_from_params(self.integrator, self.integrator_params)
-        except Exception:  # a file written by another version: no prediction, the rest still draws
+            return oscillator.integrator_from_params(self.integrator, self.integrator_params, self.stored.integrator_class)
+        except Exception:  # another version's file, a plug-in that does not import here: no prediction, the rest draws
             return None
 
     @functools.cached_property

@@ -202,10 +202,10 @@ def _synthetic(spec: Synthetic, experiment, dofs: np.ndarray, names: list[str], 
 
 
 def _integrator(value):
-    from simrun.experiment.config import _build_integrator
+    from simrun.experiment.config import build_integrator
 
     try:
-        return _build_integrator(value)
+        return build_integrator(value)
     except ValueError as error:
         raise ConfigError(f"fit.observed.synthetic.integrator: {error}") from None
 

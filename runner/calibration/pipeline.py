@@ -28,7 +28,7 @@ from simrun.errors import ConfigError, WorkerLost
 from simrun.execution.simulate import simulate
 from simrun.execution.executors import ExecutorOptions, checked, execute_tasks
 from simrun.execution.workers import default_jobs
-from simrun.experiment.config import _build_integrator, config_file_of, load_experiment
+from simrun.experiment.config import build_integrator, config_file_of, load_experiment
 from simrun.experiment.sweep import config_hash, expand_runs, resolved_config
 from simrun.format.layout import RESULTS_NAME
 from simrun.results import Results, load
@@ -220,7 +220,7 @@ def _transfer_steps(experiment) -> list[tuple]:
     """The (integrator, dt) pairs of the transfer table (fit.transfer; default: every integrator at the smallest dt)."""
     transfer = experiment.fit.transfer
     try:
-        integrators = [_build_integrator(item) for item in transfer.integrators] if transfer.integrators else list(experiment.integrators)
+        integrators = [build_integrator(item) for item in transfer.integrators] if transfer.integrators else list(experiment.integrators)
     except ValueError as error:
         raise ConfigError(f"fit.transfer.integrators: {error}") from None
     steps = transfer.dt or [min(experiment.sweep["dt"])]

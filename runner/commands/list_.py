@@ -99,6 +99,11 @@ def handle(args) -> int:
         kind = "explicit" if cls.explicit else "implicit"
         print(f"  {name}:  # order {cls.order}, {kind}: {cls.summary}")
         _print(_fields(cls))
+    from simrun.integrators import plugins as integrator_plugins
+
+    own = {name: path for name, path in integrator_plugins.installed().items() if name not in INTEGRATORS}
+    print("  # and plug-ins: package.module:ClassName (docs/integrators.md, \"Writing your own integrator\"); "
+          "installed: " + (", ".join(f"{name} ({path})" for name, path in own.items()) or "none"))
     linear = [name if cls.missing() is None else f"{name} (not installed: make install-cholmod)"
               for name, cls in LINEAR_SOLVERS.items()]
     print(f"\nsolvers (solver: {{type: name, option: value}}; default type: {solver_default}); options every solver takes:")

@@ -28,15 +28,13 @@ from simrun.format.record import decide_status, not_converged_message
 from simrun.format.run_result import LaneBatch, lane_summary, lane_table
 from simrun.format.size import estimate_run_bytes
 from simrun.format.summary import Status
-from simrun.integrators import State
+from simrun.integrators import INTEGRATORS, State
 from simrun.solvers import EXPLICIT_STEP
 from simrun.solvers.lanes import LaneNewton, lane_refusal
 
-# integrators whose step is elementwise arithmetic of the state and the system's acceleration, kick or incremental
-# potential (StepPlan), and so steps lanes as it steps one run; the others (segment potentials, the exponential
-# method's matrix functions, XPBD's constraint projections) step each run alone
-LANE_INTEGRATORS = ("forward_euler", "symplectic_euler", "leapfrog", "explicit_midpoint", "rk4", "backward_euler",
-                    "implicit_midpoint", "newmark", "bdf2", "generalized_alpha", "semi_implicit_backward_euler")
+# the registry's methods that step lanes as they step one run (Integrator.lanes); the others (segment potentials, the
+# exponential method's matrix functions, XPBD's constraint projections) step each run alone
+LANE_INTEGRATORS = tuple(name for name, method in INTEGRATORS.items() if method.steps_lanes())
 # lanes pay off from this many runs of one kind (below it a chunk's fixed costs outweigh the runs' own)
 MIN_LANES = 16
 # a chunk holds at most this many bytes of recorded data (``simrun.format.size.estimate_run_bytes``) while it is stepped
@@ -51,7 +49,7 @@ def lane_key(run: Run):
     system_class = run.system.system_class
     # declared by the class itself: a subclass (a plug-in's nonlinear spring) has physics its parent's lanes lack
     lanes_class = vars(system_class).get("lanes_class")
-    if lanes_class is None or run.integrator.name not in LANE_INTEGRATORS:
+    if lanes_class is None or not type(run.integrator).steps_lanes():
         return None
     if run.record.budgeted:  # a budget per run: lanes step together, so each is stepped alone
         return None

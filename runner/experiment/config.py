@@ -26,7 +26,8 @@ from pydantic_core import PydanticCustomError, PydanticKnownError
 from simrun.errors import ConfigError
 from simrun.experiment.fit import FitParams
 from simrun.experiment.step_control import StepControlParams
-from simrun.integrators import INTEGRATORS, PEERS, Integrator
+from simrun.integrators import Integrator
+from simrun.integrators import plugins as integrator_plugins
 from simrun.solvers import SOLVER_PARAMS, NewtonParams, SolverField, SolverOptionError
 from simrun.systems import SystemParams, plugins
 from simrun.systems.vertex.files import SEARCH_FOLDERS as MODEL_SEARCH_FOLDERS
@@ -42,7 +43,9 @@ ERROR_PERIODS = 2.125
 
 
 # -- integrators: a name, or a mapping with `type` and the method's parameters --------------------
-def _build_integrator(value: Any) -> Integrator:
+def build_integrator(value: Any) -> Integrator:
+    """The method that ``value`` names (a name or path, or a mapping with ``type`` and its parameters), validated by
+    its own model; a plug-in's type is resolved by simrun.integrators.plugins."""
     if isinstance(value, Integrator):
         return value
     if isinstance(value, str):
@@ -52,17 +55,21 @@ def _build_integrator(value: Any) -> Integrator:
     params = dict(value)
     name = params.pop("type", None)
     if name is None:
-        raise ValueError("a mapping needs 'type': one of " + ", ".join(INTEGRATORS))
-    known = INTEGRATORS | PEERS
-    if name not in known:
-        raise ValueError(f"unknown integrator {name!r}{_did_you_mean(name, known)}; valid: " + ", ".join(known))
+        raise ValueError("a mapping needs 'type': one of " + ", ".join(integrator_plugins.names())
+                         + ", or a plug-in as package.module:ClassName")
     try:
-        return known[name].model_validate(params)
+        method = integrator_plugins.resolve(name)
+    except integrator_plugins.IntegratorTypeError as error:
+        raise ValueError(str(error)) from None
+    try:
+        return method.model_validate(params)
     except ValidationError as error:
-        raise ValueError(f"{name}: " + _describe(error.errors()[0], known[name].model_fields)) from None
+        raise ValueError(f"{name}: " + _describe(error.errors()[0], method.model_fields)) from None
+    except Exception as error:  # a plug-in's own validator that raised something else: still one line
+        raise ValueError(f"{name}: {type(error).__name__}: {error}") from None
 
 
-IntegratorField = Annotated[Integrator, BeforeValidator(_build_integrator)]
+IntegratorField = Annotated[Integrator, BeforeValidator(build_integrator)]
 
 
 # -- the system: a mapping whose `type` names a built-in system, a plug-in path or an installed plug-in --

@@ -115,8 +115,6 @@ def _value_names(key: str, values: list) -> list:
 
 # the swept solver keys that only a linear solver reads (solvers/params.py: LINEAR_SOLVER_FIELDS and the solver's name)
 LINEAR_SOLVER_KEYS = ("solver.linear_solver", "solver.linear_tolerance", "solver.linear_max_iterations", "solver.mpcg_start")
-# integrators that take one Newton step with the main solver's linear solver whatever the solver (solver.newton_step)
-NEWTON_STEP_INTEGRATORS = ("semi_implicit_backward_euler",)
 
 
 def uses_swept_key(key: str, integrator: Integrator, solver, swept_solvers: tuple = ()) -> bool:
@@ -124,7 +122,8 @@ def uses_swept_key(key: str, integrator: Integrator, solver, swept_solvers: tupl
 
     An explicit method reads no solver key; a linear-solver key is read by the solvers whose
     directions are linear solves (Newton's family: ``uses_linear_solver``), in the chain of the
-    solver and its fallbacks, and by the methods that take one Newton step (NEWTON_STEP_INTEGRATORS)."""
+    solver and its fallbacks, and by the methods that take one Newton step with the main solver's linear solver
+    whatever the solver (problem_kind newton_step: solver.newton_step)."""
     if not key.startswith("solver."):
         return True
     if integrator.explicit:
@@ -133,7 +132,7 @@ def uses_swept_key(key: str, integrator: Integrator, solver, swept_solvers: tupl
         return False
     if key not in LINEAR_SOLVER_KEYS:
         return True
-    return integrator.name in NEWTON_STEP_INTEGRATORS or any(SOLVERS[name].uses_linear_solver for name in solver.chain_names())
+    return integrator.problem_kind == "newton_step" or any(SOLVERS[name].uses_linear_solver for name in solver.chain_names())
 
 
 def family_labels(integrators: list[Integrator]) -> list[str]:

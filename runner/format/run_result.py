@@ -14,6 +14,7 @@ import numpy as np
 from simrun.experiment.config import Run
 from simrun.format.layout import ERROR_NORMS
 from simrun.format.summary import SUMMARY_DTYPE, Status, real_time_factor, wall_time_per_frame
+from simrun.integrators import plugins as integrator_plugins
 
 
 @dataclass
@@ -102,7 +103,8 @@ def lane_table(runs: list[Run], batch: LaneBatch) -> tuple[dict, np.ndarray]:
     field per other attribute), each what a run's own group would hold. Built by the worker that stepped the chunk."""
     first = runs[0]
     shared = {"system": first.system.type, "integrator": first.integrator.name,
-              "integrator_label": first.integrator_label, "order": first.integrator.order,
+              "integrator_label": first.integrator_label, **integrator_plugins.provenance(type(first.integrator)),
+              "order": first.integrator.order,
               "explicit": first.integrator.explicit, "solver": json.dumps(first.solver.model_dump(mode="json")),
               "planned_steps": first.step_count}
     columns = {"run_id": [run.run_id for run in runs], "index": [run.index for run in runs],

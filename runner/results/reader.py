@@ -95,6 +95,16 @@ class StoredRun:
     def integrator(self) -> str:
         return str(self.attrs.get("integrator", ""))
 
+    @property
+    def integrator_class(self) -> str:
+        """The method's class as ``package.module:ClassName`` ("" in files that predate it)."""
+        return str(self.attrs.get("integrator_class", ""))
+
+    @property
+    def integrator_source_sha256(self) -> str:
+        """The sha256 of the file that defined the method's class when the run was made ("" where not recorded)."""
+        return str(self.attrs.get("integrator_source_sha256", ""))
+
     @functools.cached_property
     def params(self) -> dict:
         """Every swept and method parameter: dt, the swept keys, integrator.<param> (parsed once; do not change it)."""

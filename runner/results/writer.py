@@ -24,6 +24,7 @@ import h5py
 import numpy as np
 
 from simrun.errors import ConfigError, ResultsFileError
+from simrun.integrators import plugins as integrator_plugins
 from simrun.experiment.config import RecordParams, Run
 from simrun.format.layout import FORMAT_VERSION, LANES_GROUP, LANE_TABLE, OPTIONAL_LANE_COLUMNS
 from simrun.format.record import check_record
@@ -232,6 +233,7 @@ class ResultsWriter:
         attrs["system_params"] = json.dumps(run.system.model_dump(mode="json"))
         attrs["integrator"] = run.integrator.name
         attrs["integrator_label"] = run.integrator_label
+        attrs.update(integrator_plugins.provenance(type(run.integrator)))
         attrs["order"] = run.integrator.order
         attrs["explicit"] = run.integrator.explicit
         attrs["solver"] = json.dumps(run.solver.model_dump(mode="json"))

@@ -1,5 +1,5 @@
 """The Dask executor: an existing scheduler's workers, or a local cluster of single-threaded ones. A plug-in system's
-module, where it is not installed, travels with every task."""
+or integrator's module, where it is not installed, travels with every task."""
 
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def run(tasks: list, work, runs: list[Run], options: ExecutorOptions) -> Iterato
         raise ConfigError(f"--scheduler: cannot reach the Dask scheduler at {scheduler!r}: {error}") from None
     futures = []
     try:
-        shipped = _plugin_sources(runs)  # a user's own system: its module travels with every task
+        shipped = _plugin_sources(runs)  # a user's own system or method: its module travels with every task
         by_future = {}
         for task in tasks:
             # the task as bytes: the scheduler deserialises what it is given, and it has no plug-in's module; the
@@ -62,7 +62,8 @@ def run(tasks: list, work, runs: list[Run], options: ExecutorOptions) -> Iterato
             except ImportError as error:  # a worker could not import (or unpickle a task that needs) a module
                 raise ConfigError(f"--executor dask: a worker cannot import {error.name or error!s}: install it where "
                                   "the workers run, or make it part of the plug-in's package (simrun ships the module "
-                                  "or package that defines a plug-in system, when it is not installed)") from None
+                                  "or package that defines a plug-in system or integrator, when it is not installed)"
+                                  ) from None
             yield by_future[future.key], outcome
     finally:
         client.cancel(futures)
@@ -90,10 +91,11 @@ def _work_pickled(shipped: dict[str, tuple[str, bytes]], work, payload: bytes):
 
 
 def _plugin_sources(runs: list[Run]) -> dict[str, tuple[str, bytes]]:
-    """What a Dask worker needs to import the plug-in systems of ``runs``: for each top-level module of a system's
-    parameter model or system class that is neither simrun's nor installed (under site-packages), its file's name and
-    bytes, or its package as a zip (imported from the zip)."""
-    names = {cls.__module__.split(".")[0] for run in runs for cls in (type(run.system), run.system.system_class)}
+    """What a Dask worker needs to import the plug-ins of ``runs``: for each top-level module of a system's parameter
+    model or system class, or of an integrator's class, that is neither simrun's nor installed (under site-packages),
+    its file's name and bytes, or its package as a zip (imported from the zip)."""
+    names = {cls.__module__.split(".")[0] for run in runs
+             for cls in (type(run.system), run.system.system_class, type(run.integrator))}
     sources = {}
     for name in sorted(names - {"simrun"}):
         module = sys.modules.get(name)
