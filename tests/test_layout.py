@@ -24,14 +24,14 @@ PACKAGES = {"runner": "simrun", "systems": "simrun.systems", "integrators": "sim
 # The rank of each stage (a subpackage of simrun, or a module at its root). Equal ranks may import each other
 # (the no-cycle test still holds them apart); a lower rank never imports a higher one.
 STAGE_RANKS = {
-    "errors": 0, "version": 0, "systems": 0, "integrators": 0, "solvers": 0,  # the library, and what all share
+    "errors": 0, "version": 0, "plugins": 0, "systems": 0, "integrators": 0, "solvers": 0,  # the library, and what all share
     "experiment": 1,  # the config's models and loading, the sweep expanded into runs
-    "contracts": 1,  # the library's contracts as checks: they step a system with an integrator and a solver
     "format": 2,  # the results file's rows and names, which the stepping code, writer and readers share
     "execution": 3,  # simulate, lanes, executors, workers
     "results": 4,  # the file on disk: writer, reader, lane chunks, fits, older formats, the output lock
     "analysis": 5,  # amplification matrices, references, per-run derived data, the tables' rows
     "findings": 6,  # sentences with their numbers, one module per topic
+    "contracts": 6,  # the plug-in points' contracts as checks: they step systems and methods, and probe amplification
     "figures": 7,
     "report": 8,  # the HTML page and the summary table as text
     "calibration": 9, "pipeline": 9,  # simrun.fit and simrun.run: the whole flow

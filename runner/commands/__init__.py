@@ -15,4 +15,5 @@ COMMANDS = {
     "animate": "animate",
     "list": "list_",
     "check-system": "check_system",
+    "check-integrator": "check_integrator",
 }
