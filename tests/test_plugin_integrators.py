@@ -254,12 +254,13 @@ def test_a_plugin_method_runs_with_every_solver_of_its_problem_kind(on_path, tmp
     results = simrun.run(config, jobs=1, progress=False, figures=False)
     assert results.ran == {"ok": 4}
     errors = results.summary.set_index("solver.type")["final_error"]
-    assert errors.max() - errors.min() < 1e-6 and errors.max() < 1e-3
+    assert errors.max() - errors.min() < 1e-8 * errors.max()
 
 
 def test_simrun_fit_calibrates_with_a_plugin_method(on_path, tmp_path):
-    """Ascher's spring fitted with Bathe: at h w = 0.5 its artificial damping is tiny, so the fitted d is the true
-    0.4 N s/m to within its noise, and k the true 100 N/m."""
+    """Ascher's spring fitted with Bathe at h w = 0.5: the fit moves k and d to where Bathe's probed amplification
+    matrix has the observed eigenvalue (its period error of about 1 % at this step raises k by about 2 %), so the
+    fitted values are the predicted ones; the exact solution's fit finds the truth."""
     config = {"name": "fit_bathe", "system": {"type": "spring_mass", "mass": 1.0, "stiffness": 100.0, "damping": 0.4},
               "integrators": [BATHE], "solver": {"tolerance": 1e-12}, "duration": 5.0, "sweep": {"dt": [0.05]},
               "output": str(tmp_path / "fit"),
@@ -268,8 +269,9 @@ def test_simrun_fit_calibrates_with_a_plugin_method(on_path, tmp_path):
                                      "system.damping": {"start": 0.1, "bounds": [-50.0, 50.0]}}}}
     fits = simrun.fit(config, jobs=1, progress=False, figures=False).fits
     row = fits.method_fits.iloc[0]
-    assert row["system.stiffness"] == pytest.approx(100.0, rel=2e-3)
-    assert row["system.damping"] == pytest.approx(0.4, abs=0.02)
+    assert row["integrator"] == "bathe" and 101.0 < row["system.stiffness"] < 104.0
+    assert row["system.stiffness"] == pytest.approx(row["system.stiffness predicted"], rel=2e-3)
+    assert row["system.damping"] == pytest.approx(row["system.damping predicted"], abs=0.02)
 
 
 def test_simrun_analyze_takes_a_plugin_path(on_path, tmp_path, capsys):

@@ -104,11 +104,15 @@ def integrator_from_params(name: str, params: dict, class_path: str = "") -> Int
 
 
 def _method_class(name: str, class_path: str = "", current_folder: bool = False) -> type[Integrator]:
-    """The class of a run's method: by its name, or, for a plug-in with a name of its own, by its class path."""
+    """The class of a run's method: by its name, or, for a plug-in with a name of its own, by its class path. A
+    whole-run peer (scipy's solve_ivp) is no method of steps: ValueError, as for a name that names nothing."""
     try:
-        return plugins.resolve(name if name in INTEGRATORS or not class_path else class_path, current_folder)
+        method = plugins.resolve(name if name in INTEGRATORS or not class_path else class_path, current_folder)
     except plugins.IntegratorTypeError as error:
         raise ValueError(str(error)) from None
+    if method.whole_run:
+        raise ValueError(f"{name} is a whole-run peer: another code takes its steps, so it has no amplification matrix")
+    return method
 
 
 def parse_integrator(spec: str) -> Integrator:
@@ -121,8 +125,10 @@ def parse_integrator(spec: str) -> Integrator:
     if text.endswith("]") and "[" in text:
         name, _, rest = text[:-1].partition("[")
     else:
-        head, _, tail = text.rpartition(":")
-        name, rest = (head, tail) if head and "=" in tail else (text, "")
+        name, _, rest = text.partition(":")
+        if name.strip() not in plugins.names():  # a plug-in's path, package.module:ClassName[:key=value,...]
+            head, _, tail = text.rpartition(":")
+            name, rest = (head, tail) if ":" in head and "=" in tail else (text, "")
     name = name.strip()
     cls = _method_class(name, current_folder=True)  # a name the user typed, in their folder
     params = {}
@@ -196,9 +202,9 @@ class SpringBank(System):
         self.mass = np.ones(self.dof_count)
         self.x0, self.v0 = np.ones(self.dof_count), np.zeros(self.dof_count)
         self._hessian = scipy.sparse.diags_array(self.stiffness, format="csr")
-        damping = None if damping_ratio is None else 2.0 * np.broadcast_to(damping_ratio, hw.shape) * hw
-        self._damping = (scipy.sparse.diags_array(damping, format="csr")
-                         if damping is not None and np.any(damping != 0.0) else None)
+        damping = np.zeros(hw.shape) if damping_ratio is None else 2.0 * np.broadcast_to(damping_ratio, hw.shape) * hw
+        self.damping = damping  # N s/m per spring
+        self._damping = scipy.sparse.diags_array(damping, format="csr") if np.any(damping != 0.0) else None
 
     def damping_matrix(self, x):
         return self._damping  # constant: D = diag(2 zeta_i w_i)
@@ -221,11 +227,11 @@ class SpringBank(System):
         return ProjectiveForm(rest_stiffness=lambda: self._hessian)
 
     def compliant_form(self):
-        """Spring i as a zero-length spring from vertex i to the origin (what XPBD projects)."""
+        """Spring i as a zero-length spring from vertex i to the origin, its damper along it (what XPBD projects)."""
         count = self.dof_count
         return CompliantSprings(first=np.arange(count), second=np.full(count, ANCHORED, dtype=np.intp),
                                 anchor=np.zeros((count, 1)), rest_length=np.zeros(count), stiffness=self.stiffness.copy(),
-                                damping=np.zeros(count), vertex_count=count, other_forces=False)
+                                damping=self.damping.copy(), vertex_count=count, other_forces=False)
 
 
 def bank_matrices(integrator: Integrator, hw: np.ndarray, damping_ratio: np.ndarray | None = None) -> np.ndarray | None:
