@@ -23,6 +23,7 @@ from .rosenbrock import Rosenbrock
 from .xpbd import XPBD
 from .imex import IMEX
 from .peers import SolveIVP
+from .recorded import Recorded
 
 # config name -> class: the one place where a new method is made known
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -55,9 +56,10 @@ INTEGRATORS: dict[str, type[Integrator]] = {
     )
 }
 
-# peers: other codes' solvers run beside simrun's methods on the same system and tolerances (runner/execution/peers.py);
-# not methods simrun steps, so the analyses of the methods (amplification, damping, stability) leave them out
-PEERS: dict[str, type[Integrator]] = {SolveIVP.name: SolveIVP}
+# peers: other codes' solvers run beside simrun's methods on the same system and tolerances (runner/execution/peers.py),
+# and trajectories other codes computed, measured on the config's system (runner/execution/recorded.py); not methods
+# simrun steps, so the analyses of the methods (amplification, damping, stability) leave them out
+PEERS: dict[str, type[Integrator]] = {SolveIVP.name: SolveIVP, Recorded.name: Recorded}
 
 __all__ = ["INTEGRATORS", "PEERS", "Integrator", "IncrementalPotential", "SegmentPotential", "State",
            "ButcherTableau", "ExplicitRungeKutta"]

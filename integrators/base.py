@@ -174,6 +174,11 @@ class Integrator(BaseModel):
     family: ClassVar[str] = "lecture"
     # a peer's run is taken whole by another code (integrators/peers.py), not step by step
     whole_run: ClassVar[bool] = False
+
+    def given_steps(self, duration: float) -> tuple[float, float] | None:
+        """(mean step, duration) in s of a run whose times are given rather than chosen (a recorded trajectory, within
+        the config's ``duration``): the sweep's dt does not multiply it; None for every method that takes steps."""
+        return None
     # a multistep method's State.aux holds its history at its own past steps: a step from the same state at another
     # size (Richardson's two half steps) is not the method's step, so no Richardson estimate is taken of it
     carries_history: ClassVar[bool] = False

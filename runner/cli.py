@@ -26,7 +26,7 @@ EXIT_CONFIG_ERROR = 2
 CONFIG_FOLDER = Path("configs")  # where `simrun NAME` looks for NAME.yaml to suggest
 CONFIG_SUFFIXES = (".yaml", ".yml")
 # the subcommands that run work in the local pool (runs, fits, figures): their fork server starts first
-POOL_COMMANDS = ("run", "fit", "plot")
+POOL_COMMANDS = ("run", "fit", "measure", "plot")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -12,6 +12,7 @@ one writer commits each finished run, then draw the figures from the file. The c
 
 from __future__ import annotations
 
+import math
 import shutil
 import sys
 import time
@@ -195,8 +196,9 @@ class _Progress:
         detail = f" ({result.message})" if result.status is not Status.OK and result.message else ""
         left = remaining_text(time.monotonic() - self.start, self.done, self.total)
         if self.bar is None:
+            took = f"in {result.wall_time:.3g} s" if math.isfinite(result.wall_time) else "(its wall time not recorded)"
             print(f"[{self.done}/{self.total}] {run.run_id}: {result.status}, {result.steps} steps "
-                  f"in {result.wall_time:.3g} s{detail}{f'; {left}' if left else ''}", flush=True)
+                  f"{took}{detail}{f'; {left}' if left else ''}", flush=True)
             return
         if result.status is not Status.OK:
             self.bar.write(f"{run.run_id}: {result.status}{detail}", file=sys.stderr)

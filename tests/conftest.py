@@ -13,6 +13,8 @@ if "SIMRUN_CACHE" not in os.environ:
     os.environ["SIMRUN_CACHE"] = tempfile.mkdtemp(prefix="simrun-test-cache-")
     atexit.register(shutil.rmtree, os.environ["SIMRUN_CACHE"], True)
 
+from pathlib import Path  # noqa: E402
+
 import numpy as np  # noqa: E402
 import pytest
 
@@ -21,6 +23,9 @@ from simrun.experiment.config import validate_experiment
 from simrun.experiment.sweep import expand_runs
 from simrun.integrators import INTEGRATORS, State
 from simrun.solvers import LINEAR_SOLVERS, SolveStats, solver_params
+
+# the example plug-ins (systems and integrators) that the tests import by path
+PLUGIN_FOLDER = Path(__file__).parent / "plugins"
 
 # CI installs the optional CHOLMOD solver and sets this, so a broken install fails instead of skipping
 REQUIRE_OPTIONAL_SOLVERS = os.environ.get("SIMRUN_REQUIRE_CHOLMOD") == "1"
@@ -41,6 +46,20 @@ def linear_solver_params(names=None) -> list:
 def always_available_linear_solvers() -> set[str]:
     """The linear solvers that need no optional package."""
     return {name for name, cls in LINEAR_SOLVERS.items() if not cls.optional}
+
+
+@pytest.fixture
+def on_path(monkeypatch):
+    """The example plug-ins importable (tests/plugins on sys.path), systems and integrators resolved afresh."""
+    from simrun.integrators import plugins as integrator_plugins
+    from simrun.systems import plugins as system_plugins
+
+    monkeypatch.syspath_prepend(str(PLUGIN_FOLDER))
+    for plugins in (system_plugins, integrator_plugins):
+        plugins.clear_cache()
+    yield
+    for plugins in (system_plugins, integrator_plugins):
+        plugins.clear_cache()
 
 
 def make_runs(system: dict, integrators: list, dt: list[float], duration: float = 1.0, **extra):

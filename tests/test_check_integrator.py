@@ -21,14 +21,6 @@ from simrun.plugins import class_path
 PLUGIN_FOLDER = Path(__file__).parent / "plugins"
 
 
-@pytest.fixture
-def on_path(monkeypatch):
-    monkeypatch.syspath_prepend(str(PLUGIN_FOLDER))
-    plugins.clear_cache()
-    yield
-    plugins.clear_cache()
-
-
 def statuses(report) -> dict[str, str]:
     return {check.name: check.status for check in report.checks}
 

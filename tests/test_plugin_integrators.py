@@ -31,15 +31,6 @@ SITE = PLUGIN_FOLDER / "site"  # simrun-demo-plugin 0.1: entry points demo_bathe
 BATHE = "bathe:Bathe"
 
 
-@pytest.fixture
-def on_path(monkeypatch):
-    """The example plug-ins importable (tests/plugins on sys.path), resolved afresh."""
-    monkeypatch.syspath_prepend(str(PLUGIN_FOLDER))
-    plugins.clear_cache()
-    yield
-    plugins.clear_cache()
-
-
 def spring_config(output: Path, integrators: list, **extra) -> dict:
     return {"name": "own_method", "system": {"type": "spring_mass", "stiffness": 100.0},
             "integrators": integrators, "duration": 1.0, "sweep": {"dt": [0.01, 0.005]}, "output": str(output), **extra}

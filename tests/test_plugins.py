@@ -40,15 +40,6 @@ SIMRUN = Path(sys.executable).parent / "simrun"
 
 
 @pytest.fixture
-def on_path(monkeypatch):
-    """The example plug-ins importable (tests/plugins on sys.path), resolved afresh."""
-    monkeypatch.syspath_prepend(str(PLUGIN_FOLDER))
-    plugins.clear_cache()
-    yield
-    plugins.clear_cache()
-
-
-@pytest.fixture
 def installed(monkeypatch, on_path):
     """simrun-demo-plugin 0.1 installed: its entry points demo_chain (the example) and demo_missing (broken)."""
     monkeypatch.syspath_prepend(str(SITE))

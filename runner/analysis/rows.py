@@ -82,6 +82,7 @@ class SummaryRow:
     max_velocity_error: float = math.nan  # m/s, max |v - v_exact| over the stored samples
     # ... and against a reference: m/s, max |v - v_ref| at error_time (NaN: no reference, or no velocities stored there)
     velocity_error: float = math.nan
+    period_error: float = math.nan  # T_h / T - 1 from the zero crossings of a test-equation run (NaN: not measured)
     # the swept keys and method parameters this run reads, by column name (simrun.results.parameters); None: not read
     parameters: dict = field(default_factory=dict)
 
@@ -177,7 +178,7 @@ def summary_rows(data: RunSet) -> list[SummaryRow]:
             friction_work=float(run_attribute(attrs, "friction_work")), message=run.stored.message,
             tolerance=run.tolerance, final_velocity_error=float(row["final_velocity_error"]),
             max_error=float(row["max_error"]), max_velocity_error=float(row["max_velocity_error"]),
-            velocity_error=velocity_errors.get(run.run_id, math.nan),
+            velocity_error=velocity_errors.get(run.run_id, math.nan), period_error=run.period_error,
             parameters={name: _cell(row[name]) for name in parameter_names},
         ))
     return rows

@@ -8,6 +8,7 @@ worker pool's fork server starts before them.
 COMMANDS = {
     "run": "run",
     "fit": "fit",
+    "measure": "measure",
     "plot": "plot",
     "report": "report",
     "show": "show",

@@ -71,7 +71,7 @@ def _print(lines: list[str]) -> None:
 
 def handle(args) -> int:
     from simrun.experiment.config import Experiment
-    from simrun.integrators import INTEGRATORS
+    from simrun.integrators import INTEGRATORS, PEERS
     from simrun.solvers import LINEAR_SOLVERS, SOLVER_PARAMS, SolverParams
     from simrun.systems import SYSTEMS
 
@@ -104,6 +104,10 @@ def handle(args) -> int:
     own = {name: path for name, path in integrator_plugins.installed().items() if name not in INTEGRATORS}
     print("  # and plug-ins: package.module:ClassName (docs/integrators.md, \"Writing your own integrator\"); "
           "installed: " + (", ".join(f"{name} ({path})" for name, path in own.items()) or "none"))
+    print("  # peers: other codes' runs on the same system, named in integrators: like a method")
+    for name, cls in PEERS.items():
+        print(f"  {name}:  # {cls.summary}")
+        _print(_fields(cls))
     linear = [name if cls.missing() is None else f"{name} (not installed: make install-cholmod)"
               for name, cls in LINEAR_SOLVERS.items()]
     print(f"\nsolvers (solver: {{type: name, option: value}}; default type: {solver_default}); options every solver takes:")

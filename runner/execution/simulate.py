@@ -22,6 +22,7 @@ from .evaluations import EvaluationCounts
 from .measures import (RELEASE_SLACK, add_outcome, explicit_frequency, final_error, moving_dofs, on_paths, path_power,
                        release, vertex_constraint_kinds)
 from .peers import simulate_peer
+from .recorded import simulate_recorded
 from .recording import Recorder
 from .schedule import schedule_of
 from .step_control import StepTooSmall
@@ -29,11 +30,16 @@ from .step_log import StepLog
 from .workers import compiled_threads
 
 
+# the integrators whose whole run another code takes (integrators/peers.py, integrators/recorded.py), by name
+WHOLE_RUNS = {"solve_ivp": simulate_peer, "recorded": simulate_recorded}
+
+
 def simulate(run: Run) -> RunResult:
     """Run the integrator on run.system over its schedule (fixed steps of run.dt, or the steps its step controller
-    chooses to the duration); never raises for a bad run. A peer's run is taken by its own code (peers.py)."""
+    chooses to the duration); never raises for a bad run. A peer's run is taken by its own code (peers.py), a recorded
+    trajectory's is read (recorded.py)."""
     if run.integrator.whole_run:
-        return simulate_peer(run)
+        return WHOLE_RUNS[run.integrator.name](run)
     system = run.system.build()
     integrator = run.integrator
     solver = run.solver.build()

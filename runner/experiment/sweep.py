@@ -63,7 +63,11 @@ def expand_runs(experiment: Experiment) -> list[Run]:
                 continue
             seen.add(identity)
             _check_method_fits(resolved, integrator, systems)
-            if resolved.step_control is None and integrator.whole_run:
+            try:
+                given = integrator.given_steps(resolved.duration)  # a recorded trajectory's own times: one run
+            except ValueError as error:
+                raise ConfigError(f"integrators: {integrator.label}: {error}") from None
+            if resolved.step_control is None and integrator.whole_run and given is None:
                 raise ConfigError(f"integrators: {integrator.label} chooses its own steps by a tolerance: give a "
                                   "step_control block (its tolerance and bounds are the peer's rtol, atol, first_step "
                                   "and max_step)")
@@ -71,16 +75,24 @@ def expand_runs(experiment: Experiment) -> list[Run]:
                 reason = estimate_refusal(resolved.step_control, integrator)
                 if reason is not None:
                     raise ConfigError(f"step_control.estimate: {reason}")
-            for dt in steps:
+            duration, step_control = resolved.duration, resolved.step_control
+            if given is not None and used:
+                key = next(iter(used))
+                raise ConfigError(f"sweep.{key}: {integrator.label} was computed for one system, and the sweep varies "
+                                  f"{key}: measure a trajectory with a config of its own system (--set sweep.{key}=[...] "
+                                  "with its one value)")
+            if given is not None:
+                (dt_given, duration), step_control = given, None
+            for dt in (steps if given is None else [dt_given]):
                 if dt > resolved.duration:
                     raise ConfigError(f"sweep.dt: {dt:g} is longer than duration {resolved.duration:g}; a step must fit in the run")
                 index = len(runs)
                 # every part is validated already (the resolved experiment): a map builds 10^4 runs here
                 runs.append(Run.model_construct(
                     run_id=_run_id(index, labels[number], dt, used), index=index, system=resolved.system,
-                    integrator=integrator, solver=resolved.solver, dt=float(dt), duration=resolved.duration,
+                    integrator=integrator, solver=resolved.solver, dt=float(dt), duration=duration,
                     record=resolved.record, divergence=resolved.divergence, swept=used, label=labels[number],
-                    step_control=resolved.step_control,
+                    step_control=step_control,
                 ))
     return runs
 
@@ -146,6 +158,11 @@ def family_labels(integrators: list[Integrator]) -> list[str]:
             values_by_type.setdefault(integrator.name, {}).setdefault(key, set()).add(json.dumps(value, default=str))
     labels = []
     for integrator in integrators:
+        if type(integrator).label is not Integrator.label:
+            # a method that names itself (a trajectory by its source: trajectories of one source at several steps are
+            # one method's runs, as a convergence study)
+            labels.append(integrator.label)
+            continue
         defaults = type(integrator).model_fields
         varied = values_by_type.get(integrator.name, {})
         named = [(key, value) for key, value in integrator.model_dump().items()

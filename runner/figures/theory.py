@@ -65,13 +65,17 @@ def _predicted_and_measured(data: FigureData, draw, title: str):
     """A theory figure of the labels in the file, with the runs on the test equation as markers; None without such runs."""
     runs = test_equation_runs(data)
     predictions = predictions_for(data, runs) if runs else {}
-    if not predictions:
-        return None
     # the curves are of the fixed-step form; a step-controlled run has no one h w to mark
     fixed = [run for run in runs if not np.isfinite(run.tolerance)]
+    if not predictions and not fixed:
+        return None
     figure = draw(predictions, data.colours, data.markers, f"{data.name}: {title}", fixed)
     notes = []
-    unpredicted = [label for label in data.labels if label not in predictions]
+    measured_only = _measured_only(fixed, predictions)
+    if measured_only:
+        notes.append("measured only, no curve (another code's run, or not simrun's fixed-step form: no amplification "
+                     "matrix to probe): " + ", ".join(measured_only))
+    unpredicted = [label for label in data.labels if label not in predictions and label not in measured_only]
     if unpredicted:
         notes.append("no curve (not simrun's fixed-step form: no amplification matrix to probe): " + ", ".join(unpredicted))
     if len(fixed) < len(runs):
@@ -79,6 +83,32 @@ def _predicted_and_measured(data: FigureData, draw, title: str):
                      "changes from step to step, so it has no one h w")
     layout.add_notes(figure, notes)
     return figure
+
+
+def _measured_only(runs: list[RunData], predictions: dict) -> list[str]:
+    """The labels of ``runs`` without a prediction (a recorded trajectory, a peer), in the runs' order."""
+    return [label for label in dict.fromkeys(run.label for run in runs) if label not in predictions]
+
+
+def _damping_marker(ax, run: RunData, colour, marker: str, size: float, marked: set, diverged_marks: list) -> float:
+    """The measured damping d/w of ``run`` as a marker on ``ax`` (hollow where the run does not resolve it; a stopped
+    run queued for an x on the axis), noted in ``marked``; returns the value drawn (NaN: none)."""
+    if run.status.stopped:
+        diverged_marks.append((ax, run.hw, colour))
+        marked.add(Status.DIVERGED)
+        return math.nan
+    fit = run.damping_fit
+    if fit is None or not np.isfinite(fit.rate):
+        return math.nan
+    value = fit.rate / run.frequency
+    style = dict(color=colour, marker=marker, ms=size, ls="none", zorder=4, mec="white", mew=0.6)
+    if not fit.resolved:
+        style.update(mfc="white", mec=colour, mew=1.2)
+        marked.add("unresolved")
+    else:
+        marked.add("measured")
+    ax.plot(run.hw, value, **style)
+    return value
 
 
 def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict, markers: dict, title: str,
@@ -90,6 +120,7 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
     figure, axes = layout.panel_grid(rows, sharey=True, panel_size=CURVE_PANEL_SIZE, legend_width=layout.FIGURE_LEGEND_WIDTH + 0.6)
     top, bottom, growth, marked = 0.0, 0.0, False, set()
     diverged_marks = []
+    measured_only = _measured_only(runs, predictions)
     for (panel_title, labels), ax in zip(layout.flatten(rows), axes):
         drawn = []  # this panel's curves so far: a later identical one is dashed over them
         for number, label in enumerate(labels):
@@ -110,24 +141,16 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
             if stable.any():
                 top = max(top, float(np.nanmax(damping[stable])))
             for run in (run for run in runs if run.label == label):
-                if run.status.stopped:
-                    diverged_marks.append((ax, run.hw, colour))
-                    marked.add(Status.DIVERGED)
-                    continue
-                fit = run.damping_fit
-                if fit is None or not np.isfinite(fit.rate):
-                    continue
-                value = fit.rate / run.frequency
-                style = dict(color=colour, marker=markers[label], ms=max(4.0, 6.5 - 0.4 * number), ls="none", zorder=4,
-                             mec="white", mew=0.6)
-                if not fit.resolved:
-                    style.update(mfc="white", mec=colour, mew=1.2)
-                    marked.add("unresolved")
-                else:
-                    marked.add("measured")
-                ax.plot(run.hw, value, **style)
+                value = _damping_marker(ax, run, colour, markers[label], max(4.0, 6.5 - 0.4 * number), marked,
+                                        diverged_marks)
                 top = max(top, value) if np.isfinite(value) else top
                 bottom = min(bottom, value) if np.isfinite(value) else bottom
+        if ax is axes[0]:  # the runs of codes simrun cannot probe (recorded trajectories, peers): measured only
+            for label in measured_only:
+                for run in (run for run in runs if run.label == label):
+                    value = _damping_marker(ax, run, colours[label], markers[label], 6.5, marked, diverged_marks)
+                    top = max(top, value) if np.isfinite(value) else top
+                    bottom = min(bottom, value) if np.isfinite(value) else bottom
         ax.axhline(0.0, color="0.55", lw=0.8, zorder=1)
         ax.set_xscale("log")
         ax.set_title(panel_title, fontsize=9)
@@ -159,7 +182,10 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
         note = f"  ({'; '.join(notes)})" if notes else ""
         handles.append(Line2D([], [], color=colours[label], marker=markers[label] if runs else None, ms=layout.LEGEND_MARKER_SIZE,
                               lw=1.6, label=label + note))
-    handles.append(Line2D([], [], ls="-", color="0.3", lw=1.6, label="predicted (amplification matrix)"))
+    handles += [Line2D([], [], ls="none", color=colours[label], marker=markers[label], ms=layout.LEGEND_MARKER_SIZE,
+                       label=f"{label}  (measured only)") for label in measured_only]
+    if predictions:
+        handles.append(Line2D([], [], ls="-", color="0.3", lw=1.6, label="predicted (amplification matrix)"))
     if growth:
         handles.append(Line2D([], [], ls="--", color="0.3", lw=1.1, label="predicted, ρ > 1: energy grows"))
     if "measured" in marked:
@@ -193,6 +219,7 @@ def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict
         size = (CURVE_PANEL_SIZE[0] * columns + layout.FIGURE_LEGEND_WIDTH + 0.6, 2 * CURVE_PANEL_SIZE[1] + 0.6)
         figure, grid = plt.subplots(2, columns, figsize=size, layout="constrained", squeeze=False, sharex="row", sharey="row")
     measured = limits = False
+    measured_only = _measured_only(runs, predictions)
     for column, (panel_title, labels) in enumerate(panels):
         radius_ax, period_ax = grid[0, column], grid[1, column]
         drawn = {"rho": [], "period": []}  # the curves of this column so far: a later identical one is dashed over them
@@ -212,6 +239,12 @@ def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict
                     period_ax.plot(run.hw, run.period_error, ls="none", marker=markers[label], color=colour,
                                    ms=max(4.0, 6.5 - 0.25 * number), zorder=4)
                     measured = True
+        if column == 0:  # the runs of codes simrun cannot probe (recorded trajectories, peers): measured only
+            for label in measured_only:
+                for run in (run for run in runs if run.label == label and np.isfinite(run.period_error)):
+                    period_ax.plot(run.hw, run.period_error, ls="none", marker=markers[label], color=colours[label],
+                                   ms=6.5, zorder=4)
+                    measured = True
         radius_ax.axhline(1.0, color="0.55", lw=0.8, ls=":")
         period_ax.axhline(0.0, color="0.55", lw=0.8)
         period_ax.axvline(math.pi, color="0.55", lw=0.8, ls=":")
@@ -226,14 +259,21 @@ def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict
     grid[0, 0].set_ylim(0.0, RHO_AXIS_TOP if growth else 1.08)
     grid[0, 0].set_ylabel("spectral radius ρ(h w)", fontsize=9)
     # the period is defined up to h w = pi only: its row zooms onto that range
-    low = min(prediction.hw[0] for prediction in predictions.values())
+    low = min([prediction.hw[0] for prediction in predictions.values()] + [0.5 * min(run.hw for run in runs)] if runs
+              else [prediction.hw[0] for prediction in predictions.values()])
     grid[1, 0].set_xlim(low, 1.3 * math.pi)
+    if not predictions:  # only runs that no amplification matrix predicts: the radius is not measured by a run
+        grid[0, 0].set_xlim(low, 1.3 * math.pi)
+        grid[0, 0].text(0.5, 0.5, "no predicted ρ: every run here is measured only", transform=grid[0, 0].transAxes,
+                        ha="center", va="center", fontsize=9, color="0.4")
     grid[1, 0].set_ylim(*PERIOD_ERROR_RANGE)
     grid[1, 0].set_ylabel("relative period error T$_h$/T − 1", fontsize=9)
     grid[1, 0].text(math.pi, 0.97 * PERIOD_ERROR_RANGE[1], "h w = π ", fontsize=7, color="0.4", va="top", ha="right")
     handles = [Line2D([], [], color=colours[label], lw=1.5, marker=markers[label] if measured else None,
                       ms=layout.LEGEND_MARKER_SIZE, label=label + _twin_note(label, predictions) + _limit_note(prediction))
                for label, prediction in predictions.items()]
+    handles += [Line2D([], [], ls="none", color=colours[label], marker=markers[label], ms=layout.LEGEND_MARKER_SIZE,
+                       label=f"{label}  (measured only)") for label in measured_only]
     if limits:
         handles.append(Line2D([], [], ls="none", marker="o", mfc="white", mec="0.3", mew=1.4, ms=6,
                               label="stability limit: ρ > 1 beyond"))

@@ -39,7 +39,8 @@ from simrun.findings.contact import contact_findings
 from simrun.findings.cost import solver_cost
 from simrun.findings.damping_map import map_findings
 from simrun.findings.integrators import (accuracy_findings, damping_budget_findings, damping_findings, energy_findings,
-                                         largest_dt_findings, measured_damping_findings, not_measured_findings,
+                                         largest_dt_findings, measured_damping_findings, measured_only_findings,
+                                         not_measured_findings,
                                          order_findings, stability_findings)
 from simrun.findings.peers import peer_findings
 
@@ -59,6 +60,7 @@ def findings(data: RunSet, rows: list[SummaryRow] | None = None, orders: list[Or
     result += largest_dt_findings(data, several)
     result += damping_findings(data, predictions, several)
     result += measured_damping_findings(rows)
+    result += measured_only_findings(rows)
     result += damping_budget_findings(data, predictions)
     result += accuracy_findings(data, several)
     result += order_findings(orders, several)

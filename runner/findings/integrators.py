@@ -275,7 +275,10 @@ def measured_damping_findings(rows: list[SummaryRow]) -> list[Finding]:
     agree = [row for row in resolved if row.damping_agrees]
     differ = [row for row in resolved if not row.damping_agrees]
     unresolved = len(measured) - len(resolved)
-    not_measured = len(on_test) - len(measured)
+    # (a run measured without a prediction is not among them: measured_only_findings states it)
+    not_measured = sum(1 for row in on_test if not np.isfinite(row.measured_damping))
+    if not any(np.isfinite(row.predicted_damping) for row in on_test):
+        return []  # nothing predicted to agree with: measured_only_findings says what the runs measured
     if resolved:
         sentence = (f"Measured artificial damping (fitted to each run's energy decay) agrees with the prediction within "
                     f"{100 * DAMPING_TOLERANCE:g} % (where none is predicted: within {analysis.RESOLVED_ABSOLUTE_ERROR:g} w) "
@@ -297,6 +300,33 @@ def measured_damping_findings(rows: list[SummaryRow]) -> list[Finding]:
     return [Finding(sentence + ".", "#summary",
                     {"resolved": len(resolved), "agree": len(agree), "differ": [row.run_id for row in differ],
                      "unresolved": unresolved, "not_measured": not_measured}, "damping")]
+
+
+def measured_only_findings(rows: list[SummaryRow]) -> list[Finding]:
+    """What the runs that no amplification matrix predicts (recorded trajectories, peers) measured on the test equation:
+    their artificial damping d/w (fitted to the energy decay) and period error (zero crossings), run by run."""
+    rows = [row for row in rows if np.isfinite(row.hw) and not np.isfinite(row.predicted_damping)
+            and (np.isfinite(row.measured_damping) or np.isfinite(row.period_error))]
+    if not rows:
+        return []
+    rows = sorted(rows, key=lambda row: (row.integrator, row.hw))
+    shown = rows[:MAX_DAMPING_POINTS]
+
+    def told(row: SummaryRow) -> str:
+        parts = []
+        if np.isfinite(row.measured_damping):
+            resolution = "" if row.measured_resolved else ", not resolved by the run"
+            parts.append(f"d/w {row.measured_damping:.3g}{resolution}")
+        if np.isfinite(row.period_error):
+            parts.append(f"period error {row.period_error:+.3g}")
+        return f"{row.integrator} at h w = {row.hw:.3g}: " + ", ".join(parts)
+
+    more = f"; {len(rows) - len(shown)} more in the runs table" if len(rows) > len(shown) else ""
+    return [Finding("Measured only (no amplification matrix predicts these runs): " + "; ".join(map(told, shown)) + more
+                    + ".", "#figure-artificial_damping",
+                    {"run_ids": [row.run_id for row in rows], "hw": [row.hw for row in rows],
+                     "damping_over_w": [row.measured_damping for row in rows],
+                     "period_error": [row.period_error for row in rows]}, "damping")]
 
 
 def largest_hw_within(prediction, budget: float = DAMPING_BUDGET) -> float:

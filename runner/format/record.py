@@ -115,6 +115,7 @@ RUN_FIELDS: dict[str, RunField] = {
     "rejected_steps": RunField(_I, "", "a step-controlled run's tries taken again smaller", 0),
     "not_converged_attempts": RunField(_I, "", "rejected tries whose solve did not converge", 0),
     "threads": RunField(_I, "", "threads of the run's compiled kernels", 1),
+    "trajectory_metadata": RunField(_S, "", "a recorded trajectory's free-form metadata, as JSON", ""),
     # the system's capabilities (systems/capabilities.py, Capabilities.as_attrs)
     "test_frequency": RunField(_F, "rad/s", "w of the undamped test equation; NaN otherwise", NAN),
     "length_scale": RunField(_F, "m", "the scale of position errors", 1.0),

@@ -64,3 +64,17 @@ class RoundOffReferenceParams(ChainParams):
 
 
 RoundOffReferenceParams.system_class = RoundOffReferenceChain
+
+
+class WithoutEnergyChain(Chain):
+    """Forces only: the potential energy was never written (a port of a force-based code)."""
+
+    def potential_energy(self, x):
+        raise NotImplementedError("WithoutEnergyChain.potential_energy")
+
+
+class WithoutEnergyParams(ChainParams):
+    type: str = "broken_systems:WithoutEnergyParams"
+
+
+WithoutEnergyParams.system_class = WithoutEnergyChain
