@@ -18,7 +18,6 @@ and what is wrong with it. Resolutions are cached.
 
 from __future__ import annotations
 
-import difflib
 import inspect
 from typing import Any
 
@@ -45,28 +44,12 @@ def resolve(name: Any, current_folder: bool = True) -> type[Integrator]:
 
     current_folder: may a module path be imported from the current folder when Python does not find it? Readers of a
     results file pass False: reading a file must not run code from wherever it is read."""
-    known = _built_in()
-    if isinstance(name, str) and name in known:
-        return known[name]
-    if isinstance(name, str) and name in _resolved:
-        return _resolved[name]
-    if not isinstance(name, str) or not name:
-        raise IntegratorTypeError(_unknown(str(name)))
-    if shared.is_path(name):
-        method = _checked(name, shared.import_path(KIND, name, current_folder))
-    else:
-        entry = shared.entry_points(KIND).get(name)
-        if entry is None:
-            raise IntegratorTypeError(_unknown(name))
-        method = shared.load_entry_point(KIND, name, entry, _checked)
-    _resolved[name] = method
-    return method
+    return shared.resolve(KIND, name, _built_in(), _resolved, _checked, current_folder)
 
 
 def names() -> list[str]:
     """Every name a config may give without a path: the built-in methods and peers, then the installed plug-ins."""
-    known = _built_in()
-    return [*known, *(name for name in shared.entry_points(KIND) if name not in known)]
+    return shared.registered_names(KIND, _built_in())
 
 
 def installed() -> dict[str, str]:
@@ -94,14 +77,6 @@ def _built_in() -> dict[str, type[Integrator]]:
     from . import INTEGRATORS, PEERS  # at call time, so that simrun.integrators may import this module
 
     return INTEGRATORS | PEERS
-
-
-def _unknown(name: str) -> str:
-    known = names()
-    close = difflib.get_close_matches(name, known, n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return (f"unknown integrator {name!r}{hint}; valid: " + ", ".join(known)
-            + ", or a plug-in as package.module:ClassName")
 
 
 def _checked(name: str, value: Any) -> type[Integrator]:

@@ -74,6 +74,40 @@ def load_entry_point(kind: PluginKind, name: str, entry: importlib.metadata.Entr
         raise kind.error(f"{name!r} (entry point{source}: {kind.group} {name} = {entry.value!r}) -> {error}") from None
 
 
+def resolve(kind: PluginKind, name: Any, built_in: dict, resolved: dict, check, current_folder: bool = True) -> Any:
+    """The class that config name ``name`` stands for: a built-in's (``built_in``: name -> class), a plug-in resolved
+    before (``resolved``, the kind's cache, filled here), else one imported by its path or by its entry point and passed
+    through ``check(path, value)`` (the kind's contract); current_folder: as ``import_path``."""
+    if isinstance(name, str) and name in built_in:
+        return built_in[name]
+    if isinstance(name, str) and name in resolved:
+        return resolved[name]
+    if not isinstance(name, str) or not name:
+        raise kind.error(unknown_name(kind, str(name), built_in))
+    if is_path(name):
+        found = check(name, import_path(kind, name, current_folder))
+    else:
+        entry = entry_points(kind).get(name)
+        if entry is None:
+            raise kind.error(unknown_name(kind, name, built_in))
+        found = load_entry_point(kind, name, entry, check)
+    resolved[name] = found
+    return found
+
+
+def registered_names(kind: PluginKind, built_in: dict) -> list[str]:
+    """Every name a config may give without a path: the built-ins, then the installed plug-ins."""
+    return [*built_in, *(name for name in entry_points(kind) if name not in built_in)]
+
+
+def unknown_name(kind: PluginKind, name: str, built_in: dict) -> str:
+    """One line for a name that is neither a built-in nor an installed plug-in: the closest name, and every valid one."""
+    known = registered_names(kind, built_in)
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"unknown {kind.noun} {name!r}{hint}; valid: " + ", ".join(known) + ", or a plug-in as package.module:ClassName"
+
+
 def not_a_class(kind: PluginKind, name: str, value: Any) -> str | None:
     """Why ``value`` is not a subclass of the kind's base, in one line; None when it is one."""
     base = kind.base_name

@@ -19,7 +19,6 @@ installed).
 
 from __future__ import annotations
 
-import difflib
 from typing import Any
 
 from simrun import plugins as shared
@@ -46,21 +45,7 @@ def resolve(name: Any, current_folder: bool = True) -> type[SystemParams]:
     from wherever it is read: the readers pass False. Raises SystemTypeError with a one-line message."""
     from . import SYSTEMS  # at call time, so that simrun.systems may import this module
 
-    if isinstance(name, str) and name in SYSTEMS:
-        return SYSTEMS[name]
-    if isinstance(name, str) and name in _resolved:
-        return _resolved[name]
-    if not isinstance(name, str) or not name:
-        raise SystemTypeError(_unknown(str(name)))
-    if shared.is_path(name):
-        model = _checked(name, shared.import_path(KIND, name, current_folder))
-    else:
-        entry = shared.entry_points(KIND).get(name)
-        if entry is None:
-            raise SystemTypeError(_unknown(name))
-        model = shared.load_entry_point(KIND, name, entry, _checked)
-    _resolved[name] = model
-    return model
+    return shared.resolve(KIND, name, SYSTEMS, _resolved, _checked, current_folder)
 
 
 def find(name: Any) -> type[SystemParams] | None:
@@ -75,7 +60,7 @@ def names() -> list[str]:
     """Every name a config may give without a path: the built-in systems, then the installed plug-ins."""
     from . import SYSTEMS
 
-    return [*SYSTEMS, *(name for name in shared.entry_points(KIND) if name not in SYSTEMS)]
+    return shared.registered_names(KIND, SYSTEMS)
 
 
 def installed() -> dict[str, str]:
@@ -89,14 +74,6 @@ def clear_cache() -> None:
 
 
 # -- the rules -----------------------------------------------------------------------------------------
-def _unknown(name: str) -> str:
-    known = names()
-    close = difflib.get_close_matches(name, known, n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return (f"unknown system {name!r}{hint}; valid: " + ", ".join(known)
-            + ", or a plug-in as package.module:ClassName")
-
-
 def _checked(name: str, value: Any) -> type[SystemParams]:
     """``value`` if it is a usable parameter model (docs/systems.md, "The contract"), else SystemTypeError."""
     wrong = shared.not_a_class(KIND, name, value)

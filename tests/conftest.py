@@ -62,6 +62,21 @@ def on_path(monkeypatch):
         plugins.clear_cache()
 
 
+def assert_runs_alike(first, second) -> None:
+    """Two results files hold the same runs: the same datasets, entry for entry, and the same attributes but for how
+    they were run (their wall time and threads), not what they gave."""
+    assert list(first.runs) == list(second.runs)
+    for run_id, run in first.runs.items():
+        other = second.runs[run_id]
+        assert run.datasets == other.datasets
+        for key in run.datasets:
+            np.testing.assert_array_equal(run[key], other[key])
+        assert set(run.attrs) == set(other.attrs)
+        for key in set(run.attrs) - {"wall_time", "threads"}:
+            one, two = np.asarray(run.attrs[key]), np.asarray(other.attrs[key])
+            assert np.array_equal(one, two, equal_nan=one.dtype.kind == "f"), key
+
+
 def make_runs(system: dict, integrators: list, dt: list[float], duration: float = 1.0, **extra):
     raw = {"name": "test", "system": system, "integrators": integrators, "duration": duration,
            "sweep": {"dt": dt}, **extra}

@@ -17,6 +17,7 @@ import textwrap
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 import yaml
 
@@ -91,6 +92,11 @@ def assert_one_line_error(capsys, *words: str) -> str:
 def _argv(command: str, results: Path, target: Path, tmp_path: Path) -> list[str]:
     if command == "run":
         return [str(write(tmp_path, SPRING + f"output: {target / 'run'}\n")), "-q", "-j", "1"]
+    if command == "measure":  # a trajectory of the config's spring (w = 10 rad/s): its exact motion
+        t = 0.01 * np.arange(11)
+        np.savez(tmp_path / "exact.npz", t=t, x=np.cos(10 * t)[:, None], v=-10 * np.sin(10 * t)[:, None])
+        return ["measure", str(tmp_path / "exact.npz"), "--config", str(write(tmp_path, SPRING)), "--output",
+                str(target / "measure"), "-q", "-j", "1"]
     return {
         "plot": ["plot", str(results), "--output", str(target / "figures")],
         "report": ["report", str(results), "--output", str(target / "report.html"), "--reference", "none"],
@@ -100,7 +106,7 @@ def _argv(command: str, results: Path, target: Path, tmp_path: Path) -> list[str
     }[command]
 
 
-COMMAND_NAMES = ["run", "plot", "report", "analyze", "animate", "show"]
+COMMAND_NAMES = ["run", "plot", "report", "analyze", "animate", "show", "measure"]
 
 
 @pytest.mark.parametrize("command", COMMAND_NAMES)

@@ -18,6 +18,7 @@ import pytest
 import yaml
 
 import simrun
+from conftest import assert_runs_alike
 from simrun.analysis.runs import predictions_for, run_set
 from simrun.cli import main
 from simrun.errors import ConfigError
@@ -79,19 +80,6 @@ def test_a_plugin_without_a_name_is_labelled_by_its_path(on_path, tmp_path):
     assert results.ran == {"ok": 2}
 
 
-def run_alike(first, second) -> None:
-    """The same runs, datasets entry for entry, attributes but for the times."""
-    assert list(first.runs) == list(second.runs)
-    for run_id, run in first.runs.items():
-        other = second.runs[run_id]
-        assert run.datasets == other.datasets
-        for key in run.datasets:
-            np.testing.assert_array_equal(run[key], other[key])
-        for key in set(run.attrs) - {"wall_time", "threads"}:  # how it was run, not what it gave
-            one, two = np.asarray(run.attrs[key]), np.asarray(other.attrs[key])
-            assert np.array_equal(one, two, equal_nan=one.dtype.kind == "f"), key
-
-
 def test_a_plugin_method_gives_the_same_bytes_serially_on_the_pool_and_on_dask(on_path, tmp_path):
     """Serial, a process pool of two, and a real Dask LocalCluster of two process workers: the same file."""
     pytest.importorskip("distributed")
@@ -100,15 +88,15 @@ def test_a_plugin_method_gives_the_same_bytes_serially_on_the_pool_and_on_dask(o
     pool = simrun.run(spring_config(tmp_path / "pool", methods), jobs=2, progress=False, figures=False)
     dask = simrun.run(spring_config(tmp_path / "dask", methods), executor="dask", jobs=2, progress=False, figures=False)
     assert serial.ran == pool.ran == dask.ran == {"ok": 4}
-    run_alike(serial, pool)
-    run_alike(serial, dask)
+    assert_runs_alike(serial, pool)
+    assert_runs_alike(serial, dask)
 
 
 def test_a_plugin_method_on_the_process_pool(on_path, tmp_path):
     """Without Dask installed too: the pool's workers import the plug-in and give the serial bytes."""
     serial = simrun.run(spring_config(tmp_path / "serial", [BATHE]), jobs=1, progress=False, figures=False)
     pool = simrun.run(spring_config(tmp_path / "pool", [BATHE]), jobs=2, progress=False, figures=False)
-    run_alike(serial, pool)
+    assert_runs_alike(serial, pool)
 
 
 def test_the_command_line_runs_a_config_beside_its_plugin(tmp_path, monkeypatch, capsys):

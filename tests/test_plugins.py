@@ -22,7 +22,7 @@ import pytest
 import yaml
 
 import simrun
-from conftest import make_runs
+from conftest import assert_runs_alike, make_runs
 from simrun.cli import main
 from simrun.errors import ConfigError
 from simrun.execution.simulate import simulate
@@ -74,20 +74,6 @@ def test_a_plugin_runs_on_dask(on_path, tmp_path):
     assert results.ran == {"ok": 2}
 
 
-def _runs_alike(first, second) -> None:
-    """The same runs with the same datasets, entry for entry, and the same attributes but for the times."""
-    assert list(first.runs) == list(second.runs)
-    for run_id, run in first.runs.items():
-        other = second.runs[run_id]
-        assert run.datasets == other.datasets
-        for key in run.datasets:
-            np.testing.assert_array_equal(run[key], other[key])
-        assert set(run.attrs) == set(other.attrs)
-        for key in set(run.attrs) - {"wall_time"}:
-            first_value, second_value = np.asarray(run.attrs[key]), np.asarray(other.attrs[key])
-            assert np.array_equal(first_value, second_value, equal_nan=first_value.dtype.kind == "f"), key
-
-
 CLUSTER = """
 import sys
 from distributed import LocalCluster
@@ -125,7 +111,7 @@ def test_a_plugin_runs_on_a_dask_cluster_whose_workers_do_not_have_it(tmp_path, 
         process.stdin.close()
         process.wait(timeout=60)
     assert serial.ran == on_dask.ran == {"ok": 2}
-    _runs_alike(serial, on_dask)
+    assert_runs_alike(serial, on_dask)
     assert code.returncode == 2, code.stderr
     assert code.stderr.count("\n") == 1 and "Traceback" not in code.stderr, code.stderr
     assert code.stderr.startswith("simrun: error: --executor dask: a worker cannot import chain_gravity:"), code.stderr
@@ -303,7 +289,7 @@ def test_check_system_names_the_wrong_derivative_and_a_round_off_energy_referenc
     (["broken_systems:NotAParams"], "which is not a subclass of simrun.systems.SystemParams"),
     ([CHAIN, "--set", "count=0"], "simrun: error: system.count: Input should be greater than or equal to 1 (got 0)"),
     ([CHAIN, "--set", "cuont=2"], "simrun: error: system.cuont: unknown key (did you mean 'count'?)"),
-    ([CHAIN, "--set", "count"], "simrun: error: --set count: expected key=value"),
+    ([CHAIN, "--set", "count"], "simrun: error: --set count: expected field=value"),
     ([CHAIN, "--set", "type=cloth"], "simrun: error: --set type=cloth: the system is the SYSTEM argument"),
 ])
 def test_check_system_bad_input_is_one_line_exit_2(on_path, capsys, arguments, message):

@@ -8,12 +8,12 @@ worker pool's fork server starts before them.
 COMMANDS = {
     "run": "run",
     "fit": "fit",
-    "measure": "measure",
     "plot": "plot",
     "report": "report",
     "show": "show",
     "analyze": "analyze",
     "animate": "animate",
+    "measure": "measure",
     "list": "list_",
     "check-system": "check_system",
     "check-integrator": "check_integrator",

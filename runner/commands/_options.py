@@ -55,6 +55,25 @@ def add_reference_option(parser, default: str = "none") -> None:
              f"or none; one of {REFERENCE_CHOICES} (default: {default})")
 
 
+def field_overrides(overrides: list[str], section: str, argument: str, metavar: str, example: str) -> dict:
+    """``{section: {type: argument}}`` (the command's first argument, shown as ``metavar``) with each ``--set FIELD=VALUE`` of a check command applied (the value in YAML, as
+    a config's ``--set``; ``section.FIELD`` taken too): ConfigError in one line for an assignment that is not one, or
+    that sets the type, which is the command's own argument."""
+    from simrun.errors import ConfigError
+    from simrun.experiment.config import apply_override
+
+    raw = {section: {"type": argument}}
+    for assignment in overrides:
+        key, sep, value = assignment.partition("=")
+        key = key.strip().removeprefix(f"{section}.")
+        if not sep or not key:
+            raise ConfigError(f"--set {assignment}: expected field=value, e.g. {example}")
+        if key == "type":
+            raise ConfigError(f"--set {assignment}: the {section} is the {metavar} argument; give it there")
+        apply_override(raw, f"{section}.{key}={value}")
+    return raw
+
+
 def load_results(text: str):
     """The results file named on the command line (``simrun.results.load``: one line for anything else)."""
     from simrun.results import load
@@ -99,4 +118,4 @@ def say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-__all__ = ["add_experiment_options", "add_reference_option", "load_results", "say", "writable_output", "writing_file", "writing_folder"]
+__all__ = ["add_experiment_options", "add_reference_option", "field_overrides", "load_results", "say", "writable_output", "writing_file", "writing_folder"]

@@ -45,27 +45,14 @@ def add_parser(commands) -> None:
 def handle(args) -> int:
     import json
 
-    import yaml
-
-    from simrun.commands._options import say, writable_output, writing_folder
+    from simrun.commands._options import field_overrides, say, writable_output, writing_folder
     from simrun.contracts.integrator import run_checks
     from simrun.errors import ConfigError
     from simrun.experiment.config import build_integrator
     from simrun.figures.integrator_card import save_card
     from simrun.integrators import plugins
 
-    spec = {"type": args.method}
-    for assignment in args.overrides:
-        key, sep, value = assignment.partition("=")
-        key = key.strip().removeprefix("integrator.")
-        if not sep or not key:
-            raise ConfigError(f"--set {assignment}: expected field=value, e.g. gamma=0.586")
-        if key == "type":
-            raise ConfigError(f"--set {assignment}: the method is the METHOD argument; give it there")
-        try:
-            spec[key] = yaml.safe_load(value)
-        except yaml.YAMLError as error:
-            raise ConfigError(f"--set {assignment}: the value is not YAML ({str(error).splitlines()[0]})") from None
+    spec = field_overrides(args.overrides, "integrator", args.method, "METHOD", "gamma=0.586")["integrator"]
     try:
         integrator = build_integrator(spec)
     except ValueError as error:

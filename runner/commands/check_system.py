@@ -28,20 +28,11 @@ def add_parser(commands) -> None:
 
 
 def handle(args) -> int:
-    from simrun.errors import ConfigError
-    from simrun.experiment.config import apply_override, validate_system
+    from simrun.commands._options import field_overrides
+    from simrun.experiment.config import validate_system
     from simrun.contracts.system import run_checks
 
-    raw = {"system": {"type": args.system}}
-    for assignment in args.overrides:
-        key, sep, value = assignment.partition("=")
-        key = key.strip().removeprefix("system.")
-        if not sep or not key:
-            raise ConfigError(f"--set {assignment}: expected key=value, e.g. count=5")
-        if key == "type":
-            raise ConfigError(f"--set {assignment}: the system is the SYSTEM argument; give it there")
-        apply_override(raw, f"system.{key}={value}")
-    params = validate_system(raw["system"])
+    params = validate_system(field_overrides(args.overrides, "system", args.system, "SYSTEM", "count=5")["system"])
     checks = run_checks(params)
     failed = [check for check in checks if check.passed is False]
     print(f"{args.system}: {len(checks)} checks of the System contract (docs/systems.md)")

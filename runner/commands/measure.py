@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from simrun.commands._options import add_executor_options, add_experiment_options, executor_name
-from simrun.commands.run import EXIT_INTERRUPTED, counts_text
+from simrun.commands.run import EXIT_INTERRUPTED, print_written
 
 LABEL = re.compile(r"^[A-Za-z0-9._+-]{1,60}$")
 
@@ -80,7 +80,5 @@ def handle(args) -> int:
     except Interrupted as interrupted:
         print(f"simrun: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    print(f"results: {results.path}  ({counts_text(results)})")
-    if not args.no_plots:
-        print(f"figures: {results.path.parent / 'figures'}  ({len(results.figure_files)} files)")
+    print_written(results, figures=not args.no_plots)
     return 0

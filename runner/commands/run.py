@@ -40,10 +40,15 @@ def handle(args) -> int:
     except Interrupted as interrupted:
         print(f"simrun: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    print(f"results: {results.path}  ({counts_text(results)})")
-    if not args.no_plots:
-        print(f"figures: {results.path.parent / 'figures'}  ({len(results.figure_files)} files)")
+    print_written(results, figures=not args.no_plots)
     return 0
+
+
+def print_written(results, figures: bool) -> None:
+    """The final lines: the results file with its runs counted, and the figures' folder where they were drawn."""
+    print(f"results: {results.path}  ({counts_text(results)})")
+    if figures:
+        print(f"figures: {results.path.parent / 'figures'}  ({len(results.figure_files)} files)")
 
 
 def counts_text(results) -> str:
