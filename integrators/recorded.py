@@ -158,7 +158,8 @@ class Recorded(Integrator):
             raise ValueError(f"sha256: {path.name} has sha256 {recorded.sha256}, not the {given} the config names")
         data.update(trajectory=str(path), sha256=recorded.sha256,
                     velocities="recorded" if recorded.v is not None else "central_differences")
-        data.setdefault("source", "".join(c if c.isalnum() or c in "._+-" else "_" for c in path.stem)[:60])
+        if not data.get("source"):
+            data["source"] = "".join(c if c.isalnum() or c in "._+-" else "_" for c in path.stem)[:60] or "trajectory"
         return data
 
     def read(self) -> Trajectory:
@@ -186,15 +187,17 @@ class Recorded(Integrator):
         raise TypeError("a recorded trajectory is read, not stepped (runner/execution/recorded.py)")
 
     def refusal(self, system) -> str | None:
-        """Why the trajectory cannot be measured on ``system`` (its dof count, its first state, energy it cannot
-        evaluate), or None."""
+        """Why the trajectory cannot be measured on ``system`` (its dof count, friction, energy it cannot evaluate, its
+        first state), or None."""
         recorded = self.read()
         dofs = recorded.x.shape[1]
         if dofs != system.dof_count:
             return (f"trajectory.x has {dofs} columns, and the config's system has {system.dof_count} dofs: the "
                     "trajectory must be computed for the config's system, in its dof order")
-        if getattr(system, "lane_count", None) is not None:
-            return "is not stepped as lanes"
+        contact = system.contact_form()
+        if contact and contact.has_friction:
+            return ("friction's loss is booked from simrun's own steps (their lagged normal forces), which a recorded "
+                    "trajectory has not: measure it on the system without friction")
         try:
             energy = system.total_energy(recorded.x[0], recorded.velocities[0])
         except NotImplementedError as error:

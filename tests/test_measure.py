@@ -261,3 +261,14 @@ def test_trajectories_in_a_config_are_runs_like_any_other(written, tmp_path):
         np.testing.assert_array_equal(run.series("energy"), pooled.runs[run_id].series("energy"))
     recorded = next(run for run in serial.runs.values() if run.label == "recorded:verlet")
     assert recorded.attrs["duration"] == pytest.approx(20.0, abs=0.1) and recorded.attrs["dt"] == pytest.approx(0.1)
+
+
+def test_a_trajectory_kept_without_series_keeps_the_summarys_numbers(written, tmp_path):
+    """record.series: false (a map) keeps a recorded run's summary numbers as its own run's are, with no datasets."""
+    assert measure(written / "spring.npz", "--config", written / "spring.yaml", "--with-runs", "--no-plots",
+                   "--output", tmp_path / "out", "--set", "record.series=false") == 0
+    results = load(tmp_path / "out" / "results.h5")
+    summary = results.summary.set_index("integrator")
+    assert summary.loc["recorded:spring", "max_rel_energy_drift"] == pytest.approx(
+        summary.loc["leapfrog", "max_rel_energy_drift"], rel=1e-12)
+    assert all(not run.datasets for run in results.runs.values())

@@ -169,6 +169,24 @@ def bathe_radius(hw: np.ndarray) -> np.ndarray:
     return plugins.resolve(BATHE)().closed_form_spectral_radius(hw)
 
 
+def test_a_method_declared_nonlinear_is_measured_only(on_path, tmp_path):
+    """linear = False: no curve is predicted for it anywhere; its runs are drawn and stated as measured only."""
+    from simrun.figures.theory import artificial_damping
+    from simrun.figures._data import figure_data
+    from simrun.findings import findings
+
+    results = simrun.run(spring_config(tmp_path / "out", ["own_methods:DeclaredNonlinear", "symplectic_euler"],
+                                       duration=20.0), jobs=1, progress=False, figures=False)
+    data = run_set(results)
+    assert set(predictions_for(data)) == {"symplectic_euler"}
+    assert all(run.method is None for run in data.runs if run.label == "declared_nonlinear")
+    told = [finding.sentence for finding in findings(data)]
+    assert any(text.startswith("Measured only") and "declared_nonlinear at h w = 0.1" in text for text in told), told
+    figure = artificial_damping(figure_data(results))
+    notes = " ".join(text.get_text() for text in figure.texts)
+    assert "measured only, no curve" in notes and "declared_nonlinear" in notes
+
+
 def test_a_file_read_where_the_plugin_does_not_import_still_draws(on_path, tmp_path, monkeypatch):
     """Read elsewhere (the module not importable, and never imported from the current folder by a reader), the runs
     have no prediction, and the figures draw without it."""

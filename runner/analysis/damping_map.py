@@ -38,13 +38,14 @@ def map_cells(data: RunSet) -> dict[str, list[tuple[float, float, float, Status]
 def predicted_decades(data: RunSet, label: str, hw: np.ndarray, zeta: np.ndarray) -> np.ndarray | None:
     """log10 of the predicted amplitude factor per period, rho(A)^(2 pi / (h w)), of the method of ``label`` at each
     (h w, zeta), A probed with the points as lanes (or as a bank of springs); None where the method cannot be probed
-    (its plug-in does not import here, or it carries more than a number per spring)."""
+    (its plug-in does not import here, it carries more than a number per spring, or its step is not linear: then it
+    has no amplification matrix, and its runs are measured only)."""
     from simrun.analysis.oscillator import amplification_matrices, integrator_from_params  # on first use, as runs.py
 
     run = next(run for run in data.runs if run.label == label)
     try:
         method = integrator_from_params(run.integrator, run.integrator_params, run.stored.integrator_class)
-    except ValueError:  # a plug-in that does not import where the file is read
+    except ValueError:  # a plug-in that does not import where the file is read, or a method without the matrix
         return None
     matrices = amplification_matrices(method, hw, zeta)
     if matrices is None:

@@ -105,13 +105,17 @@ def integrator_from_params(name: str, params: dict, class_path: str = "") -> Int
 
 def _method_class(name: str, class_path: str = "", current_folder: bool = False) -> type[Integrator]:
     """The class of a run's method: by its name, or, for a plug-in with a name of its own, by its class path. A
-    whole-run peer (scipy's solve_ivp) is no method of steps: ValueError, as for a name that names nothing."""
+    whole-run peer (scipy's solve_ivp, a recorded trajectory) is no method of steps, and a method nonlinear by design
+    (``linear = False``) has no amplification matrix: ValueError, as for a name that names nothing."""
     try:
         method = plugins.resolve(name if name in INTEGRATORS or not class_path else class_path, current_folder)
     except plugins.IntegratorTypeError as error:
         raise ValueError(str(error)) from None
     if method.whole_run:
         raise ValueError(f"{name} is a whole-run peer: another code takes its steps, so it has no amplification matrix")
+    if not method.linear:
+        raise ValueError(f"{name} declares linear = False: its step is not linear in the state, so it has no "
+                         "amplification matrix (its runs are measured only)")
     return method
 
 

@@ -184,7 +184,8 @@ class RunData:
 
     @functools.cached_property
     def method(self):
-        """The integrator object (from its name and parameters), or None if this simrun does not know it."""
+        """The integrator object (from its name and parameters) for its predictions, or None where there is none to
+        make: a method this simrun does not know, a whole-run peer, or a method whose step is not linear."""
         from simrun.analysis import oscillator
 
         try:
@@ -289,8 +290,8 @@ def predictions_for(data: RunSet, runs: list[RunData] | None = None) -> dict[str
     # a decade boundary keeps the grid (and so the cache key) the same for similar files
     low, high = 10.0 ** math.floor(math.log10(low)), 10.0 ** math.ceil(math.log10(high))
     methods = {}
-    for run in data.runs:  # a method nonlinear by design has no amplification matrix: its runs are measured only
-        if run.label not in methods and run.method is not None and run.method.linear:
+    for run in data.runs:
+        if run.label not in methods and run.method is not None:
             methods[run.label] = run.method
     return {label: oscillator.predict(method, low, high) for label, method in methods.items()}
 

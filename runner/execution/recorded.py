@@ -7,7 +7,8 @@ steps (at even times where the trajectory's steps are uneven). The physical damp
 work are integrated over the trajectory's steps by the trapezoidal rule, with D at the step's mean position, as
 simrun books its own steps; the energy bound marks a trajectory that blew up as diverged, where it left it. The
 error is measured at the recorded state nearest the error time. Its wall time is the trajectory's own, where the file
-says it (a ``wall_time`` entry, s), else NaN: simrun's reading costs nothing the other code spent.
+says it (a ``wall_time`` entry, s, prorated to the states within the duration), else NaN: simrun's reading is not
+what the other code spent.
 """
 
 from __future__ import annotations
@@ -116,15 +117,16 @@ def _measure(run: Run) -> RunResult:
     attrs = {"final_error": final_error(system, samples), "not_converged_steps": 0, "first_not_converged_step": 0,
              "diverged_step": taken if diverged else 0, "safeguard_steps": 0, "dt": run.dt,
              **system.capabilities.as_attrs()}
-    metadata = trajectory_metadata(Path(run.integrator.trajectory))
-    if metadata:
-        attrs["trajectory_metadata"] = metadata
+    entries = file_metadata(Path(run.integrator.trajectory))
+    if entries:
+        attrs["trajectory_metadata"] = json.dumps(entries, default=str)
     model = add_outcome(system, samples, attrs, error_state, with_frames, constraint_kinds)
     status = decide_status(failed=False, diverged=diverged, over_budget=False, not_converged_steps=0,
                            accept_not_converged=False)
-    return RunResult(run_id=run.run_id, status=status, steps=taken, wall_time=recorded_wall_time(Path(run.integrator.trajectory)),
-                     samples=samples, per_step=log.result(taken), t_diverged=t_diverged, message=message, attrs=attrs,
-                     model=model)
+    # the other code's time for the states kept, its whole trajectory's prorated by steps
+    wall_time = recorded_wall_time(entries) * taken / (recorded.t.size - 1)
+    return RunResult(run_id=run.run_id, status=status, steps=taken, wall_time=wall_time, samples=samples,
+                     per_step=log.result(taken), t_diverged=t_diverged, message=message, attrs=attrs, model=model)
 
 
 def _scalars(path: Path) -> dict:
@@ -151,18 +153,17 @@ def _scalars(path: Path) -> dict:
     return entries
 
 
-def trajectory_metadata(path: Path) -> str:
-    """The file's free-form metadata as JSON text (empty when it has none): its first MAX_METADATA_ENTRIES entries by
-    name, texts cut at MAX_METADATA_TEXT characters."""
-    entries = _scalars(path)
-    kept = {key: value[:MAX_METADATA_TEXT] if isinstance(value, str) else value
-            for key, value in sorted(entries.items())[:MAX_METADATA_ENTRIES]}
-    return json.dumps(kept, default=str) if kept else ""
+def file_metadata(path: Path) -> dict:
+    """The file's free-form metadata (empty when it has none): its first MAX_METADATA_ENTRIES entries by name, texts
+    cut at MAX_METADATA_TEXT characters."""
+    return {key: value[:MAX_METADATA_TEXT] if isinstance(value, str) else value
+            for key, value in sorted(_scalars(path).items())[:MAX_METADATA_ENTRIES]}
 
 
-def recorded_wall_time(path: Path) -> float:
-    """The other code's wall time for the trajectory (its ``wall_time`` entry, s), NaN where the file does not say."""
-    value = _scalars(path).get("wall_time")
+def recorded_wall_time(metadata: dict) -> float:
+    """The other code's wall time for the whole trajectory (its ``wall_time`` entry, s), NaN where the file does not
+    say."""
+    value = metadata.get("wall_time")
     try:
         value = float(value)
     except (TypeError, ValueError):

@@ -39,7 +39,7 @@ def simulate(run: Run) -> RunResult:
     chooses to the duration); never raises for a bad run. A peer's run is taken by its own code (peers.py), a recorded
     trajectory's is read (recorded.py)."""
     if run.integrator.whole_run:
-        return WHOLE_RUNS[run.integrator.name](run)
+        return kept_as_recorded(WHOLE_RUNS[run.integrator.name](run), run.record)
     system = run.system.build()
     integrator = run.integrator
     solver = run.solver.build()
@@ -209,7 +209,12 @@ def simulate(run: Run) -> RunResult:
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples, per_step=per_step,
         t_diverged=t_diverged, message=message, attrs=attrs, model=model,
     )
-    if not run.record.series:  # a map: the summary's numbers as attributes, no series
+    return kept_as_recorded(result, run.record)
+
+
+def kept_as_recorded(result: RunResult, record) -> RunResult:
+    """The run as ``record`` keeps it: with ``series: false`` (a map) the summary's numbers as attributes, no series."""
+    if not record.series:
         result.attrs.update(series_summary(result))
         result.samples, result.per_step = {}, {}
     return result

@@ -31,6 +31,13 @@ class NonlinearKick(Integrator):
         return State(state.t + dt, state.x + dt * v, v), EXPLICIT_STEP
 
 
+class DeclaredNonlinear(NonlinearKick):
+    """The same step, declared for what it is: no amplification matrix, its runs measured only."""
+
+    name: ClassVar[str] = "declared_nonlinear"
+    linear: ClassVar[bool] = False
+
+
 class LeakyMomentum(Integrator):
     """Symplectic Euler that takes h^3 v off the velocity each step: linear, first order (the leak is O(h^3) a step),
     and it loses momentum."""
