@@ -12,7 +12,7 @@ CONFIGS ?= $(wildcard configs/*.yaml)
 RESULTS := $(patsubst configs/%.yaml,results/%/results.h5,$(CONFIGS))
 REPORTS := $(patsubst configs/%.yaml,results/%/report.html,$(CONFIGS))
 
-.PHONY: install install-test install-cholmod install-peers run test plot bench config-times sweep reports clean
+.PHONY: install install-test install-cholmod install-peers install-engines run test plot bench config-times sweep reports clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -55,6 +55,12 @@ install-peers: $(VENV)/.installed-peers  ## the peers `make bench` compares with
 
 $(VENV)/.installed-peers: pyproject.toml $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e '.[peers]'
+	touch $@
+
+install-engines: $(VENV)/.installed-engines  ## the engines whose integrators simrun measures (MuJoCo; docs/engines.md)
+
+$(VENV)/.installed-engines: pyproject.toml $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e '.[engines]'
 	touch $@
 
 run: install                           ## run the default experiment (CONFIG=... for another)

@@ -24,6 +24,7 @@ from .xpbd import XPBD
 from .imex import IMEX
 from .peers import SolveIVP
 from .recorded import Recorded
+from .mujoco import MuJoCo
 
 # config name -> class: the one place where a new method is made known
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -61,5 +62,9 @@ INTEGRATORS: dict[str, type[Integrator]] = {
 # simrun steps, so the analyses of the methods (amplification, damping, stability) leave them out
 PEERS: dict[str, type[Integrator]] = {SolveIVP.name: SolveIVP, Recorded.name: Recorded}
 
-__all__ = ["INTEGRATORS", "PEERS", "Integrator", "IncrementalPotential", "SegmentPotential", "State",
+# engines: other codes' integrators stepping simrun's systems translated into their own models, a step at a time (so
+# their amplification matrices are probed as simrun's own methods' are); each needs its extra (pip install '.[engines]')
+ENGINES: dict[str, type[Integrator]] = {MuJoCo.name: MuJoCo}
+
+__all__ = ["ENGINES", "INTEGRATORS", "PEERS", "Integrator", "IncrementalPotential", "SegmentPotential", "State",
            "ButcherTableau", "ExplicitRungeKutta"]

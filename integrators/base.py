@@ -113,6 +113,19 @@ class Integrator(BaseModel):
     def start(self, system: System, state: State) -> State:
         return state
 
+    def prepare(self, system: System, dt: float) -> None:
+        """What a run sets up before its stepping time starts (an engine's model of the system, built and compiled for
+        steps of dt s); nothing for simrun's own methods."""
+
+    def engine_description(self) -> str:
+        """The engine that takes this method's steps, its version, precision and device ("MuJoCo 4.0.0, float64,
+        CPU"); "" for simrun's own methods."""
+        return ""
+
+    # whether the method takes steps of one fixed size only (an engine whose step size is a model option): no step
+    # control then
+    fixed_steps_only: ClassVar[bool] = False
+
     @abstractmethod
     def step(self, system: System, state: State, dt: float, solver) -> tuple[State, SolveStats]:
         """Advance ``state`` by dt (s); implicit methods solve with ``solver``."""

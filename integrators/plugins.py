@@ -74,9 +74,9 @@ def clear_cache() -> None:
 
 # -- the rules -----------------------------------------------------------------------------------------
 def _built_in() -> dict[str, type[Integrator]]:
-    from . import INTEGRATORS, PEERS  # at call time, so that simrun.integrators may import this module
+    from . import ENGINES, INTEGRATORS, PEERS  # at call time, so that simrun.integrators may import this module
 
-    return INTEGRATORS | PEERS
+    return INTEGRATORS | ENGINES | PEERS
 
 
 def _checked(name: str, value: Any) -> type[Integrator]:

@@ -38,6 +38,19 @@ def needs_linear_solver(name: str):
     return pytest.mark.skipif(missing is not None and not REQUIRE_OPTIONAL_SOLVERS, reason=str(missing))
 
 
+# CI installs the engines extra (MuJoCo) in its second pass and sets this, so a broken install fails instead of skipping
+REQUIRE_ENGINES = os.environ.get("SIMRUN_REQUIRE_ENGINES") == "1"
+
+
+def needs_mujoco():
+    """A mark for tests of MuJoCo's integrators: skip when the engines extra is missing (unless SIMRUN_REQUIRE_ENGINES=1:
+    then the test runs and fails)."""
+    from simrun.integrators.mujoco import mujoco_missing
+
+    missing = mujoco_missing()
+    return pytest.mark.skipif(missing is not None and not REQUIRE_ENGINES, reason=str(missing))
+
+
 def linear_solver_params(names=None) -> list:
     """pytest params of linear solver names, each with its needs_linear_solver marks."""
     return [pytest.param(name, marks=needs_linear_solver(name), id=name) for name in (names or sorted(LINEAR_SOLVERS))]

@@ -71,7 +71,7 @@ def _print(lines: list[str]) -> None:
 
 def handle(args) -> int:
     from simrun.experiment.config import Experiment
-    from simrun.integrators import INTEGRATORS, PEERS
+    from simrun.integrators import ENGINES, INTEGRATORS, PEERS
     from simrun.solvers import LINEAR_SOLVERS, SOLVER_PARAMS, SolverParams
     from simrun.systems import SYSTEMS
 
@@ -104,6 +104,10 @@ def handle(args) -> int:
     own = {name: path for name, path in integrator_plugins.installed().items() if name not in INTEGRATORS}
     print("  # and plug-ins: package.module:ClassName (docs/integrators.md, \"Writing your own integrator\"); "
           "installed: " + (", ".join(f"{name} ({path})" for name, path in own.items()) or "none"))
+    print("  # engines: other codes' integrators, stepping the system translated into their models (docs/engines.md)")
+    for name, cls in ENGINES.items():
+        print(f"  {name}:  # order {cls.order}, {'explicit' if cls.explicit else 'implicit'}: {cls.summary}")
+        _print(_fields(cls))
     print("  # peers: other codes' runs on the same system, named in integrators: like a method")
     for name, cls in PEERS.items():
         print(f"  {name}:  # {cls.summary}")

@@ -101,6 +101,8 @@ def simulate(run: Run) -> RunResult:
     # a run whose work is numba's threads (XPBD, VBD): OpenBLAS's threads, woken by a long vector's dot product,
     # would spin against them on the same cores
     blas = one_blas_thread() if needs_no_blas_threads(integrator, solver) else contextlib.nullcontext()
+    if not schedule.controlled:
+        integrator.prepare(system, run.dt)  # an engine's model, built before the stepping time starts
     start = time.perf_counter()
     counting = RUN_FACTORISATIONS.set(schedule.factorisations)
     try:
@@ -205,6 +207,9 @@ def simulate(run: Run) -> RunResult:
     bound = explicit_frequency(system, integrator)
     if math.isfinite(bound):  # stored where there is one: off the test equation, for the methods with a bound
         attrs["explicit_frequency"] = bound
+    engine = integrator.engine_description()
+    if engine:  # another code took the steps: which, in what precision, on what device
+        attrs["engine"] = engine
     result = RunResult(
         run_id=run.run_id, status=status, steps=steps, wall_time=wall_time, samples=samples, per_step=per_step,
         t_diverged=t_diverged, message=message, attrs=attrs, model=model,

@@ -67,6 +67,9 @@ def estimate_refusal(step_control: StepControlParams, integrator) -> str | None:
     """Why ``integrator`` cannot take ``step_control``'s adaptive steps (one line), or None."""
     if integrator.whole_run:  # a peer: its own code controls its steps, at the block's tolerances
         return None
+    if integrator.fixed_steps_only:
+        return (f"{integrator.label} takes steps of one size (its engine's time step is a model option): sweep dt "
+                "instead of step_control")
     if uses_richardson(step_control, integrator):
         if integrator.carries_history:
             return (f"{integrator.label} carries a history of states at its own past steps: a Richardson estimate "

@@ -23,7 +23,8 @@ sentence against known values rather than its wording. No finding claims more th
 - what could not be measured, and why, said once.
 
 One module per topic: ``integrators`` (stability, damping, accuracy, orders, energy, what was not measured),
-``contact``, ``cost``, ``peers``, ``damping_map`` and ``calibration`` (``simrun fit``), each on the wording of ``base``. The
+``contact``, ``cost``, ``peers``, ``engines``, ``damping_map`` and ``calibration`` (``simrun fit``), each on the wording of
+``base``. The
 numbers come from ``simrun.analysis.oscillator`` (the rows of ``analysis.rows``, read from the file through
 ``analysis.runs.run_set``); the findings only select, compare and word them.
 """
@@ -38,6 +39,7 @@ from simrun.findings.base import Finding
 from simrun.findings.contact import contact_findings
 from simrun.findings.cost import solver_cost
 from simrun.findings.damping_map import map_findings
+from simrun.findings.engines import engine_findings
 from simrun.findings.integrators import (accuracy_findings, damping_budget_findings, damping_findings, energy_findings,
                                          largest_dt_findings, measured_damping_findings, measured_only_findings,
                                          not_measured_findings,
@@ -55,6 +57,7 @@ def findings(data: RunSet, rows: list[SummaryRow] | None = None, orders: list[Or
     several = len(data.groups) > 1
 
     result = map_findings(data)  # a map answers its question first
+    result += engine_findings(data, predictions)  # an engine's integrators are the question where a file has them
     result += stability_findings(data, rows, predictions, several)
     result += contact_findings(rows, several)
     result += largest_dt_findings(data, several)

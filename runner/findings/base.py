@@ -19,7 +19,7 @@ class Finding:
     sentence: str
     link_anchor: str  # "#stability", "#figure-stability_map", ...: the table or figure that shows it
     evidence: dict = field(default_factory=dict)
-    topic: str = ""  # stability | damping | accuracy | equal error | cost | energy | not measured
+    topic: str = ""  # engines | stability | damping | accuracy | equal error | cost | energy | not measured
 
 
 # -- wording ----------------------------------------------------------------------------------------

@@ -116,6 +116,7 @@ RUN_FIELDS: dict[str, RunField] = {
     "not_converged_attempts": RunField(_I, "", "rejected tries whose solve did not converge", 0),
     "threads": RunField(_I, "", "threads of the run's compiled kernels", 1),
     "trajectory_metadata": RunField(_S, "", "a recorded trajectory's free-form metadata, as JSON", ""),
+    "engine": RunField(_S, "", "the engine that took the steps, its version, precision and device", ""),
     # the system's capabilities (systems/capabilities.py, Capabilities.as_attrs)
     "test_frequency": RunField(_F, "rad/s", "w of the undamped test equation; NaN otherwise", NAN),
     "length_scale": RunField(_F, "m", "the scale of position errors", 1.0),
