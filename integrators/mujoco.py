@@ -273,8 +273,13 @@ class MuJoCo(Integrator):
     def order_of_accuracy(self) -> int:
         return MUJOCO_INTEGRATORS[self.integrator][1]
 
+    @classmethod
+    def missing(cls) -> str | None:
+        """Why this engine cannot run here (its extra is not installed), or None."""
+        return mujoco_missing()
+
     def refusal(self, system) -> str | None:
-        missing = mujoco_missing()
+        missing = self.missing()
         if missing is not None:
             return missing
         import mujoco

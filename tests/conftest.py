@@ -51,6 +51,23 @@ def needs_mujoco():
     return pytest.mark.skipif(missing is not None and not REQUIRE_ENGINES, reason=str(missing))
 
 
+def config_params(paths) -> list:
+    """Shipped configs as pytest params (ids: their names); a config that names an engine whose extra is missing
+    (configs/engine_cards.yaml without MuJoCo) skips with that reason, unless SIMRUN_REQUIRE_ENGINES=1."""
+    import yaml
+
+    from simrun.integrators import ENGINES
+
+    params = []
+    for path in paths:
+        entries = (yaml.safe_load(path.read_text()) or {}).get("integrators") or []
+        names = [entry.get("type") if isinstance(entry, dict) else entry for entry in entries]
+        reason = next((ENGINES[name].missing() for name in names if name in ENGINES and ENGINES[name].missing()), None)
+        marks = pytest.mark.skipif(reason is not None and not REQUIRE_ENGINES, reason=str(reason))
+        params.append(pytest.param(path, marks=marks, id=path.stem))
+    return params
+
+
 def linear_solver_params(names=None) -> list:
     """pytest params of linear solver names, each with its needs_linear_solver marks."""
     return [pytest.param(name, marks=needs_linear_solver(name), id=name) for name in (names or sorted(LINEAR_SOLVERS))]

@@ -19,6 +19,7 @@ import pytest
 import yaml
 from matplotlib.text import Text
 
+from conftest import config_params
 from simrun.analysis.reference import reference_errors
 from simrun.analysis.rows import summary_rows
 from simrun.analysis.runs import format_value
@@ -36,6 +37,7 @@ SHORT = {
     "circular_orbits": ["duration=3.0", "sweep.dt=[0.1,0.3]"],
     "damping_curves": ["duration=12.0", "sweep.dt=[0.3,1.0,3.0]"],
     "xpbd_damping": ["duration=12.0", "sweep.dt=[0.3,1.0,3.0]"],
+    "engine_cards": ["duration=12.0", "sweep.dt=[0.1,1.0,2.5]"],
     "cloth_hang": [*CLOTH, "duration=0.06", "sweep.dt=[0.02,0.03]"],
     "cloth_sphere": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
     "cloth_convergence": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
@@ -116,7 +118,7 @@ def shortened(config: Path) -> list[str]:
     return [argument for override in SHORT.get(config.stem, DEFAULT_SHORT) for argument in ("--set", override)]
 
 
-@pytest.mark.parametrize("config", CONFIGS, ids=[config.stem for config in CONFIGS])
+@pytest.mark.parametrize("config", config_params(CONFIGS))
 def test_every_figure_names_every_integrator_and_swept_value(config, tmp_path):
     output = tmp_path / config.stem
     command = "fit" if "fit" in yaml.safe_load(config.read_text()) else "run"  # a calibration is fitted

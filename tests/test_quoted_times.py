@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import config_params
 from benchmarks.config_times import JOBS, RECORD, quote_text, time_text
 from simrun.experiment.config import load_experiment
 from simrun.experiment.sweep import expand_runs
@@ -39,7 +40,7 @@ def test_every_shipped_config_was_measured():
         assert record["machine"]["jobs"] == JOBS and record["seconds"] > 0, name
 
 
-@pytest.mark.parametrize("config", CONFIGS, ids=lambda path: path.stem)
+@pytest.mark.parametrize("config", config_params(CONFIGS))
 def test_a_configs_comment_states_its_measured_total_and_run_count(config):
     record = RECORDS[config.stem]
     quotes = CONFIG_QUOTE.findall(comment_of(config))

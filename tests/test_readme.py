@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import config_params
 from simrun.experiment.config import load_experiment
 from simrun.experiment.sweep import expand_runs
 
@@ -63,7 +64,7 @@ def test_the_tour_runs_as_written(tmp_path):
         assert done.returncode == 0, f"{command}: exit {done.returncode}\n{done.stderr[-2000:]}"
 
 
-@pytest.mark.parametrize("config", CONFIGS, ids=lambda path: path.stem)
+@pytest.mark.parametrize("config", config_params(CONFIGS))
 def test_a_run_count_in_a_configs_comment_is_its_sweeps(config):
     comments = " ".join(line for line in config.read_text().splitlines() if line.lstrip().startswith("#"))
     stated = {int(number.replace(",", "")) for number in re.findall(r"\b(\d[\d,]*) runs\b", comments)}

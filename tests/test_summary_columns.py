@@ -12,6 +12,7 @@ import pandas
 import pytest
 import yaml
 
+from conftest import config_params
 import simrun
 from simrun.analysis.rows import summary_rows
 from simrun.experiment.config import load_experiment
@@ -74,7 +75,7 @@ def test_the_csv_and_the_report_carry_the_parameter_columns(work_precision):
     assert "integrator.order" not in html
 
 
-@pytest.mark.parametrize("config", CONFIGS, ids=lambda path: path.stem)
+@pytest.mark.parametrize("config", config_params(CONFIGS))
 def test_every_swept_key_of_a_shipped_config_is_a_typed_column(config):
     experiment, text = load_experiment(config)
     raw = yaml.safe_load(text)

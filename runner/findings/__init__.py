@@ -56,8 +56,9 @@ def findings(data: RunSet, rows: list[SummaryRow] | None = None, orders: list[Or
     predictions = predictions_for(data) if test_equation_runs(data) else {}
     several = len(data.groups) > 1
 
-    result = map_findings(data)  # a map answers its question first
-    result += engine_findings(data, predictions)  # an engine's integrators are the question where a file has them
+    # the engines' integrators are the question of a file that has them; a map answers its own question first otherwise
+    result = engine_findings(data, predictions)
+    result += map_findings(data)
     result += stability_findings(data, rows, predictions, several)
     result += contact_findings(rows, several)
     result += largest_dt_findings(data, several)
