@@ -91,6 +91,17 @@ def test_a_cloth_of_tendons_steps_as_simruns_own_method(engine, own):
     np.testing.assert_allclose(theirs.samples["energy"], ours.samples["energy"], rtol=0, atol=1e-11 * scale)
 
 
+def test_a_pendulum_chain_in_the_plane_steps_as_symplectic_euler():
+    """A 2-D rope of 10 masses on stiff springs, pinned at one end and swinging under gravity (a pendulum chain): two
+    slide joints per vertex in MuJoCo's x-y plane, gravity along -y; 500 steps equal simrun's own to round-off."""
+    rope = {"type": "mass_spring", "model": {"rope": {"count": 10, "length": 1.0, "direction": [1.0, 0.0]}},
+            "stiffness": 1000.0, "mass": {"total": 0.04}, "gravity": [0.0, -9.81], "pinned": ["first"]}
+    ours = run_one(rope, "symplectic_euler", 0.001, 0.5, record={"every": 1, "frames_every": 1})
+    theirs = run_one(rope, {"type": "mujoco"}, 0.001, 0.5, record={"every": 1, "frames_every": 1})
+    assert theirs.status == ours.status == "ok"
+    np.testing.assert_allclose(theirs.samples["frames"], ours.samples["frames"], rtol=0, atol=1e-12)
+
+
 def test_a_run_that_blows_up_is_diverged_not_reset(tmp_path):
     """Past symplectic Euler's limit (h w = 2.5) MuJoCo's Euler grows until MuJoCo would reset it: the run is
     diverged, at the same step as simrun's own."""
