@@ -50,7 +50,8 @@ def test_the_tour_runs_as_written(tmp_path):
     config and every benchmark: CI time better spent elsewhere)."""
     for folder in ("configs", "models"):
         shutil.copytree(ROOT / folder, tmp_path / folder)
-    shutil.copytree(ROOT / "tests" / "plugins", tmp_path / "tests" / "plugins")
+    for folder in ("plugins", "trajectories"):
+        shutil.copytree(ROOT / "tests" / folder, tmp_path / "tests" / folder)
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}", "MPLBACKEND": "Agg"}
     env.pop("PYTHONPATH", None)
     for command in tour_commands():
