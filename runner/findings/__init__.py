@@ -4,6 +4,8 @@ The report opens with these. Each ``Finding`` is a sentence, the anchor of the t
 report's page that shows it, and its evidence: the numbers it states, by name, so that tests check a
 sentence against known values rather than its wording. No finding claims more than the file holds:
 
+- engines (``simrun.findings.engines``), first where a file has them: per engine, each of its integrators' energy
+  change per period at h w = 0.1 and 1 and where it grows, from its probed amplification matrix;
 - stability: per integrator, the largest dt that ran to its end without diverging and the smallest
   that diverged (measured: only from runs at those dts), beside the predicted limit (runs on the
   undamped test equation only: the limit is a property of the method on q'' + w^2 q = 0);
@@ -24,8 +26,7 @@ sentence against known values rather than its wording. No finding claims more th
 
 One module per topic: ``integrators`` (stability, damping, accuracy, orders, energy, what was not measured),
 ``contact``, ``cost``, ``peers``, ``engines``, ``damping_map`` and ``calibration`` (``simrun fit``), each on the wording of
-``base``. The
-numbers come from ``simrun.analysis.oscillator`` (the rows of ``analysis.rows``, read from the file through
+``base``. The numbers come from ``simrun.analysis.oscillator`` (the rows of ``analysis.rows``, read from the file through
 ``analysis.runs.run_set``); the findings only select, compare and word them.
 """
 
@@ -49,8 +50,8 @@ from simrun.findings.peers import peer_findings
 
 def findings(data: RunSet, rows: list[SummaryRow] | None = None, orders: list[OrderRow] | None = None
              ) -> list[Finding]:
-    """The findings of a file's runs, in reading order (stability, contact, damping, accuracy, equal error, cost,
-    energy, not measured)."""
+    """The findings of a file's runs, in reading order (engines, a damping map's, stability, contact, damping,
+    accuracy, equal error, cost, energy, not measured)."""
     rows = summary_rows(data) if rows is None else rows
     orders = order_rows(data) if orders is None else orders
     predictions = predictions_for(data) if test_equation_runs(data) else {}
