@@ -214,7 +214,7 @@ def translate(system) -> Translation | str:
     return "MuJoCo's translation cannot express this system (" + "; ".join(reasons) + ")"
 
 
-class Session:
+class Stepper:
     """A translated system's MuJoCo model and data at one step size and integrator: a step sets qpos and qvel from
     the state, calls mj_step and reads them back."""
 
@@ -247,8 +247,8 @@ class Session:
         return State(state.t + self.model.opt.timestep, x, v)
 
 
-# each system's sessions, by (dt, integrator): built on a run's first step, kept while the system lives
-_SESSIONS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+# each system's steppers, by (dt, integrator): built on a run's first step, kept while the system lives
+_STEPPERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class MuJoCo(Integrator):
@@ -298,19 +298,19 @@ class MuJoCo(Integrator):
         return f"MuJoCo {mujoco.__version__}, float64, CPU"
 
     def prepare(self, system, dt: float) -> None:
-        self._session(system, dt)
+        self._stepper(system, dt)
 
     def step(self, system, state, dt, solver):
-        return self._session(system, dt).step(state), EXPLICIT_STEP
+        return self._stepper(system, dt).step(state), EXPLICIT_STEP
 
-    def _session(self, system, dt: float) -> Session:
+    def _stepper(self, system, dt: float) -> Stepper:
         """The system's MuJoCo model and data for steps of dt with these options: built once, kept with the system."""
-        sessions = _SESSIONS.setdefault(system, {})
+        steppers = _STEPPERS.setdefault(system, {})
         key = (float(dt), self.integrator, self.iterations, self.tolerance)
-        session = sessions.get(key)
-        if session is None:
+        stepper = steppers.get(key)
+        if stepper is None:
             translation = translate(system)
             if isinstance(translation, str):
                 raise TypeError(translation)
-            session = sessions[key] = Session(translation, self, float(dt))
-        return session
+            stepper = steppers[key] = Stepper(translation, self, float(dt))
+        return stepper
