@@ -383,7 +383,8 @@ def test_a_config_with_several_errors_gets_one_line_each(tmp_path, capsys):
         "simrun: error: system.mass: Input should be a valid number, unable to parse string as a number (got 'heavy')",
         "simrun: error: system.stifness: unknown key (did you mean 'stiffness'?); allowed: type, mass, stiffness, damping, damping_ratio, x0, v0",
         "simrun: error: integrators.0: unknown integrator 'backward_eulr' (did you mean 'backward_euler'?); valid: "
-        + ", ".join(simrun.integrators.INTEGRATORS | simrun.integrators.PEERS) + ", or a plug-in as package.module:ClassName",
+        + ", ".join(simrun.integrators.INTEGRATORS | simrun.integrators.ENGINES | simrun.integrators.PEERS)
+        + ", or a plug-in as package.module:ClassName",
         "simrun: error: duration: Input should be greater than 0 (got -1)",
     ]
     assert captured.out == "" and not Path("results/x").exists()
