@@ -57,7 +57,7 @@ $(VENV)/.installed-peers: pyproject.toml $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e '.[peers]'
 	touch $@
 
-install-engines: $(VENV)/.installed-engines  ## the engines whose integrators simrun measures (MuJoCo; docs/engines.md)
+install-engines: $(VENV)/.installed-engines  ## the engines whose integrators simrun measures (MuJoCo, Newton; docs/engines.md)
 
 $(VENV)/.installed-engines: pyproject.toml $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e '.[engines]'

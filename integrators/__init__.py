@@ -25,6 +25,7 @@ from .imex import IMEX
 from .peers import SolveIVP
 from .recorded import Recorded
 from .mujoco import MuJoCo
+from .newton_engine import Newton
 
 # config name -> class: the one place where a new method is made known
 INTEGRATORS: dict[str, type[Integrator]] = {
@@ -64,7 +65,7 @@ PEERS: dict[str, type[Integrator]] = {SolveIVP.name: SolveIVP, Recorded.name: Re
 
 # engines: other codes' integrators stepping simrun's systems translated into their own models, a step at a time (so
 # their amplification matrices are probed as simrun's own methods' are); each needs its extra (pip install '.[engines]')
-ENGINES: dict[str, type[Integrator]] = {MuJoCo.name: MuJoCo}
+ENGINES: dict[str, type[Integrator]] = {MuJoCo.name: MuJoCo, Newton.name: Newton}
 
 __all__ = ["ENGINES", "INTEGRATORS", "PEERS", "Integrator", "IncrementalPotential", "SegmentPotential", "State",
            "ButcherTableau", "ExplicitRungeKutta"]

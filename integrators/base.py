@@ -94,6 +94,9 @@ class Integrator(BaseModel):
     # whether one step is a linear map of the state on a linear system (every method here: its amplification matrix
     # is then probed from unit states); False for a method nonlinear by design, whose card is measured from runs
     linear: ClassVar[bool] = True
+    # the unit round-off of the arithmetic a step is computed in: float64's, except an engine's that steps in float32;
+    # the analysis reads growth of the probed spectral radius only above what that round-off could make
+    unit_roundoff: ClassVar[float] = 2.0 ** -53
     # whether this class's step is elementwise arithmetic of the state and the system's acceleration, kick or
     # incremental potential (StepPlan), so that it steps many runs held as lanes of one array (systems/lanes.py) as it
     # steps one; only a class's own declaration counts (``steps_lanes``): a subclass may change the step

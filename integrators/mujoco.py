@@ -6,17 +6,13 @@ the state back; simrun's loop records it, so every energy and error is simrun's 
 engine. MuJoCo computes in float64: the state passes through unchanged. A probe of the same step on unit states of the
 test spring gives the amplification matrix (runner/analysis/oscillator.py), as for simrun's own methods.
 
-The translation (``TRANSLATIONS``, the first that takes the system; each says what it cannot express):
-- **Uncoupled springs:** a potential sum_i k_i q_i^2 / 2 (constant diagonal Hessian, at rest at the origin) with
-  constant diagonal damping: the spring, the spring bank of the predictions, circular motion under its linear force.
-  One body per dof on a slide joint with the joint's ``stiffness`` k_i (``springref`` 0), ``damping`` d_i and mass m_i.
-- **Springs between vertices:** a mass-spring model or the cloth with Hookean springs k/2 (L - l0)^2, damped only along
-  them, under uniform gravity. One body per vertex with a slide joint per coordinate; each spring a spatial tendon
+The translation, from the scenes of integrators/engine_scenes.py (anything else is refused in one line):
+- **Uncoupled springs:** one body per dof on a slide joint with the joint's ``stiffness`` k_i (``springref`` 0),
+  ``damping`` d_i and mass m_i.
+- **Springs between vertices:** one body per vertex with a slide joint per coordinate; each spring a spatial tendon
   between the two vertices' sites with ``stiffness`` k, ``springlength`` l0 (MuJoCo's tendon spring is -k (L - l0)
   along the tendon: the same energy) and ``damping`` beta on dL/dt (simrun's ``spring`` damping model); pinned
   vertices are sites of the world body.
-Anything else (contact, prescribed paths, sliding vertices, consistent masses, other damping models or spring laws,
-nonlinear forces MuJoCo has no element for) is refused in one line: no approximation stands in for the system.
 
 What MuJoCo's integrators are (src/engine/engine_forward.c, ``mj_step``), each explicit in the stiffness:
 - ``Euler``: semi-implicit, v' = v + h a, x' = x + h v', with the joints' damping implicit, (M + h D_joint) a = f;
@@ -38,14 +34,13 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 import numpy as np
-import scipy.sparse
 from pydantic import Field
 
 from simrun.solvers import EXPLICIT_STEP
 from simrun.systems.compliant import ANCHORED
-from simrun.systems.forms import NotOffered
 
 from .base import Integrator, State
+from .engine_scenes import UncoupledSprings, VertexSprings, read_scene
 
 EXTRA = "pip install '.[engines]' (mujoco)"
 # MuJoCo's name of each integrator, and the order of accuracy it is known by
@@ -78,115 +73,44 @@ def _vector(values) -> str:
     return " ".join(_number(value) for value in values)
 
 
-def _dense_diagonal(matrix) -> np.ndarray | None:
-    """The diagonal of a matrix that has nothing off it, else None."""
-    if matrix is None:
-        return None
-    if scipy.sparse.issparse(matrix):
-        matrix = scipy.sparse.coo_array(matrix)
-        off = matrix.row != matrix.col
-        if np.any(matrix.data[off] != 0.0):
-            return None
-        return np.asarray(matrix.diagonal(), dtype=float)
-    matrix = np.atleast_2d(np.asarray(matrix, dtype=float))
-    diagonal = np.diag(matrix).copy()
-    return diagonal if np.array_equal(matrix, np.diag(diagonal)) else None
-
-
-def _held(system) -> str | None:
-    """What of the system's constraints MuJoCo's translation would not hold, or None."""
-    if system.mass_correction is not None:
-        return "a consistent mass matrix (MuJoCo's point bodies have lumped masses): use mass: lumped"
-    constraints = system.constraints
-    if system.sliding is not None or (constraints is not None and constraints.moving_dofs.size):
-        return "prescribed paths or sliding vertices (no MuJoCo element follows them here)"
-    if system.contact_form():
-        return "contact (MuJoCo's soft contacts are another model than simrun's penalty or IPC)"
-    return None
-
-
-def uncoupled_springs(system) -> Translation | str:
-    """One slide joint per dof with its spring and damper; a reason where the system is not uncoupled springs."""
-    if not system.quadratic_potential:
-        return "its potential is not quadratic"
-    n = system.dof_count
-    stiffness = _dense_diagonal(system.hessian(system.x0))
-    if stiffness is None:
-        return "its springs are coupled (the Hessian has terms off its diagonal)"
-    if np.any(system.gradient(np.zeros(n)) != 0.0):
-        return "its springs are not at rest at the origin (or a field such as gravity acts)"
-    damping = np.zeros(n)
-    if system.is_damped:
-        damping = _dense_diagonal(system.damping_matrix(system.x0)) if system.damping_is_constant else None
-        if damping is None:
-            return "its damping is not constant and diagonal"
-    if np.asarray(system.fixed_dofs).size:
-        return "it holds dofs fixed"
-    mass = np.broadcast_to(np.asarray(system.mass, dtype=float), (n,))
-    bodies = [f'<body name="q{i}"><joint type="slide" axis="1 0 0" stiffness="{_number(stiffness[i])}" '
-              f'damping="{_number(damping[i])}" springref="0"/><inertial pos="0 0 0" mass="{_number(mass[i])}" '
-              f'diaginertia="1 1 1"/></body>' for i in range(n)]
+def _uncoupled_springs(scene: UncoupledSprings) -> Translation:
+    """One slide joint per dof with its spring (``springref`` 0) and damper."""
+    bodies = [f'<body name="q{i}"><joint type="slide" axis="1 0 0" stiffness="{_number(k)}" '
+              f'damping="{_number(d)}" springref="0"/><inertial pos="0 0 0" mass="{_number(m)}" '
+              f'diaginertia="1 1 1"/></body>' for i, (k, d, m) in enumerate(zip(scene.stiffness, scene.damping,
+                                                                                  scene.mass))]
+    n = scene.stiffness.size
     return Translation(_model("0 0 0", "".join(bodies)), np.arange(n), np.zeros(n))
 
 
-def springs_between_vertices(system) -> Translation | str:
-    """A body per vertex, a tendon per spring; a reason where the system is not such springs."""
-    form = system.compliant_form()
-    if form is None:
-        return "it has no springs between vertices"
-    if isinstance(form, NotOffered):
-        return form.reason
-    if form.other_forces:
-        return "it has forces besides its springs, their dampers and gravity (damping not along the springs, contact)"
-    dim, count = form.dim, form.vertex_count
-    if dim not in (2, 3):
-        return f"its vertices have {dim} coordinates"
-    gravity = np.zeros(3)
-    if system.external_acceleration is not None:
-        field = np.asarray(system.external_acceleration, dtype=float).reshape(count, dim)
-        if not np.all(field == field[0]):
-            return "its external field is not one uniform gravity"
-        gravity[:dim] = field[0]
-    mass = np.asarray(system.mass, dtype=float).reshape(count, dim)
-    if not np.all(mass == mass[:, :1]):
-        return "its vertices' masses differ between coordinates"
-    fixed = np.zeros(count * dim, dtype=bool)
-    fixed[np.asarray(system.fixed_dofs, dtype=np.intp)] = True
-    held = fixed.reshape(count, dim)
-    if np.any(held.any(axis=1) & ~held.all(axis=1)):
-        return "some vertices are held in some directions only"
-    pinned = held.all(axis=1)
-    rest = np.asarray(system.x0, dtype=float).reshape(count, dim)
-    position = np.zeros((count, 3))
-    position[:, :dim] = rest
-    axes = ("1 0 0", "0 1 0", "0 0 1")[:dim]
+def _springs_between_vertices(scene: VertexSprings) -> Translation:
+    """A body per free vertex with a slide joint per coordinate, a spatial tendon per spring; pinned vertices and
+    anchors are sites of the world body."""
+    axes = ("1 0 0", "0 1 0", "0 0 1")[:scene.dim]
     world, bodies = [], []
-    for vertex in range(count):
+    for vertex, position in enumerate(scene.rest):
         site = f'<site name="s{vertex}" pos="{{}}" size="0.001"/>'
-        if pinned[vertex]:
-            world.append(site.format(_vector(position[vertex])))
+        if scene.pinned[vertex]:
+            world.append(site.format(_vector(position)))
             continue
         joints = "".join(f'<joint type="slide" axis="{axis}"/>' for axis in axes)
-        bodies.append(f'<body name="v{vertex}" pos="{_vector(position[vertex])}">{joints}'
-                      f'<inertial pos="0 0 0" mass="{_number(mass[vertex, 0])}" diaginertia="1 1 1"/>'
+        bodies.append(f'<body name="v{vertex}" pos="{_vector(position)}">{joints}'
+                      f'<inertial pos="0 0 0" mass="{_number(scene.mass[vertex])}" diaginertia="1 1 1"/>'
                       f'{site.format("0 0 0")}</body>')
-    anchors = []
-    tendons = []
-    for spring in range(form.spring_count):
-        first, second = int(form.first[spring]), int(form.second[spring])
+    anchors, tendons = [], []
+    for spring, (first, second) in enumerate(zip(scene.first, scene.second)):
         if second == ANCHORED:
-            point = np.zeros(3)
-            point[:dim] = form.anchor[spring]
-            anchors.append(f'<site name="a{spring}" pos="{_vector(point)}" size="0.001"/>')
+            anchors.append(f'<site name="a{spring}" pos="{_vector(scene.anchor[spring])}" size="0.001"/>')
             other = f"a{spring}"
         else:
             other = f"s{second}"
-        tendons.append(f'<spatial stiffness="{_number(form.stiffness[spring])}" damping="{_number(form.damping[spring])}" '
-                       f'springlength="{_number(form.rest_length[spring])}"><site site="s{first}"/>'
-                       f'<site site="{other}"/></spatial>')
-    free = np.flatnonzero(~fixed)
+        tendons.append(f'<spatial stiffness="{_number(scene.stiffness[spring])}" '
+                       f'damping="{_number(scene.damping[spring])}" springlength="{_number(scene.rest_length[spring])}">'
+                       f'<site site="s{first}"/><site site="{other}"/></spatial>')
     body_text = "".join(world) + "".join(anchors) + "".join(bodies)
-    return Translation(_model(_vector(gravity), body_text, "".join(tendons)), free, np.asarray(system.x0, float)[free])
+    free = scene.free_dofs
+    origin = scene.rest[:, :scene.dim].ravel()[free]
+    return Translation(_model(_vector(scene.gravity), body_text, "".join(tendons)), free, origin)
 
 
 def _model(gravity: str, bodies: str, tendons: str = "") -> str:
@@ -196,22 +120,12 @@ def _model(gravity: str, bodies: str, tendons: str = "") -> str:
             f"<worldbody>{bodies}</worldbody>{tendon_block}</mujoco>")
 
 
-# the translations, in the order they are tried
-TRANSLATIONS = (uncoupled_springs, springs_between_vertices)
-
-
 def translate(system) -> Translation | str:
-    """The first translation that takes ``system``, or why none does (each one's reason, in one line)."""
-    held = _held(system)
-    if held is not None:
-        return f"MuJoCo's translation cannot express {held}"
-    reasons = []
-    for translation in TRANSLATIONS:
-        result = translation(system)
-        if isinstance(result, Translation):
-            return result
-        reasons.append(f"not {translation.__name__.replace('_', ' ')}: {result}")
-    return "MuJoCo's translation cannot express this system (" + "; ".join(reasons) + ")"
+    """The system as a MuJoCo model, or why it cannot be one (in one line)."""
+    scene = read_scene(system, "MuJoCo", "MuJoCo's soft contacts are another model than simrun's penalty or IPC")
+    if isinstance(scene, str):
+        return scene
+    return _uncoupled_springs(scene) if isinstance(scene, UncoupledSprings) else _springs_between_vertices(scene)
 
 
 class Stepper:

@@ -42,12 +42,12 @@ def needs_linear_solver(name: str):
 REQUIRE_ENGINES = os.environ.get("SIMRUN_REQUIRE_ENGINES") == "1"
 
 
-def needs_mujoco():
-    """A mark for tests of MuJoCo's integrators: skip when the engines extra is missing (unless SIMRUN_REQUIRE_ENGINES=1:
-    then the test runs and fails)."""
-    from simrun.integrators.mujoco import mujoco_missing
+def needs_engine(name: str):
+    """A mark for tests of an engine's integrators (``mujoco``, ``newton``): skip when its extra is missing (unless
+    SIMRUN_REQUIRE_ENGINES=1: then the test runs and fails)."""
+    from simrun.integrators import ENGINES
 
-    missing = mujoco_missing()
+    missing = ENGINES[name].missing()
     return pytest.mark.skipif(missing is not None and not REQUIRE_ENGINES, reason=str(missing))
 
 

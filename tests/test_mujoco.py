@@ -17,13 +17,13 @@ import pytest
 import scipy.special
 
 import simrun
-from conftest import needs_mujoco, run_one
+from conftest import needs_engine, run_one
 from simrun.analysis.oscillator import bank_matrices
 from simrun.cli import main
 from simrun.errors import ConfigError
 from simrun.integrators.mujoco import MuJoCo, translate
 
-pytestmark = needs_mujoco()
+pytestmark = needs_engine("mujoco")
 
 HW = np.logspace(-2, np.log10(3.0), 25)
 

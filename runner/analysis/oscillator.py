@@ -53,6 +53,9 @@ GROWTH_TOLERANCE = 1e-8
 # Deviations |rho - 1| above this are resolved (well above the probe's round-off) when deciding
 # whether a method grows at every step size.
 RESOLVED_DEVIATION = 1e-13
+# How many of a step's unit round-offs the probed rho may miss by: a float32 engine's growth and deviations count
+# above this many float32 round-offs (about 6e-5), float64's keep the tolerances above.
+ROUNDOFF_MARGIN = 1e3
 BISECTION_STEPS = 60
 # Eigenvalues with |Im| below this fraction of their modulus are real: no oscillation, no period.
 REAL_EIGENVALUE = 1e-9
@@ -306,7 +309,11 @@ class Prediction:
     rho: np.ndarray  # (points,) spectral radius
     damping: np.ndarray  # (points,) d_method / w
     period_error: np.ndarray  # (points,) T_method / T - 1; NaN for hw >= pi or where the root is real
-    stability_limit: float  # h w where rho first exceeds 1 + GROWTH_TOLERANCE; 0: never stable; inf: none in range
+    stability_limit: float  # h w where rho first exceeds 1 + growth_tolerance; 0: never stable; inf: none in range
+
+    @property
+    def growth_tolerance(self) -> float:
+        return growth_tolerance(self.integrator)
 
     @property
     def label(self) -> str:
@@ -369,14 +376,24 @@ def principal_eigenvalues(hw: np.ndarray, eigenvalues: list[np.ndarray]) -> np.n
     return principal
 
 
+def growth_tolerance(integrator: Integrator) -> float:
+    """rho above 1 + this is growth for ``integrator``: GROWTH_TOLERANCE, or more where its steps round coarser."""
+    return max(GROWTH_TOLERANCE, ROUNDOFF_MARGIN * integrator.unit_roundoff)
+
+
+def _resolved_deviation(integrator: Integrator) -> float:
+    return max(RESOLVED_DEVIATION, ROUNDOFF_MARGIN * integrator.unit_roundoff)
+
+
 def _stability_limit(integrator: Integrator, hw: np.ndarray, rho: np.ndarray) -> float:
-    """The h w at which rho first exceeds 1 + GROWTH_TOLERANCE, refined by bisection.
+    """The h w at which rho first exceeds 1 + growth_tolerance(integrator), refined by bisection.
 
     0 when the method grows at every step size: rho > 1 already at the smallest hw, or the resolved
     deviations below the crossing are growth that shrinks like a power of hw (forward Euler, RK2).
-    inf when rho stays <= 1 + GROWTH_TOLERANCE over the whole grid.
+    inf when rho stays <= 1 + growth_tolerance(integrator) over the whole grid.
     """
-    growing = np.nonzero(rho > 1.0 + GROWTH_TOLERANCE)[0]
+    tolerance = growth_tolerance(integrator)
+    growing = np.nonzero(rho > 1.0 + tolerance)[0]
     if growing.size == 0:
         return math.inf
     first = int(growing[0])
@@ -385,13 +402,13 @@ def _stability_limit(integrator: Integrator, hw: np.ndarray, rho: np.ndarray) ->
     low, high = math.log(hw[first - 1]), math.log(hw[first])
     for _ in range(BISECTION_STEPS):
         middle = 0.5 * (low + high)
-        if spectral_radius(amplification_matrix(integrator, math.exp(middle))) > 1.0 + GROWTH_TOLERANCE:
+        if spectral_radius(amplification_matrix(integrator, math.exp(middle))) > 1.0 + tolerance:
             high = middle
         else:
             low = middle
     crossing = math.exp(high)
     below = [spectral_radius(amplification_matrix(integrator, crossing * factor)) - 1.0 for factor in (0.5, 0.25)]
-    if below[1] > RESOLVED_DEVIATION and below[0] > below[1]:
+    if below[1] > _resolved_deviation(integrator) and below[0] > below[1]:
         return 0.0  # growth all the way down: no step is small enough
     return crossing
 
@@ -403,13 +420,14 @@ def growth_phrase(prediction: "Prediction") -> str | None:
     limit = prediction.stability_limit
     if math.isinf(limit):
         return None
-    growing = np.nonzero(prediction.rho > 1.0 + GROWTH_TOLERANCE)[0]
+    tolerance = prediction.growth_tolerance
+    growing = np.nonzero(prediction.rho > 1.0 + tolerance)[0]
     again = None
     if growing.size and growing[-1] + 1 < prediction.hw.size:  # damped again above the last point that grows
         low, high = math.log(prediction.hw[growing[-1]]), math.log(prediction.hw[growing[-1] + 1])
         for _ in range(BISECTION_STEPS):
             middle = 0.5 * (low + high)
-            if spectral_radius(amplification_matrix(prediction.integrator, math.exp(middle))) > 1.0 + GROWTH_TOLERANCE:
+            if spectral_radius(amplification_matrix(prediction.integrator, math.exp(middle))) > 1.0 + tolerance:
                 low = middle
             else:
                 high = middle

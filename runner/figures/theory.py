@@ -125,7 +125,7 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
         drawn = []  # this panel's curves so far: a later identical one is dashed over them
         for number, label in enumerate(labels):
             prediction, colour = predictions[label], colours[label]
-            stable = prediction.rho <= 1.0 + analysis.GROWTH_TOLERANCE
+            stable = prediction.rho <= 1.0 + prediction.growth_tolerance
             damping = prediction.damping + 0.0  # no "-0" for rho = 1
             # later labels thinner, so that coinciding curves (backward Euler and its one-Newton-step twin) both show
             width = max(1.0, 2.0 - 0.3 * number)
@@ -167,7 +167,7 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
     handles = []
     seen: list[str] = []
     for label, prediction in predictions.items():
-        stable = prediction.rho <= 1.0 + analysis.GROWTH_TOLERANCE
+        stable = prediction.rho <= 1.0 + prediction.growth_tolerance
         twin = next((other for other in seen if predictions[other].hw.shape == prediction.hw.shape
                      and np.allclose(predictions[other].rho, prediction.rho, rtol=0, atol=1e-10)), None)
         seen.append(label)
@@ -255,7 +255,7 @@ def spectral_figure(predictions: dict[str, "analysis.Prediction"], colours: dict
         radius_ax.set_title(panel_title, fontsize=9)
         radius_ax.set_xlabel("h w", fontsize=9)
         period_ax.set_xlabel("h w  (up to π: beyond, a step spans over half a period)", fontsize=8.5)
-    growth = any(np.nanmax(prediction.rho) > 1.0 + analysis.GROWTH_TOLERANCE for prediction in predictions.values())
+    growth = any(np.nanmax(prediction.rho) > 1.0 + prediction.growth_tolerance for prediction in predictions.values())
     grid[0, 0].set_ylim(0.0, RHO_AXIS_TOP if growth else 1.08)
     grid[0, 0].set_ylabel("spectral radius ρ(h w)", fontsize=9)
     # the period is defined up to h w = pi only: its row zooms onto that range

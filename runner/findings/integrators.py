@@ -331,13 +331,13 @@ def measured_only_findings(rows: list[SummaryRow]) -> list[Finding]:
 
 def largest_hw_within(prediction, budget: float = DAMPING_BUDGET) -> float:
     """The largest h w up to which the method's predicted energy change per period stays within ``budget``
-    (and rho <= 1 + analysis.GROWTH_TOLERANCE); inf when it does over the whole predicted range."""
+    (and rho <= 1 + its growth tolerance); inf when it does over the whole predicted range."""
     def within(hw: float) -> bool:
         rho, damping = prediction.at(hw)
-        return rho <= 1 + analysis.GROWTH_TOLERANCE and abs(energy_lost_per_period(damping)) <= budget
+        return rho <= 1 + prediction.growth_tolerance and abs(energy_lost_per_period(damping)) <= budget
 
     lost = -np.expm1(-2.0 * np.pi * prediction.damping)
-    ok = (np.abs(lost) <= budget) & (prediction.rho <= 1 + analysis.GROWTH_TOLERANCE)
+    ok = (np.abs(lost) <= budget) & (prediction.rho <= 1 + prediction.growth_tolerance)
     if ok.all():
         return math.inf
     first = int(np.argmin(ok))
