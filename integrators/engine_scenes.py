@@ -9,6 +9,9 @@ cannot hold.
 - **Springs between vertices** (``VertexSprings``): a mass-spring model or the cloth with Hookean springs
   k/2 (L - l0)^2, damped only along them (simrun's ``spring`` damping model, beta dL/dt), under one uniform gravity,
   with vertices pinned whole or free.
+- **A tetrahedral solid** (``TetSolid``): an undamped 3-D finite-element solid of stable neo-Hookean tetrahedra
+  (Smith, de Goes & Kim 2018; systems/fem/materials/stable_neo_hookean.py) with lumped masses, under one uniform
+  gravity, with vertices pinned whole or free.
 Anything else (contact, prescribed paths, sliding vertices, consistent masses, other damping models or spring laws,
 nonlinear forces) is what the engines' translations refuse: no approximation stands in for the system.
 """
@@ -50,6 +53,23 @@ class VertexSprings:
     rest_length: np.ndarray
     stiffness: np.ndarray
     damping: np.ndarray
+
+
+@dataclass(frozen=True)
+class TetSolid:
+    """Vertices with their rest positions (count, 3), lumped masses and pins; tetrahedra (elements, 4) ordered so that
+    each one's rest volume is positive, with their Lame parameters mu and lambda (Pa)."""
+
+    rest: np.ndarray
+    mass: np.ndarray
+    pinned: np.ndarray
+    free_dofs: np.ndarray
+    gravity: np.ndarray
+    elements: np.ndarray
+    mu: np.ndarray
+    lam: np.ndarray
+
+    dim: int = 3
 
 
 def dense_diagonal(matrix) -> np.ndarray | None:
@@ -121,34 +141,71 @@ def springs_between_vertices(system) -> VertexSprings | str:
     mass = np.asarray(system.mass, dtype=float).reshape(count, dim)
     if not np.all(mass == mass[:, :1]):
         return "its vertices' masses differ between coordinates"
-    fixed = np.zeros(count * dim, dtype=bool)
-    fixed[np.asarray(system.fixed_dofs, dtype=np.intp)] = True
-    held = fixed.reshape(count, dim)
-    if np.any(held.any(axis=1) & ~held.all(axis=1)):
-        return "some vertices are held in some directions only"
+    pins = _pinned_whole(system, count, dim)
+    if isinstance(pins, str):
+        return pins
     rest = np.zeros((count, 3))
     rest[:, :dim] = np.asarray(system.x0, dtype=float).reshape(count, dim)
     second = np.asarray(form.second, dtype=np.intp)
     anchor = np.zeros((second.size, 3))
     anchor[:, :dim] = form.anchor
-    return VertexSprings(dim=dim, rest=rest, mass=mass[:, 0].copy(), pinned=held.all(axis=1), free_dofs=np.flatnonzero(~fixed),
+    return VertexSprings(dim=dim, rest=rest, mass=mass[:, 0].copy(), pinned=pins[0], free_dofs=pins[1],
                          gravity=gravity, first=np.asarray(form.first, dtype=np.intp), second=second, anchor=anchor,
                          rest_length=np.asarray(form.rest_length, dtype=float),
                          stiffness=np.broadcast_to(np.asarray(form.stiffness, dtype=float), second.shape).copy(),
                          damping=np.broadcast_to(np.asarray(form.damping, dtype=float), second.shape).copy())
 
 
+def _pinned_whole(system, count: int, dim: int) -> tuple[np.ndarray, np.ndarray] | str:
+    """(pinned vertices, free dofs), or the reason when some vertex is held in some directions only."""
+    fixed = np.zeros(count * dim, dtype=bool)
+    fixed[np.asarray(system.fixed_dofs, dtype=np.intp)] = True
+    held = fixed.reshape(count, dim)
+    if np.any(held.any(axis=1) & ~held.all(axis=1)):
+        return "some vertices are held in some directions only"
+    return held.all(axis=1), np.flatnonzero(~fixed)
+
+
+def tetrahedral_solid(system) -> TetSolid | str:
+    """The system as stable neo-Hookean tetrahedra, or the reason it is not."""
+    from simrun.systems.fem.system import Fem
+
+    if not isinstance(system, Fem):
+        return "it is not a finite-element solid"
+    if system.is_shell or system.dim != 3:
+        return "it is not a 3-D solid of tetrahedra (shells and 2-D solids have no counterpart here)"
+    if system.material != "stable_neo_hookean":
+        return f"its material is {system.material}, not stable_neo_hookean"
+    if system.damping_terms:
+        return "its damping (" + ", ".join(term.model for term in system.damping_terms) + ") is another model"
+    lam = np.broadcast_to(system.lam, (system.elements.shape[0],)).astype(float)
+    if np.any(lam <= 0.0):
+        return "a Lame lambda <= 0 (the rest-stable alpha = 1 + 3 mu / (4 lambda) divides by it)"
+    pins = _pinned_whole(system, system.vertex_count, 3)
+    if isinstance(pins, str):
+        return pins
+    elements = np.array(system.elements, dtype=np.intp)
+    rest = np.asarray(system.rest, dtype=float)
+    edges = rest[elements[:, 1:]] - rest[elements[:, :1]]
+    negative = np.linalg.det(edges) < 0.0
+    elements[negative, 2:] = elements[negative][:, [3, 2]]  # the same F: a tetrahedron's vertices relabelled
+    return TetSolid(rest=rest.copy(), mass=np.asarray(system.vertex_masses, dtype=float).copy(), pinned=pins[0],
+                    free_dofs=pins[1], gravity=np.asarray(system.gravity, dtype=float).copy(), elements=elements,
+                    mu=np.broadcast_to(system.mu, lam.shape).astype(float), lam=lam)
+
+
 # the readings, in the order an engine tries them
-READINGS = (uncoupled_springs, springs_between_vertices)
+READINGS = (uncoupled_springs, springs_between_vertices, tetrahedral_solid)
 
 
-def read_scene(system, engine: str, contact_model: str) -> UncoupledSprings | VertexSprings | str:
-    """The first reading that takes ``system``, or why none does (each one's reason, in one line)."""
+def read_scene(system, engine: str, contact_model: str,
+               readings=READINGS) -> UncoupledSprings | VertexSprings | TetSolid | str:
+    """The first of ``readings`` that takes ``system``, or why none does (each one's reason, in one line)."""
     held = unheld(system, engine, contact_model)
     if held is not None:
         return f"{engine}'s translation cannot express {held}"
     reasons = []
-    for reading in READINGS:
+    for reading in readings:
         result = reading(system)
         if not isinstance(result, str):
             return result

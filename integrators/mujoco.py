@@ -40,7 +40,7 @@ from simrun.solvers import EXPLICIT_STEP
 from simrun.systems.compliant import ANCHORED
 
 from .base import Integrator, State
-from .engine_scenes import UncoupledSprings, VertexSprings, read_scene
+from .engine_scenes import UncoupledSprings, VertexSprings, read_scene, springs_between_vertices, uncoupled_springs
 
 EXTRA = "pip install '.[engines]' (mujoco)"
 # MuJoCo's name of each integrator, and the order of accuracy it is known by
@@ -122,7 +122,8 @@ def _model(gravity: str, bodies: str, tendons: str = "") -> str:
 
 def translate(system) -> Translation | str:
     """The system as a MuJoCo model, or why it cannot be one (in one line)."""
-    scene = read_scene(system, "MuJoCo", "MuJoCo's soft contacts are another model than simrun's penalty or IPC")
+    scene = read_scene(system, "MuJoCo", "MuJoCo's soft contacts are another model than simrun's penalty or IPC",
+                       (uncoupled_springs, springs_between_vertices))
     if isinstance(scene, str):
         return scene
     return _uncoupled_springs(scene) if isinstance(scene, UncoupledSprings) else _springs_between_vertices(scene)

@@ -47,11 +47,17 @@ from simrun.solvers import EXPLICIT_STEP
 from simrun.systems.compliant import ANCHORED
 
 from .base import Integrator, State
-from .engine_scenes import UncoupledSprings, VertexSprings, read_scene
+from .engine_scenes import TetSolid, UncoupledSprings, VertexSprings, read_scene
 
 EXTRA = "pip install '.[engines]' (newton, warp-lang)"
 # Newton's solver class of each config name
 NEWTON_SOLVERS = {"semi_implicit": "SolverSemiImplicit", "xpbd": "SolverXPBD", "vbd": "SolverVBD"}
+# the energy each iterative solver gives Newton's tetrahedra (k_mu, k_lambda), where it is not simrun's stable
+# neo-Hookean (read from newton/_src/solvers/{xpbd/kernels.py, vbd/particle_vbd_kernels.py})
+OTHER_TET_ENERGIES = {
+    "xpbd": "two compliant constraints, k_mu/2 (I_C - 3)^2 + k_lambda/2 (J - 1)^2",
+    "vbd": "Smith et al.'s energy without its log term, mu/2 (I_C - 3) + (lambda + mu)/2 (J - alpha)^2",
+}
 # how far the anchor of an uncoupled spring sits, in units of the farthest the step can move its particle
 ANCHOR_MARGIN = 10.0
 # Newton's velocity clamp, lifted (float32's range is 3.4e38)
@@ -92,6 +98,8 @@ class Stepper:
         self.dt = dt
         if isinstance(scene, UncoupledSprings):
             builder = self._uncoupled(newton, scene)
+        elif isinstance(scene, TetSolid):
+            builder = self._tetrahedra(newton, scene)
         else:
             builder = self._vertices(newton, scene)
         if integrator.solver == "vbd":
@@ -99,7 +107,8 @@ class Stepper:
         self.model = builder.finalize(device="cpu")
         self.model.particle_grid = None
         self.model.particle_max_velocity = NO_VELOCITY_CLAMP
-        self.model.spring_rest_length.assign(self.rest_length.astype(np.float32))
+        if self.rest_length.size:
+            self.model.spring_rest_length.assign(self.rest_length.astype(np.float32))
         options = {} if integrator.solver == "semi_implicit" else {"iterations": integrator.iterations}
         self.solver = getattr(newton.solvers, NEWTON_SOLVERS[integrator.solver])(self.model, **options)
         self.state_in, self.state_out = self.model.state(), self.model.state()
@@ -138,6 +147,21 @@ class Stepper:
         self.frequency_squared = None
         return builder
 
+    def _tetrahedra(self, newton, scene: TetSolid):
+        builder = newton.ModelBuilder(gravity=tuple(float(g) for g in scene.gravity))
+        for position, mass, pinned in zip(scene.rest, scene.mass, scene.pinned):
+            builder.add_particle(tuple(position), (0.0, 0.0, 0.0), 0.0 if pinned else float(mass), radius=0.0)
+        for element, mu, lam in zip(scene.elements, scene.mu, scene.lam):
+            builder.add_tetrahedron(*(int(vertex) for vertex in element), k_mu=float(mu), k_lambda=float(lam),
+                                    k_damp=0.0)
+        self.positions = scene.rest.copy()
+        vertex, coordinate = np.divmod(scene.free_dofs, 3)
+        self.flat = 3 * vertex + coordinate
+        self.dofs = scene.free_dofs
+        self.rest_length = np.zeros(0)
+        self.frequency_squared = None
+        return builder
+
     def step(self, state: State) -> State:
         positions, velocities = self.positions.copy(), np.zeros_like(self.positions)
         positions.ravel()[self.flat] = state.x[self.dofs]
@@ -158,7 +182,7 @@ class Stepper:
         return State(state.t + self.dt, x, v)
 
 
-def translate(system) -> UncoupledSprings | VertexSprings | str:
+def translate(system) -> UncoupledSprings | VertexSprings | TetSolid | str:
     """The scene of ``system`` that Newton's particles express, or why there is none (in one line)."""
     scene = read_scene(system, "Newton", "Newton's particle contacts are another model than simrun's penalty or IPC")
     if isinstance(scene, VertexSprings) and np.any(scene.rest_length == 0.0):
@@ -203,6 +227,9 @@ class Newton(Integrator):
         if getattr(system, "lane_count", None) is not None:
             return "is not stepped as lanes"
         scene = translate(system)
+        if isinstance(scene, TetSolid) and self.solver in OTHER_TET_ENERGIES:
+            return (f"Newton's {self.solver} solver steps its tetrahedra as {OTHER_TET_ENERGIES[self.solver]}, another "
+                    "energy than simrun's stable_neo_hookean (its semi_implicit solver steps simrun's)")
         return scene if isinstance(scene, str) else None
 
     def engine_description(self) -> str:

@@ -168,11 +168,17 @@ def damping_figure(predictions: dict[str, "analysis.Prediction"], colours: dict,
     seen: list[str] = []
     for label, prediction in predictions.items():
         stable = prediction.rho <= 1.0 + prediction.growth_tolerance
-        twin = next((other for other in seen if predictions[other].hw.shape == prediction.hw.shape
-                     and np.allclose(predictions[other].rho, prediction.rho, rtol=0, atol=1e-10)), None)
+        # rho to the round-off of the coarser of the two probes (a float32 engine's is about 6e-5)
+        resolution = [max(1e-10, analysis.ROUNDOFF_MARGIN * max(item.integrator.unit_roundoff
+                                                                  for item in (predictions[other], prediction)))
+                      for other in seen]
+        twin = next((other for other, atol in zip(seen, resolution) if predictions[other].hw.shape == prediction.hw.shape
+                     and np.allclose(predictions[other].rho, prediction.rho, rtol=0, atol=atol)), None)
         seen.append(label)
         notes = []
-        if stable.any() and np.nanmax(np.abs(prediction.damping[stable])) < NO_DAMPING:
+        rounding = analysis.ROUNDOFF_MARGIN * prediction.integrator.unit_roundoff
+        if stable.any() and (np.nanmax(np.abs(prediction.damping[stable])) < NO_DAMPING
+                             or np.nanmax(np.abs(prediction.rho[stable] - 1.0)) <= rounding):
             notes.append("no damping: on the axis")
         elif twin is not None:
             notes.append(f"= {twin} here")
