@@ -125,6 +125,11 @@ class Integrator(BaseModel):
         CPU"); "" for simrun's own methods."""
         return ""
 
+    def unused_parameters(self) -> frozenset[str]:
+        """The parameters this instance's steps do not read (an option of other variants only): labels leave them
+        out."""
+        return frozenset()
+
     # whether the method takes steps of one fixed size only (an engine whose step size is a model option): no step
     # control then
     fixed_steps_only: ClassVar[bool] = False

@@ -232,6 +232,9 @@ class Newton(Integrator):
                     "energy than simrun's stable_neo_hookean (its semi_implicit solver steps simrun's)")
         return scene if isinstance(scene, str) else None
 
+    def unused_parameters(self) -> frozenset[str]:
+        return frozenset({"iterations"}) if self.solver == "semi_implicit" else frozenset()
+
     def engine_description(self) -> str:
         warp = _warp()
         import newton

@@ -183,19 +183,29 @@ def test_without_the_extra_the_solver_is_refused_naming_it(tmp_path, monkeypatch
     assert "integrators: newton: needs NVIDIA Newton on Warp: pip install '.[engines]'" in message
 
 
-def test_the_report_states_newtons_solvers_beside_mujocos(tmp_path):
-    """One sentence per engine, each naming its version, precision and device: Newton's semi_implicit undamped below
-    h w = 2 (float32's probe: |rho - 1| within a few ulps), its VBD backward Euler's 1 - (1 + (h w)^2)^(-2 pi / h w)."""
+def test_the_report_states_newtons_solvers_and_times_them_apart(tmp_path):
+    """One sentence per engine, naming its version, precision and device: Newton's semi_implicit undamped below
+    h w = 2 (float32's probe: |rho - 1| within its round-off), its VBD backward Euler's
+    1 - (1 + (h w)^2)^(-2 pi / h w); the accuracy findings rank its wall times apart from simrun's methods'."""
     from simrun.analysis.runs import run_set
     from simrun.findings import findings
 
     config = {"name": "cards", "system": {"type": "spring_mass", "stiffness": 1.0, "mass": 1.0, "x0": 1.0},
-              "integrators": ["backward_euler", {"type": "newton", "solver": "semi_implicit"},
-                              {"type": "newton", "solver": "vbd", "iterations": 10}],
-              "duration": 20.0, "sweep": {"dt": [0.1, 1.0]}}
+              "integrators": ["symplectic_euler", {"type": "newton", "solver": "semi_implicit"},
+                              {"type": "newton", "solver": "vbd", "iterations": 1}],
+              "duration": 20.0, "sweep": {"dt": [0.01, 0.1, 1.0]}}
     results = simrun.run(config, output=tmp_path / "out", jobs=1, progress=False, figures=False)
-    (told,) = [finding for finding in findings(run_set(results)) if finding.topic == "engines"]
+    found = findings(run_set(results))
+    (told,) = [finding for finding in found if finding.topic == "engines"]
     assert told.sentence.startswith("Newton 1.8.0 on Warp 1.19.0, float32, CPU, its integrators on the test spring")
     lost = 1 - 2.0 ** (-2 * np.pi)  # backward Euler at h w = 1: |R|^2 = 1 / 2 per step, 2 pi steps a period
-    assert f"newton[solver=vbd]: loses 46.5 % at h w = 0.1, {100 * lost:.3g} % at 1" in told.sentence
-    assert "newton[solver=semi_implicit]:" in told.sentence and "stable for h w < 2" in told.sentence
+    assert f"newton[solver=vbd,iterations=1]: loses 46.5 % at h w = 0.1, {100 * lost:.3g} % at 1" in told.sentence
+    assert "newton[solver=semi_implicit]: none (ρ = 1) at h w = 0.1 and 1, stable for h w < 2" in told.sentence
+    # the engine's wall times are ranked apart from simrun's, under the engine's name, precision and device
+    accuracy = [finding for finding in found if finding.topic == "accuracy" and "ranking" in finding.evidence]
+    assert accuracy
+    for finding in accuracy:
+        assert all(not label.startswith("newton") for label, *_ in finding.evidence["ranking"])
+        if "newton[" in finding.sentence.split("; not reached")[0]:
+            assert "; Newton 1.8.0 on Warp 1.19.0, float32, CPU, timed apart: newton[" in finding.sentence
+            assert set(finding.evidence["engines"]) == {"Newton 1.8.0 on Warp 1.19.0, float32, CPU"}

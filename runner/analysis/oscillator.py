@@ -321,8 +321,22 @@ class Prediction:
 
     def at(self, hw: float) -> tuple[float, float]:
         """(rho, d_method / w) at one hw, probed exactly (not interpolated)."""
-        rho = spectral_radius(amplification_matrix(self.integrator, hw))
-        return rho, float(damping_over_frequency(rho, hw))
+        return probed_damping(self.integrator, hw)
+
+
+def rho_resolution(integrator: Integrator) -> float:
+    """|rho - 1| below which a probe in coarser arithmetic than float64 (a float32 engine's) reads no damping: its
+    round-off, not its method; 0 for float64's probes, which resolve rho to about 1e-16."""
+    unit_roundoff = integrator.unit_roundoff
+    return ROUNDOFF_MARGIN * unit_roundoff if unit_roundoff > 2.0 ** -53 else 0.0
+
+
+def probed_damping(integrator: Integrator, hw: float) -> tuple[float, float]:
+    """(rho, d_method / w) of one probed step at h w; no damping where rho is within the probe's resolution of 1."""
+    rho = spectral_radius(amplification_matrix(integrator, hw))
+    if abs(rho - 1.0) <= rho_resolution(integrator):
+        return rho, 0.0
+    return rho, float(damping_over_frequency(rho, hw)) + 0.0
 
 
 def hw_grid(low: float = HW_RANGE[0], high: float = HW_RANGE[1], per_decade: int = POINTS_PER_DECADE) -> np.ndarray:

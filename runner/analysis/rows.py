@@ -213,8 +213,7 @@ def _energy_reference(stored) -> tuple[float, str]:
 
 
 def _predicted_damping(method, hw: float) -> float:
-    rho = analysis.spectral_radius(analysis.amplification_matrix(method, hw))
-    return float(analysis.damping_over_frequency(rho, hw)) + 0.0
+    return analysis.probed_damping(method, hw)[1]
 
 
 # -- what the columns are called --------------------------------------------------------------------

@@ -147,6 +147,11 @@ def uses_swept_key(key: str, integrator: Integrator, solver, swept_solvers: tupl
     return integrator.problem_kind == "newton_step" or any(SOLVERS[name].uses_linear_solver for name in solver.chain_names())
 
 
+def _read_parameters(integrator: Integrator) -> dict:
+    unused = integrator.unused_parameters()
+    return {key: value for key, value in integrator.model_dump().items() if key not in unused}
+
+
 def family_labels(integrators: list[Integrator]) -> list[str]:
     """Each integrator's label in this config: its name and the parameters that differ from their defaults,
     and, when integrators of the same type differ in a parameter (a family: generalized_alpha at several
@@ -154,7 +159,7 @@ def family_labels(integrators: list[Integrator]) -> list[str]:
     ``generalized_alpha[rho_inf=0.5]`` beside ``generalized_alpha[rho_inf=0]``."""
     values_by_type: dict[str, dict[str, set]] = {}
     for integrator in integrators:
-        for key, value in integrator.model_dump().items():
+        for key, value in _read_parameters(integrator).items():
             values_by_type.setdefault(integrator.name, {}).setdefault(key, set()).add(json.dumps(value, default=str))
     labels = []
     for integrator in integrators:
@@ -165,7 +170,7 @@ def family_labels(integrators: list[Integrator]) -> list[str]:
             continue
         defaults = type(integrator).model_fields
         varied = values_by_type.get(integrator.name, {})
-        named = [(key, value) for key, value in integrator.model_dump().items()
+        named = [(key, value) for key, value in _read_parameters(integrator).items()
                  if value != defaults[key].default or len(varied.get(key, ())) > 1]
         if not any(len(values) > 1 for values in varied.values()):
             labels.append(integrator.label)  # no family: the label as everywhere else

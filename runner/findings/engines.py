@@ -26,10 +26,7 @@ def engine_findings(data: RunSet, predictions: dict) -> list[Finding]:
         parts, evidence = [], {}
         for label in labels:
             prediction = predictions[label]
-            # a rho within the probe's round-off of 1 is no damping: a float32 engine's probe rounds at about 6e-5
-            rounding = analysis.ROUNDOFF_MARGIN * prediction.integrator.unit_roundoff
-            damping = [0.0 if abs(rho - 1.0) <= rounding else value
-                       for rho, value in (prediction.at(hw) for hw in ENGINE_HW)]
+            damping = [prediction.at(hw)[1] for hw in ENGINE_HW]
             lost = [energy_lost_per_period(value) for value in damping]
             growth = analysis.growth_phrase(prediction) or f"stable at every h w probed (to {prediction.hw[-1]:.3g})"
             parts.append(f"{label}: {_per_period_list(list(ENGINE_HW), lost, damping)}, {growth}")

@@ -415,14 +415,16 @@ def accuracy_findings(data, several) -> list[Finding]:
             for run in mine:
                 if errors[id(run)][0] <= budget and (run.label not in cheapest or run.wall_time < cheapest[run.label].wall_time):
                     cheapest[run.label] = run
-            ranking = sorted(cheapest.values(), key=lambda run: run.wall_time)
+            # an engine's wall time is another code's stepping: ranked apart, per engine, never against simrun's
+            ranked = sorted(cheapest.values(), key=lambda run: run.wall_time)
+            ranking = [run for run in ranked if not _engine(run)]
+            engines: dict[str, list] = {}
+            for run in ranked:
+                if _engine(run):
+                    engines.setdefault(_engine(run), []).append(run)
             missing = [label for label in labels if label not in cheapest]
-            listed = ""
-            for number, run in enumerate(ranking):  # ≈: within the noise of a wall time, no rank between them
-                if number:
-                    listed += " ≈ " if run.wall_time <= (1 + WALL_TIME_NOISE) * ranking[number - 1].wall_time else ", "
-                setting = f"tol = {run.tolerance:g}" if math.isfinite(run.tolerance) else f"dt = {run.dt:g} s"
-                listed += f"{run.label} {run.wall_time:.3g} s ({setting})"
+            listed = "; ".join([_cheapest_first(ranking)] * bool(ranking) + [
+                f"{engine}, timed apart: {_cheapest_first(members)}" for engine, members in engines.items()])
             sentence = (f"Error ≤ {budget:.1g} m ({100 * budget / scale:g} % of the length scale {scale:g} m) against {against} "
                         f"at {when}{f' ({title})' if several and title else ''}, cheapest first (measured wall time of "
                         f"the whole run; ≈: within {100 * WALL_TIME_NOISE:g} %): {listed}")
@@ -431,8 +433,26 @@ def accuracy_findings(data, several) -> list[Finding]:
             result.append(Finding(sentence + ".", "#figure-work_precision",
                                   {"group": title, "budget": budget, "budget_fraction": budget / scale, "against": against,
                                    "ranking": [(run.label, run.wall_time, run.dt, errors[id(run)][0]) for run in ranking],
+                                   "engines": {engine: [(run.label, run.wall_time, run.dt, errors[id(run)][0])
+                                                        for run in members] for engine, members in engines.items()},
                                    "not_reached": missing}, "accuracy"))
     return _accuracy_across(result, len(data.groups)) if _many_settings(data) and result else result
+
+
+def _engine(run) -> str:
+    """The engine that stepped a run (its version, precision and device), or "" for simrun's own methods."""
+    return str(run.stored.attrs.get("engine", ""))
+
+
+def _cheapest_first(ranking: list) -> str:
+    """Runs with their wall times in the order given; ≈ between two within the noise of a wall time (no rank)."""
+    listed = ""
+    for number, run in enumerate(ranking):
+        if number:
+            listed += " ≈ " if run.wall_time <= (1 + WALL_TIME_NOISE) * ranking[number - 1].wall_time else ", "
+        setting = f"tol = {run.tolerance:g}" if math.isfinite(run.tolerance) else f"dt = {run.dt:g} s"
+        listed += f"{run.label} {run.wall_time:.3g} s ({setting})"
+    return listed
 
 
 def _accuracy_across(found: list[Finding], settings: int) -> list[Finding]:
