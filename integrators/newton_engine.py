@@ -91,11 +91,13 @@ class Stepper:
     """A translated system's Newton model, solver and states at one step size: a step writes the state into Newton's
     state, calls the solver's step and reads the state back."""
 
-    def __init__(self, scene: UncoupledSprings | VertexSprings, integrator: "Newton", dt: float):
+    def __init__(self, scene: UncoupledSprings | VertexSprings | TetSolid, integrator: "Newton", dt: float):
         _warp()
         import newton
 
         self.dt = dt
+        self.vertex_shape = None  # (vertices, coordinates) of a scene of vertices; None for uncoupled springs
+        self.frequency_squared = None  # k_i / m_i of uncoupled springs, whose anchors move with every step
         if isinstance(scene, UncoupledSprings):
             builder = self._uncoupled(newton, scene)
         elif isinstance(scene, TetSolid):
@@ -140,12 +142,15 @@ class Stepper:
                 positions.append(scene.anchor[spring][None])
             builder.add_spring(int(first), int(second), float(scene.stiffness[spring]), float(scene.damping[spring]), 0.0)
         self.positions = np.concatenate(positions)
+        self._vertex_dofs(scene)
+        self.rest_length = scene.rest_length
+        return builder
+
+    def _vertex_dofs(self, scene: VertexSprings | TetSolid) -> None:
         vertex, coordinate = np.divmod(scene.free_dofs, scene.dim)
         self.flat = 3 * vertex + coordinate
         self.dofs = scene.free_dofs
-        self.rest_length = scene.rest_length
-        self.frequency_squared = None
-        return builder
+        self.vertex_shape = (scene.rest.shape[0], scene.dim)
 
     def _tetrahedra(self, newton, scene: TetSolid):
         builder = newton.ModelBuilder(gravity=tuple(float(g) for g in scene.gravity))
@@ -155,16 +160,17 @@ class Stepper:
             builder.add_tetrahedron(*(int(vertex) for vertex in element), k_mu=float(mu), k_lambda=float(lam),
                                     k_damp=0.0)
         self.positions = scene.rest.copy()
-        vertex, coordinate = np.divmod(scene.free_dofs, 3)
-        self.flat = 3 * vertex + coordinate
-        self.dofs = scene.free_dofs
+        self._vertex_dofs(scene)
         self.rest_length = np.zeros(0)
-        self.frequency_squared = None
         return builder
 
     def step(self, state: State) -> State:
         positions, velocities = self.positions.copy(), np.zeros_like(self.positions)
-        positions.ravel()[self.flat] = state.x[self.dofs]
+        if self.vertex_shape is not None:  # every vertex where the state has it, pinned ones too (at rest: no velocity)
+            count, dim = self.vertex_shape
+            positions[:count, :dim] = state.x.reshape(count, dim)
+        else:
+            positions.ravel()[self.flat] = state.x[self.dofs]
         velocities.ravel()[self.flat] = state.v[self.dofs]
         if self.frequency_squared is not None:
             q, v = state.x[self.dofs], state.v[self.dofs]

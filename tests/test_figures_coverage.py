@@ -38,6 +38,8 @@ SHORT = {
     "damping_curves": ["duration=12.0", "sweep.dt=[0.3,1.0,3.0]"],
     "xpbd_damping": ["duration=12.0", "sweep.dt=[0.3,1.0,3.0]"],
     "engine_cards": ["duration=12.0", "sweep.dt=[0.1,1.0,2.5]"],
+    "engine_cloth": [*CLOTH, "duration=0.04", "sweep.dt=[0.002,0.008]"],
+    "engine_beam": ["duration=0.01", "sweep.dt=[0.0005,0.002]"],
     "cloth_hang": [*CLOTH, "duration=0.06", "sweep.dt=[0.02,0.03]"],
     "cloth_sphere": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
     "cloth_convergence": [*CLOTH, "duration=0.04", "sweep.dt=[0.01,0.02]"],
