@@ -29,17 +29,16 @@ from __future__ import annotations
 
 import importlib.util
 import math
-import weakref
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
-from simrun.solvers import EXPLICIT_STEP
 from simrun.systems.compliant import ANCHORED
 
-from .base import Integrator, State
+from .base import State
+from .engine import EngineIntegrator
 from .engine_scenes import UncoupledSprings, VertexSprings, read_scene, springs_between_vertices, uncoupled_springs
 
 EXTRA = "pip install '.[engines]' (mujoco)"
@@ -162,18 +161,11 @@ class Stepper:
         return State(state.t + self.model.opt.timestep, x, v)
 
 
-# each system's steppers, by (dt, integrator): built on a run's first step, kept while the system lives
-_STEPPERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
-class MuJoCo(Integrator):
+class MuJoCo(EngineIntegrator):
     """MuJoCo's own integrator, stepping a MuJoCo model translated from the system (module docstring)."""
 
     name: ClassVar[str] = "mujoco"
     order: ClassVar[int] = 1
-    explicit: ClassVar[bool] = True  # every MuJoCo integrator takes the stiffness explicitly: a step limit remains
-    fixed_steps_only: ClassVar[bool] = True  # MuJoCo's timestep is a model option
-    family: ClassVar[str] = "engines"
     summary: ClassVar[str] = ("MuJoCo's integrators (Euler, implicit, implicitfast, RK4, discrete), stepped by MuJoCo "
                               "on the system translated to its model (extra: engines)")
 
@@ -193,17 +185,12 @@ class MuJoCo(Integrator):
         """Why this engine cannot run here (its extra is not installed), or None."""
         return mujoco_missing()
 
-    def refusal(self, system) -> str | None:
-        missing = self.missing()
-        if missing is not None:
-            return missing
+    def engine_refusal(self, system) -> str | None:
         import mujoco
 
         name = MUJOCO_INTEGRATORS[self.integrator][0]
         if not hasattr(mujoco.mjtIntegrator, name):
             return f"integrator {self.integrator} is not in MuJoCo {mujoco.__version__} (it has no {name})"
-        if getattr(system, "lane_count", None) is not None:
-            return "is not stepped as lanes"
         translation = translate(system)
         return translation if isinstance(translation, str) else None
 
@@ -212,20 +199,8 @@ class MuJoCo(Integrator):
 
         return f"MuJoCo {mujoco.__version__}, float64, CPU"
 
-    def prepare(self, system, dt: float) -> None:
-        self._stepper(system, dt)
-
-    def step(self, system, state, dt, solver):
-        return self._stepper(system, dt).step(state), EXPLICIT_STEP
-
-    def _stepper(self, system, dt: float) -> Stepper:
-        """The system's MuJoCo model and data for steps of dt with these options: built once, kept with the system."""
-        steppers = _STEPPERS.setdefault(system, {})
-        key = (float(dt), self.integrator, self.iterations, self.tolerance)
-        stepper = steppers.get(key)
-        if stepper is None:
-            translation = translate(system)
-            if isinstance(translation, str):
-                raise TypeError(translation)
-            stepper = steppers[key] = Stepper(translation, self, float(dt))
-        return stepper
+    def build_stepper(self, system, dt: float) -> Stepper:
+        translation = translate(system)
+        if isinstance(translation, str):
+            raise TypeError(translation)
+        return Stepper(translation, self, dt)

@@ -37,16 +37,15 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import weakref
 from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
-from simrun.solvers import EXPLICIT_STEP
 from simrun.systems.compliant import ANCHORED
 
-from .base import Integrator, State
+from .base import State
+from .engine import EngineIntegrator
 from .engine_scenes import TetSolid, UncoupledSprings, VertexSprings, read_scene
 
 EXTRA = "pip install '.[engines]' (newton, warp-lang)"
@@ -197,19 +196,12 @@ def translate(system) -> UncoupledSprings | VertexSprings | TetSolid | str:
     return scene
 
 
-# each system's steppers, by (dt, solver, iterations): built before a run's first step, kept while the system lives
-_STEPPERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
-class Newton(Integrator):
+class Newton(EngineIntegrator):
     """NVIDIA Newton's particle solver, stepping a Newton model translated from the system (module docstring)."""
 
     name: ClassVar[str] = "newton"
     order: ClassVar[int] = 1
-    explicit: ClassVar[bool] = True  # simrun's solver is never called: Newton's solvers iterate on their own
-    fixed_steps_only: ClassVar[bool] = True  # a Newton solver steps by the dt it is given, with no error estimate
     unit_roundoff: ClassVar[float] = 2.0 ** -24  # Newton's particles are float32
-    family: ClassVar[str] = "engines"
     summary: ClassVar[str] = ("NVIDIA Newton's particle solvers (semi_implicit, xpbd, vbd), stepped by Newton on Warp's "
                               "CPU device in float32 on the system translated to its model (extra: engines)")
 
@@ -224,14 +216,9 @@ class Newton(Integrator):
         """Why this engine cannot run here (its extra is not installed), or None."""
         return newton_missing()
 
-    def refusal(self, system) -> str | None:
-        missing = self.missing()
-        if missing is not None:
-            return missing
+    def engine_refusal(self, system) -> str | None:
         if self.solver == "semi_implicit" and "iterations" in self.model_fields_set:
             return "iterations: Newton's semi_implicit solver takes none (it is symplectic Euler)"
-        if getattr(system, "lane_count", None) is not None:
-            return "is not stepped as lanes"
         scene = translate(system)
         if isinstance(scene, TetSolid) and self.solver in OTHER_TET_ENERGIES:
             return (f"Newton's {self.solver} solver steps its tetrahedra as {OTHER_TET_ENERGIES[self.solver]}, another "
@@ -247,20 +234,8 @@ class Newton(Integrator):
 
         return f"Newton {newton.__version__} on Warp {warp.__version__}, float32, CPU"
 
-    def prepare(self, system, dt: float) -> None:
-        self._stepper(system, dt)
-
-    def step(self, system, state, dt, solver):
-        return self._stepper(system, dt).step(state), EXPLICIT_STEP
-
-    def _stepper(self, system, dt: float) -> Stepper:
-        """The system's Newton model, solver and states for steps of dt: built once, kept with the system."""
-        steppers = _STEPPERS.setdefault(system, {})
-        key = (float(dt), self.solver, self.iterations)
-        stepper = steppers.get(key)
-        if stepper is None:
-            scene = translate(system)
-            if isinstance(scene, str):
-                raise TypeError(scene)
-            stepper = steppers[key] = Stepper(scene, self, float(dt))
-        return stepper
+    def build_stepper(self, system, dt: float) -> Stepper:
+        scene = translate(system)
+        if isinstance(scene, str):
+            raise TypeError(scene)
+        return Stepper(scene, self, dt)
